@@ -1,0 +1,1 @@
+"""drivers: the hardware edge (serial sonar head, CAN glider autopilot) and their device mocks."""
