@@ -39,7 +39,7 @@ def _type_name(tp: Any) -> str:
     return str(tp).replace("typing.", "")
 
 
-def _convert(value: Any, tp: Any, path: str) -> Any:  # noqa: PLR0911, PLR0912
+def _convert(value: Any, tp: Any, path: str) -> Any:
     if tp is Any:
         return value
     origin = get_origin(tp)
@@ -47,14 +47,13 @@ def _convert(value: Any, tp: Any, path: str) -> Any:  # noqa: PLR0911, PLR0912
         args = get_args(tp)
         if value is None and type(None) in args:
             return None
-        errors = []
         for arg in args:
             if arg is type(None):
                 continue
             try:
                 return _convert(value, arg, path)
-            except ConfigError as exc:
-                errors.append(str(exc))
+            except ConfigError:
+                continue
         raise ConfigError(f"{path}: expected {_type_name(tp)}, got {value!r}")
     if origin is Literal:
         allowed = get_args(tp)
@@ -91,7 +90,7 @@ def _convert(value: Any, tp: Any, path: str) -> Any:  # noqa: PLR0911, PLR0912
             return tuple(_convert(v, args[0], f"{path}[{i}]") for i, v in enumerate(value))
         if len(value) != len(args):
             raise ConfigError(f"{path}: expected a list of {len(args)} items, got {value!r}")
-        return tuple(_convert(v, a, f"{path}[{i}]") for i, (v, a) in enumerate(zip(value, args)))
+        return tuple(_convert(v, a, f"{path}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True)))
     if origin is list:
         (arg,) = get_args(tp)
         if not isinstance(value, list | tuple):
@@ -175,6 +174,12 @@ def parse_override(text: str) -> tuple[str, Any]:
         value = yaml.safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError:
         value = raw
+    if isinstance(value, str):
+        # YAML 1.1 reads "1e-3" (no dot) as a string; numbers are what users mean
+        try:
+            value = float(value)
+        except ValueError:
+            pass
     return key.strip(), value
 
 
