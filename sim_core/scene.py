@@ -1,0 +1,614 @@
+"""Scene spec: YAML -> frozen dataclasses; a :class:`Scene` builds only the parts a scene asks for.
+
+A scene is what the simulation server owns: an optional forest, sonars mounted on vehicles,
+an optional thermal-soaring swarm (thermals + gliders from a seed 002 law) and vehicles that
+follow kinematic paths. Example (every key optional except where noted)::
+
+    seed: 0
+    state_rate_hz: 50            # state stream (and server tick) rate
+    clock: {mode: realtime, rate: 1.0, lockstep_timeout_s: 0.2}
+    forest:
+      preset: seed000-fig5d      # or  spec: {...ForestSpec fields...}
+      tiled: true                # TiledForest (tiles built only near a sonar) or one-shot forest
+      tile_size_m: 20.0
+      query_radius_m: 10.5       # leaves gathered around a sonar for each echo
+    sonars:
+      - {id: 0, mount: 100, fidelity: fast, echo: {}}    # echo: EchoParams overrides
+    swarm:
+      law: default               # "default" (seed 002 Law_40SurvivorsExample) or a YAML path
+      overrides: {numAgents: 8}
+      first_id: 0                # glider ids first_id .. first_id + numAgents - 1
+    vehicles:
+      - id: 100
+        path: {kind: figure_eight, speed_mps: 5.0}     # or {kind: csv, file: run.csv, id: 3}
+        z_m: 2.0                                       # optional altitude override
+
+Validation is eager and cheap (unknown keys, ids, EchoParams, Law and ForestSpec are checked
+when the scene is loaded); the heavy parts are built lazily and only when needed:
+
+* the forest only if at least one sonar exists, and with ``tiled: true`` only the tiles near a
+  sonar's position when an echo is requested (:meth:`Scene.leaves_near`);
+* the swarm only if the scene has a ``swarm`` section;
+* echo parameters per sonar, paths per vehicle.
+
+Kinematic paths are :class:`Trajectory` objects: linear interpolation of position, bank and
+airspeed, shortest-arc interpolation of heading (the same code drives ``echoloop replay``).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.config import ConfigError, from_dict, load_yaml
+
+__all__ = [
+    "TRAJECTORY_COLUMNS",
+    "ClockSpec",
+    "ForestSceneSpec",
+    "PathSpec",
+    "Scene",
+    "SceneSpec",
+    "SonarSpec",
+    "SwarmSceneSpec",
+    "Trajectory",
+    "VehicleSpec",
+    "load_scene",
+    "load_trajectory",
+]
+
+#: Columns a trajectory CSV/NPZ must have (``id``, ``vz``, ``alive`` are optional).
+TRAJECTORY_COLUMNS = ("t", "x", "y", "z", "heading", "bank", "airspeed")
+
+FloatArray = NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- trajectories
+
+
+def _wrap_pi(a: FloatArray) -> FloatArray:
+    """Angles wrapped to [-pi, pi)."""
+    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Trajectory:
+    """A timed kinematic path, sampled by interpolation.
+
+    Arrays (K >= 2 samples): ``t`` (K,) s strictly increasing; ``xyz`` (K, 3) m ENU; ``heading``
+    (K,) rad from +x towards +y; ``bank`` (K,) rad; ``airspeed`` (K,) m/s. ``loop``: times past
+    the end wrap around to the start (otherwise they clamp to the last sample).
+    """
+
+    t: FloatArray
+    xyz: FloatArray
+    heading: FloatArray
+    bank: FloatArray
+    airspeed: FloatArray
+    loop: bool = False
+    _heading_unwrapped: FloatArray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=np.float64)
+        k = t.shape[0] if t.ndim == 1 else -1
+        if k < 2:
+            raise ValueError(f"t: expected a 1-D array of at least 2 times, got shape {t.shape}")
+        shapes = {"xyz": (k, 3), "heading": (k,), "bank": (k,), "airspeed": (k,)}
+        arrays = {"t": t}
+        for name, shape in shapes.items():
+            arr = np.asarray(getattr(self, name), dtype=np.float64)
+            if arr.shape != shape:
+                raise ValueError(f"{name}: expected shape {shape}, got {arr.shape}")
+            arrays[name] = arr
+        for name, arr in arrays.items():
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{name}: contains non-finite values")
+            object.__setattr__(self, name, arr)
+        if not np.all(np.diff(t) > 0):
+            bad = int(np.argmin(np.diff(t) > 0)) + 1
+            raise ValueError(f"t: expected strictly increasing times, t[{bad}] = {t[bad]}")
+        object.__setattr__(self, "_heading_unwrapped", np.unwrap(arrays["heading"]))
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def sample(self, t: float | FloatArray) -> dict[str, FloatArray]:
+        """Interpolated state at time(s) ``t`` (s, shape (Q,) or scalar).
+
+        Returns arrays shaped like ``t``: ``x, y, z, heading`` (wrapped to [-pi, pi)),
+        ``bank, airspeed`` and ``vz`` (m/s, the slope of z over the containing segment).
+        """
+        tq = np.asarray(t, dtype=np.float64)
+        if self.loop:
+            tq = self.t[0] + np.mod(tq - self.t[0], self.duration)
+        else:
+            tq = np.clip(tq, self.t[0], self.t[-1])
+        out = {
+            "x": np.interp(tq, self.t, self.xyz[:, 0]),
+            "y": np.interp(tq, self.t, self.xyz[:, 1]),
+            "z": np.interp(tq, self.t, self.xyz[:, 2]),
+            "heading": _wrap_pi(np.interp(tq, self.t, self._heading_unwrapped)),
+            "bank": np.interp(tq, self.t, self.bank),
+            "airspeed": np.interp(tq, self.t, self.airspeed),
+        }
+        seg = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self) - 2)
+        dz = self.xyz[seg + 1, 2] - self.xyz[seg, 2]
+        out["vz"] = np.asarray(dz / (self.t[seg + 1] - self.t[seg]), dtype=np.float64)
+        return out
+
+    @classmethod
+    def from_path(
+        cls,
+        xyz: FloatArray,
+        heading: FloatArray | None,
+        *,
+        speed_mps: float,
+        loop: bool = True,
+    ) -> Trajectory:
+        """Time a geometric path (K, 3) at constant ``speed_mps`` (arc length / speed).
+
+        ``heading`` None: the direction of travel of each segment (last repeats). Bank is the
+        coordinated-turn bank ``atan(v * dpsi/dt / g)`` of the timed path.
+        """
+        p = np.asarray(xyz, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] < 2:
+            raise ValueError(f"xyz: expected shape (K>=2, 3), got {p.shape}")
+        if not speed_mps > 0:
+            raise ValueError(f"speed_mps: expected > 0, got {speed_mps}")
+        seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        keep = np.concatenate([[True], seg > 1e-9])
+        p = p[keep]
+        seg = seg[seg > 1e-9]
+        t = np.concatenate([[0.0], np.cumsum(seg)]) / speed_mps
+        if heading is None:
+            d = np.diff(p[:, :2], axis=0)
+            h = np.arctan2(d[:, 1], d[:, 0])
+            hdg = np.concatenate([h, h[-1:]])
+        else:
+            hdg = np.asarray(heading, dtype=np.float64)[keep]
+        rate = np.gradient(np.unwrap(hdg), t)
+        bank = np.arctan(speed_mps * rate / 9.81)
+        return cls(t, p, hdg, bank, np.full(t.shape, float(speed_mps)), loop=loop)
+
+
+def load_trajectory(path: str | Path, *, vehicle_id: int | None = None) -> Trajectory:
+    """Read a trajectory from CSV (header row) or NPZ (one array per column).
+
+    Columns: ``t, x, y, z, heading, bank, airspeed`` (s, m ENU, rad, rad, m/s); extra columns
+    are ignored. A multi-vehicle file (the swarm trace format ``t, id, x, y, z, heading, bank,
+    airspeed, vz, alive``) needs ``vehicle_id``; rows with ``alive == 0`` are dropped.
+    """
+    p = Path(path)
+    cols: dict[str, NDArray[Any]]
+    if p.suffix.lower() == ".npz":
+        try:
+            with np.load(p) as npz:
+                cols = {k: np.asarray(npz[k]) for k in npz.files}
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{p}: cannot read NPZ ({exc})") from None
+    elif p.suffix.lower() == ".csv":
+        cols = _read_csv_columns(p)
+    else:
+        raise ValueError(f"{p}: expected a .csv or .npz trajectory file")
+    missing = [c for c in TRAJECTORY_COLUMNS if c not in cols]
+    if missing:
+        raise ValueError(f"{p}: missing column(s) {missing}; expected {list(TRAJECTORY_COLUMNS)}")
+    mask = np.ones(np.asarray(cols["t"]).shape, dtype=bool)
+    if "id" in cols:
+        ids = np.asarray(cols["id"]).astype(np.int64)
+        present = sorted(set(ids.tolist()))
+        if vehicle_id is None:
+            if len(present) > 1:
+                raise ValueError(f"{p}: holds vehicles {present}; choose one with an id")
+        elif vehicle_id not in present:
+            raise ValueError(f"{p}: no rows for id {vehicle_id}; ids present: {present}")
+        else:
+            mask &= ids == vehicle_id
+    elif vehicle_id is not None:
+        raise ValueError(f"{p}: has no 'id' column, so id {vehicle_id} cannot be selected")
+    if "alive" in cols:
+        mask &= np.asarray(cols["alive"]).astype(np.float64) != 0
+    f = {c: np.asarray(cols[c], dtype=np.float64)[mask] for c in TRAJECTORY_COLUMNS}
+    try:
+        return Trajectory(
+            f["t"], np.stack([f["x"], f["y"], f["z"]], axis=1), f["heading"], f["bank"],
+            f["airspeed"],
+        )
+    except ValueError as exc:
+        raise ValueError(f"{p}: {exc}") from None
+
+
+def _read_csv_columns(p: Path) -> dict[str, NDArray[Any]]:
+    try:
+        with p.open(newline="", encoding="utf-8") as fh:
+            reader = csv.reader(row for row in fh if not row.lstrip().startswith("#"))
+            header = next(reader, None)
+            if header is None:
+                raise ValueError(f"{p}: empty CSV file")
+            names = [h.strip() for h in header]
+            rows: list[list[float]] = []
+            for lineno, row in enumerate(reader, start=2):
+                if not row:
+                    continue
+                if len(row) != len(names):
+                    raise ValueError(f"{p}:{lineno}: expected {len(names)} fields, got {len(row)}")
+                try:
+                    rows.append([_csv_float(v) for v in row])
+                except ValueError:
+                    raise ValueError(f"{p}:{lineno}: non-numeric field in {row}") from None
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    data = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(names))
+    return {name: data[:, i] for i, name in enumerate(names)}
+
+
+def _csv_float(text: str) -> float:
+    s = text.strip().lower()
+    if s in ("true", "false"):
+        return 1.0 if s == "true" else 0.0
+    return float(s)
+
+
+# --------------------------------------------------------------------------- spec dataclasses
+
+
+@dataclass(frozen=True, slots=True)
+class ClockSpec:
+    """How the server paces sim time.
+
+    ``mode``: ``realtime`` (paced to the wall clock times ``rate``), ``lockstep`` (each physics
+    step waits for commands from registered autopilots, at most ``lockstep_timeout_s`` of wall
+    time, then freewheels and counts a stall), ``fast`` (as fast as possible). An autopilot that
+    stalls ``lockstep_max_stalls`` steps in a row is no longer waited for until it sends again.
+    """
+
+    mode: Literal["realtime", "lockstep", "fast"] = "realtime"
+    rate: float = 1.0
+    lockstep_timeout_s: float = 0.2
+    lockstep_max_stalls: int = 25
+
+    def __post_init__(self) -> None:
+        if not self.rate > 0:
+            raise ValueError(f"rate: expected a real-time factor > 0, got {self.rate}")
+        if not self.lockstep_timeout_s > 0:
+            raise ValueError(f"lockstep_timeout_s: expected > 0, got {self.lockstep_timeout_s}")
+        if self.lockstep_max_stalls < 1:
+            raise ValueError(f"lockstep_max_stalls: expected >= 1, got {self.lockstep_max_stalls}")
+
+
+@dataclass(frozen=True, slots=True)
+class ForestSceneSpec:
+    """The forest: a preset name or ForestSpec fields, built tiled (lazily) or in one shot."""
+
+    preset: str | None = None
+    spec: dict[str, Any] | None = None
+    seed: int = 0
+    tiled: bool = True
+    tile_size_m: float = 20.0
+    max_cache_bytes: int = 256 * 2**20
+    query_radius_m: float = 10.5
+
+    def __post_init__(self) -> None:
+        if (self.preset is None) == (self.spec is None):
+            raise ValueError("forest: give exactly one of 'preset' (a name) or 'spec' (fields)")
+        if self.seed < 0:
+            raise ValueError(f"seed: expected >= 0, got {self.seed}")
+        if not self.tile_size_m > 0:
+            raise ValueError(f"tile_size_m: expected > 0, got {self.tile_size_m}")
+        if self.max_cache_bytes <= 0:
+            raise ValueError(f"max_cache_bytes: expected > 0, got {self.max_cache_bytes}")
+        if not self.query_radius_m > 0:
+            raise ValueError(f"query_radius_m: expected > 0, got {self.query_radius_m}")
+
+
+@dataclass(frozen=True, slots=True)
+class SonarSpec:
+    """A sonar mounted on vehicle ``mount``; answers ``/sonar/<id>/ping`` with an echo."""
+
+    id: int
+    mount: int
+    fidelity: str = "fast"
+    echo: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.id < 0:
+            raise ValueError(f"id: expected >= 0, got {self.id}")
+
+
+@dataclass(frozen=True, slots=True)
+class SwarmSceneSpec:
+    """Thermals + gliders from a seed 002 law (``default`` or a YAML path) and overrides."""
+
+    law: str = "default"
+    overrides: dict[str, Any] = field(default_factory=dict)
+    seed: int = 0
+    first_id: int = 0
+
+    def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ValueError(f"seed: expected >= 0, got {self.seed}")
+        if self.first_id < 0:
+            raise ValueError(f"first_id: expected >= 0, got {self.first_id}")
+
+
+@dataclass(frozen=True, slots=True)
+class PathSpec:
+    """A kinematic path: ``figure_eight`` (seed 000 "8" route), ``csv``/``npz`` file, or points.
+
+    ``params`` go to :func:`sim_core.sonar.scenarios.figure_eight_path`; ``file``/``id`` name a
+    trajectory file (:func:`load_trajectory`); ``points`` is a list of [x, y, z] flown at
+    ``speed_mps``. ``speed_mps`` also times the figure-eight route.
+    """
+
+    kind: Literal["figure_eight", "file", "points"]
+    speed_mps: float = 5.0
+    params: dict[str, Any] = field(default_factory=dict)
+    file: str | None = None
+    id: int | None = None
+    points: tuple[tuple[float, float, float], ...] = ()
+    loop: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.speed_mps > 0:
+            raise ValueError(f"speed_mps: expected > 0, got {self.speed_mps}")
+        if self.kind == "file" and not self.file:
+            raise ValueError("file: required when kind is 'file'")
+        if self.kind == "points" and len(self.points) < 2:
+            raise ValueError("points: expected at least 2 [x, y, z] points for kind 'points'")
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleSpec:
+    """A vehicle following a kinematic path; its state is published as ``/glider/<id>/state``."""
+
+    id: int
+    path: PathSpec
+    z_m: float | None = None
+    time_offset_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.id < 0:
+            raise ValueError(f"id: expected >= 0, got {self.id}")
+
+
+@dataclass(frozen=True, slots=True)
+class SceneSpec:
+    """A whole scene (see the module docstring)."""
+
+    seed: int = 0
+    state_rate_hz: float = 50.0
+    clock: ClockSpec = field(default_factory=ClockSpec)
+    forest: ForestSceneSpec | None = None
+    sonars: tuple[SonarSpec, ...] = ()
+    swarm: SwarmSceneSpec | None = None
+    vehicles: tuple[VehicleSpec, ...] = ()
+    live: bool = False
+
+    def __post_init__(self) -> None:
+        if not 0 < self.state_rate_hz <= 2000:
+            raise ValueError(f"state_rate_hz: expected 0 < rate <= 2000, got {self.state_rate_hz}")
+        vids = [v.id for v in self.vehicles]
+        dup = sorted({i for i in vids if vids.count(i) > 1})
+        if dup:
+            raise ValueError(f"vehicles: duplicate id(s) {dup}")
+        sids = [s.id for s in self.sonars]
+        dup = sorted({i for i in sids if sids.count(i) > 1})
+        if dup:
+            raise ValueError(f"sonars: duplicate id(s) {dup}")
+        if self.sonars and self.forest is None:
+            raise ValueError("sonars: a sonar needs a 'forest' section to echo from")
+
+
+def load_scene(source: str | Path | Mapping[str, Any] | SceneSpec) -> Scene:
+    """Build a :class:`Scene` from a YAML path, a mapping or a :class:`SceneSpec` (validated)."""
+    if isinstance(source, SceneSpec):
+        return Scene(source)
+    data = source if isinstance(source, Mapping) else load_yaml(source)
+    where = "scene" if isinstance(source, Mapping) else str(source)
+    try:
+        return Scene(from_dict(SceneSpec, data, path="scene" if where == "scene" else ""))
+    except ConfigError as exc:
+        if where == "scene":
+            raise
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+# --------------------------------------------------------------------------- runtime scene
+
+
+class Scene:
+    """A validated scene whose heavy parts are built on first use, and only if needed.
+
+    Attributes built lazily (check :attr:`built` to see which exist): ``forest_source``
+    (None without sonars), ``swarm`` (None without a swarm section). Glider ids of the swarm are
+    ``swarm.first_id + i``; they must not collide with vehicle ids (checked here).
+    """
+
+    def __init__(self, spec: SceneSpec) -> None:
+        self.spec = spec
+        self.built: set[str] = set()
+        self._echo_params: dict[int, Any] = {}
+        self._validate_parts()
+
+    # ---- validation of the sub-specs owned by other packages (cheap, eager)
+
+    def _validate_parts(self) -> None:
+        spec = self.spec
+        if spec.forest is not None and spec.sonars:
+            self._forest_spec()
+        for i, s in enumerate(spec.sonars):
+            try:
+                self._echo_params[s.id] = self._make_echo_params(s)
+            except ValueError as exc:
+                raise ConfigError(f"sonars[{i}].echo: {exc}") from None
+            from sim_core.sonar import FIDELITIES
+
+            if s.fidelity not in FIDELITIES:
+                raise ConfigError(
+                    f"sonars[{i}].fidelity: expected one of {sorted(FIDELITIES)}, "
+                    f"got {s.fidelity!r}"
+                )
+        glider_ids: list[int] = []
+        if spec.swarm is not None:
+            law = self.law
+            glider_ids = [spec.swarm.first_id + i for i in range(int(law.n_agents))]
+        clash = sorted(set(glider_ids) & {v.id for v in spec.vehicles})
+        if clash:
+            raise ConfigError(f"vehicles: id(s) {clash} collide with swarm glider ids")
+        mounts = set(glider_ids) | {v.id for v in spec.vehicles}
+        for i, s in enumerate(spec.sonars):
+            if s.mount not in mounts:
+                raise ConfigError(
+                    f"sonars[{i}].mount: no vehicle or glider with id {s.mount}; "
+                    f"ids are {sorted(mounts)}"
+                )
+        for i, v in enumerate(spec.vehicles):
+            if v.path.kind == "file":
+                try:
+                    self._vehicle_trajectory(v)
+                except ValueError as exc:
+                    raise ConfigError(f"vehicles[{i}].path: {exc}") from None
+
+    def _forest_spec(self) -> Any:
+        from sim_core.world import ForestSpec
+        from sim_core.world.presets import get_preset
+
+        f = self.spec.forest
+        if f is None:
+            return None
+        if f.preset is not None:
+            try:
+                return get_preset(f.preset)
+            except (KeyError, ValueError) as exc:
+                raise ConfigError(f"forest.preset: {exc}") from None
+        return from_dict(ForestSpec, f.spec, path="forest.spec")
+
+    @staticmethod
+    def _make_echo_params(sonar: SonarSpec) -> Any:
+        from sim_core.sonar import EchoParams
+
+        return from_dict(EchoParams, sonar.echo, path=f"sonars[{sonar.id}].echo")
+
+    # ---- ids and lookups
+
+    @property
+    def glider_ids(self) -> tuple[int, ...]:
+        """Ids of the swarm's gliders (empty without a swarm)."""
+        if self.spec.swarm is None:
+            return ()
+        first = self.spec.swarm.first_id
+        return tuple(first + i for i in range(int(self.law.n_agents)))
+
+    @property
+    def vehicle_ids(self) -> tuple[int, ...]:
+        return tuple(v.id for v in self.spec.vehicles)
+
+    def sonar(self, sonar_id: int) -> SonarSpec:
+        for s in self.spec.sonars:
+            if s.id == sonar_id:
+                return s
+        raise KeyError(sonar_id)
+
+    def echo_params(self, sonar_id: int) -> Any:
+        """The validated :class:`sim_core.sonar.EchoParams` of sonar ``sonar_id``."""
+        return self._echo_params[sonar_id]
+
+    # ---- lazily built parts
+
+    @cached_property
+    def law(self) -> Any:
+        """The swarm's :class:`sim_core.soaring.Law` (``default`` = the seed 002 law)."""
+        if self.spec.swarm is None:
+            raise ValueError("scene has no swarm section")
+        from sim_core.soaring import Law
+
+        sw = self.spec.swarm
+        try:
+            return Law.from_yaml(sw.law, overrides=dict(sw.overrides))
+        except (ValueError, OSError) as exc:
+            raise ConfigError(f"swarm.law: {exc}") from None
+
+    @cached_property
+    def swarm(self) -> Any:
+        """A :class:`sim_core.soaring.SwarmSim` (batch 1), or None without a swarm section."""
+        if self.spec.swarm is None:
+            return None
+        from sim_core.soaring import SwarmSim
+
+        self.built.add("swarm")
+        return SwarmSim(self.law, seed=self.spec.swarm.seed, batch=1)
+
+    @cached_property
+    def forest_source(self) -> Any:
+        """TiledForest (tiled) or the one-shot forest's Leaves; None when no sonar needs it."""
+        f = self.spec.forest
+        if f is None or not self.spec.sonars:
+            return None
+        forest_spec = self._forest_spec()
+        if f.tiled:
+            from sim_core.world import TiledForest
+
+            self.built.add("forest_tiles")
+            return TiledForest(
+                forest_spec, seed=f.seed, tile_size_m=f.tile_size_m,
+                max_cache_bytes=f.max_cache_bytes,
+            )
+        from sim_core.world import build_forest
+
+        self.built.add("forest")
+        return build_forest(forest_spec, seed=f.seed).leaves
+
+    def leaves_near(self, point: FloatArray, radius_m: float | None = None) -> Any:
+        """Leaves within ``radius_m`` (default ``forest.query_radius_m``) of ``point`` (3,) m."""
+        src = self.forest_source
+        if src is None:
+            raise ValueError("scene has no forest for a sonar (no 'forest' or no 'sonars')")
+        f = self.spec.forest
+        r = float(radius_m if radius_m is not None else f.query_radius_m)  # type: ignore[union-attr]
+        p = np.asarray(point, dtype=np.float64).reshape(3)
+        if f.tiled:  # type: ignore[union-attr]
+            return src.leaves_near(p, r)
+        return src.select(src.query_ball(p, r))
+
+    def _vehicle_trajectory(self, v: VehicleSpec) -> Trajectory:
+        ps = v.path
+        if ps.kind == "file":
+            traj = load_trajectory(str(ps.file), vehicle_id=ps.id)
+            if ps.loop:
+                traj = dataclasses.replace(traj, loop=True)
+        elif ps.kind == "points":
+            traj = Trajectory.from_path(
+                np.asarray(ps.points, dtype=np.float64), None, speed_mps=ps.speed_mps,
+                loop=ps.loop,
+            )
+        else:
+            from sim_core.sonar.scenarios import figure_eight_path
+
+            xyz, heading = figure_eight_path(**ps.params)
+            traj = Trajectory.from_path(xyz, heading, speed_mps=ps.speed_mps, loop=ps.loop)
+        if v.z_m is not None:
+            xyz = traj.xyz.copy()
+            xyz[:, 2] = v.z_m
+            traj = dataclasses.replace(traj, xyz=xyz)
+        if v.time_offset_s:
+            traj = dataclasses.replace(traj, t=traj.t + v.time_offset_s)
+        return traj
+
+    @cached_property
+    def trajectories(self) -> dict[int, Trajectory]:
+        """Vehicle id -> its :class:`Trajectory` (built on first access)."""
+        self.built.add("trajectories")
+        return {v.id: self._vehicle_trajectory(v) for v in self.spec.vehicles}
+

@@ -1,0 +1,1 @@
+"""Tests of the simulation server, scene, launch runner and replay."""

@@ -1,0 +1,97 @@
+"""Trajectory interpolation and trajectory files (sim_core.scene)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim_core.scene import Trajectory, load_trajectory
+
+
+def _square() -> Trajectory:
+    t = np.array([0.0, 1.0, 2.0, 3.0])
+    xyz = np.array([[0, 0, 10], [10, 0, 12], [10, 10, 14], [0, 10, 14]], dtype=float)
+    heading = np.array([0.0, np.pi / 2, np.pi, -np.pi / 2 + 2 * np.pi])
+    return Trajectory(t, xyz, heading, np.zeros(4), np.full(4, 10.0))
+
+
+def test_linear_position_and_vz() -> None:
+    s = _square().sample(np.array([0.5, 1.25, 3.0]))
+    np.testing.assert_allclose(s["x"], [5.0, 10.0, 0.0])
+    np.testing.assert_allclose(s["y"], [0.0, 2.5, 10.0])
+    np.testing.assert_allclose(s["z"], [11.0, 12.5, 14.0])
+    np.testing.assert_allclose(s["vz"], [2.0, 2.0, 0.0])
+
+
+def test_heading_takes_the_shortest_arc_across_pi() -> None:
+    t = np.array([0.0, 1.0])
+    xyz = np.zeros((2, 3))
+    traj = Trajectory(t, xyz, np.array([3.0, -3.0]), np.zeros(2), np.ones(2))
+    h = float(traj.sample(0.5)["heading"])
+    # 3.0 -> -3.0 the short way passes through pi (0.283 rad), not through 0 (6 rad).
+    assert abs(abs(h) - np.pi) < 1e-9
+
+
+def test_clamp_and_loop() -> None:
+    traj = _square()
+    np.testing.assert_allclose(traj.sample(10.0)["x"], 0.0)
+    np.testing.assert_allclose(traj.sample(10.0)["y"], 10.0)
+    looped = Trajectory(traj.t, traj.xyz, traj.heading, traj.bank, traj.airspeed, loop=True)
+    np.testing.assert_allclose(looped.sample(3.5)["x"], 5.0)  # 3.5 wraps to 0.5
+
+
+def test_bad_arrays_are_rejected_by_name() -> None:
+    with pytest.raises(ValueError, match="t: expected strictly increasing"):
+        Trajectory(np.array([0.0, 0.0]), np.zeros((2, 3)), np.zeros(2), np.zeros(2), np.ones(2))
+    with pytest.raises(ValueError, match="xyz: expected shape"):
+        Trajectory(np.array([0.0, 1.0]), np.zeros((2, 2)), np.zeros(2), np.zeros(2), np.ones(2))
+    with pytest.raises(ValueError, match="heading: contains non-finite"):
+        Trajectory(
+            np.array([0.0, 1.0]), np.zeros((2, 3)), np.array([0, np.nan]), np.zeros(2), np.ones(2)
+        )
+
+
+def test_from_path_times_by_arc_length_and_banks_on_turns() -> None:
+    th = np.linspace(0, 2 * np.pi, 721)
+    r, v = 20.0, 5.0
+    xyz = np.stack([r * np.cos(th), r * np.sin(th), np.full_like(th, 3.0)], axis=1)
+    traj = Trajectory.from_path(xyz, None, speed_mps=v)
+    assert traj.duration == pytest.approx(2 * np.pi * r / v, rel=1e-4)
+    # coordinated turn: tan(bank) = v^2 / (g r)
+    np.testing.assert_allclose(traj.bank[10:-10], np.arctan(v * v / (9.81 * r)), rtol=1e-3)
+
+
+def test_csv_single_and_multi_vehicle(tmp_path: Path) -> None:
+    single = tmp_path / "one.csv"
+    single.write_text(
+        "t,x,y,z,heading,bank,airspeed\n0,0,0,5,0,0,10\n2,20,0,5,0,0.1,10\n", encoding="utf-8"
+    )
+    s = load_trajectory(single).sample(1.0)
+    assert (float(s["x"]), float(s["bank"])) == pytest.approx((10.0, 0.05))
+    multi = tmp_path / "trace.csv"
+    multi.write_text(
+        "t,id,x,y,z,heading,bank,airspeed,vz,alive\n"
+        "0,0,0,0,100,0,0,10,0,1\n0,1,50,0,100,1,0,10,0,1\n"
+        "1,0,10,0,100,0,0,10,0,1\n1,1,50,10,100,1,0,10,0,1\n"
+        "2,1,50,20,100,1,0,10,0,0\n",
+        encoding="utf-8",
+    )
+    with pytest.raises(ValueError, match="choose one"):
+        load_trajectory(multi)
+    with pytest.raises(ValueError, match="no rows for id 7"):
+        load_trajectory(multi, vehicle_id=7)
+    one = load_trajectory(multi, vehicle_id=1)
+    assert len(one) == 2  # the dead row is dropped
+    assert float(one.sample(0.5)["y"]) == pytest.approx(5.0)
+
+
+def test_npz_and_missing_columns(tmp_path: Path) -> None:
+    path = tmp_path / "run.npz"
+    cols = {c: np.array([0.0, 1.0]) for c in ("t", "x", "y", "z", "heading", "bank")}
+    np.savez(path, **cols)
+    with pytest.raises(ValueError, match=r"missing column\(s\) \['airspeed'\]"):
+        load_trajectory(path)
+    np.savez(path, **cols, airspeed=np.array([3.0, 4.0]))
+    assert float(load_trajectory(path).sample(0.5)["airspeed"]) == pytest.approx(3.5)
