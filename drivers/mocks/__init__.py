@@ -1,1 +1,1 @@
-"""mocks."""
+"""Device mocks: the sonar head (serial, spec §2) and the glider autopilot (CAN, spec §3)."""

@@ -1,0 +1,478 @@
+"""A mock biomimetic sonar head: the device end of a serial link, speaking spec §2.
+
+:class:`MockSonarHead` is a launchable (``Cls(name, *, bus, **params)``, ``start``, ``stop``,
+``stats``) and runs alone via ``echoloop mock sonar-head``. It
+
+1. owns a device port: a new pty (``pty=True``, optionally symlinked to ``link``), an existing
+   serial URL (``port=...``, e.g. one end of a null-modem cable or ``socket://``), or an
+   in-process pipe (the ``sonarsim://`` pyserial URL handler);
+2. sends CONFIG and HEARTBEAT once a second and a PING at ``rate_hz`` with a fixed beamwidth or
+   one drawn uniformly from [30°, 65°] per ping (seed 000's scenario II) from its seeded rng;
+3. throttles both directions to ``baudrate`` (10 bits per byte, 8N1) — ptys and pipes move
+   bytes instantly, a UART does not — so latencies are those of the real link;
+4. decodes and reassembles ECHO chunks (CRC, order, completeness, encoding = the one the ping
+   requested), estimates the range of the first return above a threshold and measures the
+   latency from firing a ping to receiving the last chunk of its echo.
+
+The ``bus`` argument is accepted for the launch contract only: a device speaks serial, never
+the bus. Its counters are available through ``stats()`` (the launch run summary).
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import serial
+
+from drivers.serial.framing import FrameDecoder, MsgType, frame_bytes
+from drivers.serial.link import check_url
+from drivers.serial.protocol import (
+    AssembledEcho,
+    ConfigPayload,
+    EchoAssembler,
+    EchoChunk,
+    Encoding,
+    ErrorPayload,
+    HeartbeatPayload,
+    PingPayload,
+    StatusPayload,
+)
+from drivers.serial.ptyport import PtyPort
+from sim_core.config import from_dict
+from sim_core.rng import make_rng
+
+__all__ = ["BEAMWIDTH_RANGE_DEG", "DevicePort", "MockSonarHead", "SerialDevicePort",
+           "SonarHeadConfig", "first_return_range"]
+
+log = logging.getLogger(__name__)
+
+#: seed 000, scenario II: beamwidth drawn from this interval (degrees) per ping
+BEAMWIDTH_RANGE_DEG = (30.0, 65.0)
+_LATENCY_WINDOW = 4096
+
+
+class DevicePort(Protocol):
+    """The device side of a serial link as the mock uses it."""
+
+    def read(self, max_bytes: int, timeout: float) -> bytes: ...
+
+    def write(self, data: bytes, timeout: float = 0.5) -> int: ...
+
+    def wake(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class SerialDevicePort:
+    """A pyserial URL/device used as the device side; re-opened with back-off when it fails."""
+
+    def __init__(self, url: str, baudrate: int) -> None:
+        self.url = check_url(url)
+        self.baudrate = baudrate
+        self._ser: Any = serial.serial_for_url(url, baudrate=baudrate, timeout=0.05)
+        self._lock = threading.Lock()
+        self._closed = False
+        self._retry_at = 0.0
+        self.errors = 0
+
+    def _port(self) -> Any:
+        with self._lock:
+            if self._closed:
+                return None
+            if self._ser is None and time.monotonic() >= self._retry_at:
+                try:
+                    self._ser = serial.serial_for_url(self.url, baudrate=self.baudrate,
+                                                      timeout=0.05)
+                except (OSError, ValueError):
+                    self._retry_at = time.monotonic() + 0.2
+            return self._ser
+
+    def _fail(self, ser: Any) -> None:
+        self.errors += 1
+        with self._lock:
+            if self._ser is ser and ser is not None:
+                ser.close()
+                self._ser = None
+                self._retry_at = time.monotonic() + 0.2
+
+    def read(self, max_bytes: int, timeout: float) -> bytes:
+        ser = self._port()
+        if ser is None:
+            time.sleep(min(timeout, 0.05))  # nothing to wait on while the device is away
+            return b""
+        try:
+            data: bytes = ser.read(max(1, min(max_bytes, ser.in_waiting or 1)))
+        except (OSError, ValueError, TypeError, AttributeError):
+            self._fail(ser)
+            return b""
+        return data
+
+    def write(self, data: bytes, timeout: float = 0.5) -> int:
+        ser = self._port()
+        if ser is None:
+            return 0
+        try:
+            n = ser.write(data)
+        except (OSError, ValueError, TypeError, AttributeError):
+            self._fail(ser)
+            return 0
+        return len(data) if n is None else int(n)
+
+    def wake(self) -> None:
+        ser = self._ser
+        if ser is not None and hasattr(ser, "cancel_read"):
+            ser.cancel_read()
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            if self._ser is not None:
+                self._ser.close()
+                self._ser = None
+
+
+@dataclass(frozen=True, slots=True)
+class SonarHeadConfig:
+    """Mock sonar-head parameters (launch ``params`` / CLI flags).
+
+    ``beamwidth``: full one-way -3 dB beamwidth in degrees, or ``"random"`` (uniform in
+    [30, 65] per ping). ``encoding``: ``int16`` | ``iq16`` | ``float32`` (or 0/1/2), requested
+    in every PING. ``threshold``: absolute first-return threshold in echo units; ``None`` uses
+    ``threshold_rel`` x the echo's peak magnitude.
+    """
+
+    rate_hz: float = 10.0
+    beamwidth: float | str = "random"
+    encoding: int | str = "int16"
+    baudrate: int = 921600
+    channels: int = 1
+    az_deg: float = 0.0
+    el_deg: float = 0.0
+    f_center_hz: int = 70000
+    decimation: int = 20
+    threshold: float | None = None
+    threshold_rel: float = 0.1
+    sound_speed: float = 340.0
+    seed: int = 0
+    throttle: bool = True
+    echo_timeout_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.rate_hz <= 1000:
+            raise ValueError(f"rate_hz {self.rate_hz!r} must be in (0, 1000]")
+        if isinstance(self.beamwidth, str):
+            if self.beamwidth != "random":
+                raise ValueError(f"beamwidth {self.beamwidth!r}: expected degrees or 'random'")
+        elif not 0 < self.beamwidth < 180:
+            raise ValueError(f"beamwidth {self.beamwidth!r} must be in (0, 180) degrees")
+        Encoding.parse(self.encoding)
+        if self.baudrate <= 0:
+            raise ValueError(f"baudrate {self.baudrate!r} must be > 0")
+        if not 1 <= self.channels <= 255:
+            raise ValueError(f"channels {self.channels!r} must be in 1..255")
+        if not 0 <= self.f_center_hz < 1 << 32 or not 0 <= self.decimation <= 0xFFFF:
+            raise ValueError(f"f_center_hz {self.f_center_hz!r} / decimation "
+                             f"{self.decimation!r} out of range (u32 / u16)")
+        if self.threshold is not None and self.threshold <= 0:
+            raise ValueError(f"threshold {self.threshold!r} must be > 0")
+        if not 0 < self.threshold_rel <= 1:
+            raise ValueError(f"threshold_rel {self.threshold_rel!r} must be in (0, 1]")
+        if self.sound_speed <= 0 or self.echo_timeout_s <= 0:
+            raise ValueError("sound_speed and echo_timeout_s must be > 0")
+
+
+def first_return_range(
+    samples: np.ndarray, fs_hz: float, *, sound_speed: float = 340.0,
+    threshold: float | None = None, threshold_rel: float = 0.1,
+) -> float | None:
+    """Range (m) of the first sample whose magnitude reaches the threshold, or None.
+
+    ``samples``: (C, N) or (N,), real or complex, at ``fs_hz`` with t = 0 at emission; the
+    magnitude is the maximum over channels. Range = sound_speed * t / 2.
+    """
+    mag = np.abs(np.asarray(samples))
+    if mag.ndim == 2:
+        mag = mag.max(axis=0)
+    if mag.size == 0:
+        return None
+    peak = float(mag.max())
+    level = threshold if threshold is not None else threshold_rel * peak
+    if peak <= 0.0 or level <= 0.0:
+        return None
+    hits = np.flatnonzero(mag >= level)
+    if hits.size == 0:
+        return None
+    return float(sound_speed * (hits[0] / fs_hz) / 2.0)
+
+
+class _Uart:
+    """Pacing of one direction at ``baudrate`` (10 bit times per byte)."""
+
+    def __init__(self, baudrate: int, enabled: bool) -> None:
+        self.byte_s = 10.0 / baudrate
+        self.enabled = enabled
+        self.free_at = 0.0
+
+    def done_at(self, n: int, now: float) -> float:
+        """When ``n`` bytes starting no earlier than ``now`` have crossed the wire."""
+        if not self.enabled:
+            return now
+        self.free_at = max(now, self.free_at) + n * self.byte_s
+        return self.free_at
+
+
+class MockSonarHead:
+    """The mock device (see module docstring). Construct, ``start()``, ``stop()``."""
+
+    def __init__(
+        self,
+        name: str = "sonar_head_mock",
+        *,
+        bus: str = "",
+        port: str | None = None,
+        pty: bool = False,
+        link: str | None = None,
+        device: DevicePort | None = None,
+        **params: Any,
+    ) -> None:
+        self.name = name
+        self.bus = bus
+        self.cfg = from_dict(SonarHeadConfig, params)
+        sources = sum([port is not None, bool(pty) or link is not None, device is not None])
+        if sources != 1:
+            raise ValueError(
+                f"{name}: give exactly one of port=URL, pty=true (optionally link=PATH) or a "
+                f"device; got port={port!r}, pty={pty!r}, link={link!r}"
+            )
+        self._port_url = port
+        self._pty_link = link
+        self._use_pty = bool(pty) or link is not None
+        self._device = device
+        self.pty: PtyPort | None = None
+        self.encoding = Encoding.parse(self.cfg.encoding)
+        self._rng = make_rng(self.cfg.seed)
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._lock = threading.Lock()
+        self._decoder = FrameDecoder()
+        self._assembler = EchoAssembler()
+        self._tx_uart = _Uart(self.cfg.baudrate, self.cfg.throttle)
+        self._rx_uart = _Uart(self.cfg.baudrate, self.cfg.throttle)
+        self._pending: dict[int, tuple[float, Encoding]] = {}
+        self._latencies: collections.deque[float] = collections.deque(maxlen=_LATENCY_WINDOW)
+        self.ranges: collections.deque[float | None] = collections.deque(maxlen=_LATENCY_WINDOW)
+        self._seq = 0
+        self._ping_seq = 0
+        self._t0 = time.monotonic()
+        self._echo_done = threading.Condition(self._lock)
+        self.last_status: StatusPayload | None = None
+        self.last_error: ErrorPayload | None = None
+        self.last_echo: AssembledEcho | None = None
+        self._counts = collections.Counter[str]()
+        self._started = False
+        self._stopped = False
+
+    # ---- lifecycle -------------------------------------------------------------------------
+
+    @property
+    def path(self) -> str:
+        """What the host opens: the symlink if any, else the pty slave path, else the URL."""
+        if self.pty is not None:
+            return str(self.pty.link) if self.pty.link is not None else self.pty.path
+        return self._port_url or ""
+
+    def start(self) -> None:
+        if self._started:
+            return
+        self._started = True
+        if self._device is None:
+            if self._use_pty:
+                self.pty = PtyPort(self._pty_link)
+                self._device = self.pty
+            else:
+                self._device = SerialDevicePort(str(self._port_url), self.cfg.baudrate)
+        self._t0 = time.monotonic()
+        for target, suffix in ((self._rx_loop, "rx"), (self._tx_loop, "tx")):
+            t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
+            self._threads.append(t)
+            t.start()
+
+    def stop(self) -> None:
+        if self._stopped:
+            return
+        self._stopped = True
+        self._stop.set()
+        if self._device is not None:
+            self._device.wake()
+        for t in self._threads:
+            t.join(timeout=5.0)
+        if self._device is not None:
+            self._device.close()
+
+    close = stop
+
+    def __enter__(self) -> MockSonarHead:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def wait_echoes(self, n: int, timeout: float) -> bool:
+        """Block until ``n`` echoes have completed (True) or ``timeout`` s pass (False)."""
+        with self._echo_done:
+            return self._echo_done.wait_for(lambda: self._assembler.complete >= n, timeout)
+
+    def stats(self) -> dict[str, Any]:
+        with self._lock:
+            lat = np.asarray(self._latencies, dtype=np.float64)
+            last_range = self.ranges[-1] if self.ranges else None
+            out: dict[str, Any] = dict(self._counts)
+            out.update(self._assembler.stats())
+            out.update({f"decoder_{k}": v for k, v in self._decoder.stats().items()})
+        out["crc_errors"] = self._decoder.crc_errors
+        out["frames_dropped"] = self._decoder.dropped
+        out["latency_p50_ms"] = float(np.percentile(lat, 50) * 1e3) if lat.size else None
+        out["latency_p99_ms"] = float(np.percentile(lat, 99) * 1e3) if lat.size else None
+        out["latency_max_ms"] = float(lat.max() * 1e3) if lat.size else None
+        out["last_range_m"] = last_range
+        out["port"] = self.path
+        return out
+
+    def latencies_s(self) -> np.ndarray:
+        """Ping -> last-chunk latencies (s) of the most recent echoes (up to 4096)."""
+        with self._lock:
+            return np.asarray(self._latencies, dtype=np.float64)
+
+    # ---- transmit side ---------------------------------------------------------------------
+
+    def _send(self, msg_type: MsgType, payload: bytes) -> None:
+        device = self._device
+        if device is None:
+            raise ValueError(f"{self.name}: not started")
+        data = frame_bytes(msg_type, self._seq, time.monotonic_ns(), payload)
+        self._seq = (self._seq + 1) & 0xFFFF
+        done = self._tx_uart.done_at(len(data), time.monotonic())
+        delay = done - time.monotonic()
+        if delay > 0:
+            self._stop.wait(delay)
+        n = device.write(data)
+        self._counts["bytes_tx"] += n
+        self._counts["frames_tx"] += 1
+        if n < len(data):
+            self._counts["tx_lost_bytes"] += len(data) - n
+
+    def _beamwidth_rad(self) -> float:
+        if self.cfg.beamwidth == "random":
+            lo, hi = BEAMWIDTH_RANGE_DEG
+            return math.radians(float(self._rng.uniform(lo, hi)))
+        return math.radians(float(self.cfg.beamwidth))
+
+    def _uptime_ms(self) -> int:
+        return int((time.monotonic() - self._t0) * 1e3)
+
+    def _tx_loop(self) -> None:
+        period = 1.0 / self.cfg.rate_hz
+        config = ConfigPayload(self.encoding, self.cfg.channels,
+                               round(self.cfg.rate_hz * 1000), self.cfg.baudrate,
+                               self.cfg.f_center_hz, self.cfg.decimation)
+        next_ping = time.monotonic()
+        next_beat = next_ping
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if now >= next_beat:
+                self._send(MsgType.CONFIG, config.pack())
+                self._send(MsgType.HEARTBEAT, HeartbeatPayload(self._uptime_ms()).pack())
+                next_beat += 1.0
+                self._expire(now)
+            if now >= next_ping:
+                self._ping(now)
+                next_ping += period
+                if next_ping < now:  # fell behind (tiny period or a stall): skip, do not burst
+                    self._counts["pings_skipped"] += 1
+                    next_ping = now + period
+            self._stop.wait(max(0.0, min(next_ping, next_beat) - time.monotonic()))
+
+    def _ping(self, t_fire: float) -> None:
+        seq = self._ping_seq
+        self._ping_seq = (seq + 1) & 0xFFFF
+        ping = PingPayload(seq, math.radians(self.cfg.az_deg), math.radians(self.cfg.el_deg),
+                           self._beamwidth_rad(), self.encoding)
+        with self._lock:
+            self._pending[seq] = (t_fire, self.encoding)
+            self._counts["pings_sent"] += 1
+        self._send(MsgType.PING, ping.pack())
+
+    def _expire(self, now: float) -> None:
+        with self._lock:
+            old = [s for s, (t, _) in self._pending.items() if now - t > self.cfg.echo_timeout_s]
+            for s in old:
+                del self._pending[s]
+            self._counts["echo_timeouts"] += len(old)
+
+    # ---- receive side ----------------------------------------------------------------------
+
+    def _rx_loop(self) -> None:
+        device = self._device
+        if device is None:
+            raise ValueError(f"{self.name}: not started")
+        chunk = 1024
+        while not self._stop.is_set():
+            data = device.read(chunk, 0.05)
+            if not data:
+                continue
+            done = self._rx_uart.done_at(len(data), time.monotonic())
+            delay = done - time.monotonic()
+            if delay > 0 and self._stop.wait(delay):
+                return
+            with self._lock:
+                self._counts["bytes_rx"] += len(data)
+                frames = self._decoder.feed(data)
+            for f in frames:
+                self._handle(f.msg_type, f.payload)
+
+    def _handle(self, msg_type: int, payload: bytes) -> None:
+        try:
+            if msg_type == MsgType.ECHO:
+                self._on_chunk(EchoChunk.unpack(payload))
+            elif msg_type == MsgType.STATUS:
+                self.last_status = StatusPayload.unpack(payload)
+                self._counts["status_rx"] += 1
+            elif msg_type == MsgType.HEARTBEAT:
+                HeartbeatPayload.unpack(payload)
+                self._counts["heartbeats_rx"] += 1
+            elif msg_type == MsgType.ERROR:
+                self.last_error = ErrorPayload.unpack(payload)
+                self._counts["errors_rx"] += 1
+            else:
+                self._counts["unexpected_rx"] += 1
+        except ValueError:
+            self._counts["bad_payloads"] += 1
+
+    def _on_chunk(self, chunk: EchoChunk) -> None:
+        now = time.monotonic()
+        with self._echo_done:
+            self._counts["chunks_rx"] += 1
+            echo = self._assembler.feed(chunk)
+            if echo is None:
+                return
+            sent = self._pending.pop(echo.ping_seq, None)
+            if sent is None:
+                self._counts["echoes_unsolicited"] += 1
+            else:
+                self._latencies.append(now - sent[0])
+                if sent[1] != echo.encoding:
+                    self._counts["encoding_mismatch"] += 1
+            self.ranges.append(first_return_range(
+                echo.samples, echo.fs_hz, sound_speed=self.cfg.sound_speed,
+                threshold=self.cfg.threshold, threshold_rel=self.cfg.threshold_rel))
+            self.last_echo = echo
+            self._echo_done.notify_all()
+
