@@ -1,0 +1,355 @@
+"""Hawk-inspired Boids of seed 002: neighbourhood search and the "Unified"/"Baseline" controllers.
+
+Layout: own-glider arrays are (B, N) (B runs, N gliders); neighbour arrays are (K, B, N) — K
+neighbour slots of glider (b, i), with a ``valid`` mask (padding slots are False). Sums over
+neighbours run over the leading axis, which numpy accumulates slot by slot in order, so a run's
+result does not depend on the batch it is stepped in. Per-run parameters are (B, 1) arrays in a
+:class:`LawParams` table built by :func:`law_params`.
+
+:func:`controller_command` is the same controller for ONE glider from its own observations
+(B = N = 1), for an autopilot on the far side of a bus.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.soaring.glider import accel_to_command
+from sim_core.soaring.law import Law
+
+__all__ = [
+    "CONTROLLERS",
+    "BoidsAccel",
+    "GliderObs",
+    "LawParams",
+    "boids_accel",
+    "controller_command",
+    "find_neighbors",
+    "law_params",
+    "power",
+]
+
+F8 = NDArray[np.float64]
+B8 = NDArray[np.bool_]
+
+CONTROLLERS: tuple[str, ...] = ("unified", "baseline")
+
+#: Law fields that become per-run (B, 1) float arrays.
+_PER_RUN = (
+    "g", "cohesion", "heightFactorPower", "cohesionAscensionIgnore", "cohesionAscensionMax",
+    "ascensionFactorPower", "cohPower", "separation", "separationHeightWidth", "sepPower",
+    "alignment", "alignmentHeightWidth", "aliPower", "migration", "migPower", "waggle",
+    "thermalBankFactor", "neighborRadius", "fov", "forwardSpeedMin", "forwardSpeedMax",
+    "bankMin", "bankMax", "Sink_A", "Sink_B", "Sink_C", "collisionKillDistance", "agentCeiling",
+    "agentFloor", "k",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class LawParams:
+    """Per-run parameters of a batch: ``p[name]`` is a (B, 1) float64 array.
+
+    Extra entries: ``unified`` (B, 1) bool, ``target_x``/``target_y``, ``bank_rate_max`` and
+    ``speed_rate_max`` (``inf`` where the law has none), and the fade parameters
+    ``fade_by_time`` (bool), ``fade_rate`` (per step), ``fade_top``/``fade_bottom``.
+    """
+
+    p: dict[str, NDArray[np.generic]]
+    dt: float
+
+    def __getitem__(self, name: str) -> NDArray[Any]:
+        return self.p[name]
+
+    @property
+    def batch(self) -> int:
+        return int(self.p["g"].shape[0])
+
+    def select(self, runs: NDArray[np.intp]) -> LawParams:
+        return LawParams({k: v[runs] for k, v in self.p.items()}, self.dt)
+
+
+def law_params(laws: Sequence[Law]) -> LawParams:
+    """Stack the per-run parameters of ``laws`` (all with the same dt) into (B, 1) arrays."""
+    if not laws:
+        raise ValueError("law_params needs at least one law")
+    dts = {law.dt for law in laws}
+    if len(dts) != 1:
+        raise ValueError(f"laws of one batch must share dt, got {sorted(dts)}")
+    dt = laws[0].dt
+
+    def col(values: Sequence[float | bool]) -> NDArray[np.generic]:
+        return np.asarray(values).reshape(len(laws), 1)
+
+    p: dict[str, NDArray[np.generic]] = {
+        name: col([float(getattr(law, name)) for law in laws]) for name in _PER_RUN
+    }
+    p["unified"] = col([law.controller == "unified" for law in laws]).astype(bool)
+    p["target_x"] = col([law.migrationTarget[0] for law in laws]).astype(np.float64)
+    p["target_y"] = col([law.migrationTarget[1] for law in laws]).astype(np.float64)
+    inf = math.inf
+    p["bank_rate_max"] = col([law.bankRateMax or inf for law in laws]).astype(np.float64)
+    p["speed_rate_max"] = col([law.speedRateMax or inf for law in laws]).astype(np.float64)
+    by_time = [law.thermalFadeMode == "seconds" for law in laws]
+    p["fade_by_time"] = col(by_time).astype(bool)
+    secs = [(law.thermalFadeRatePerSecond * dt, law.thermalMaxPlateauSeconds,
+             law.thermalMinPlateauSeconds) for law in laws]
+    steps = [(law.thermalFadeRate, float(law.thermalMaxPlateauTime),
+              float(law.thermalMinPlateauTime)) for law in laws]
+    chosen = [s if t else st for s, st, t in zip(secs, steps, by_time, strict=True)]
+    p["fade_rate"] = col([c[0] for c in chosen]).astype(np.float64)
+    p["fade_top"] = col([c[1] for c in chosen]).astype(np.float64)
+    p["fade_bottom"] = col([c[2] for c in chosen]).astype(np.float64)
+    return LawParams(p, dt)
+
+
+def power(base: F8, exponent: F8) -> F8:
+    """base ** exponent with a per-run exponent (B, 1), evaluated the same way for a run
+    whatever batch it is in (the method depends only on the exponent's value).
+
+    base : (..., B, N); exponent : (B, 1). Exponents 0, 1, 2, −1, −2, 0.5 take exact or
+    correctly rounded paths (0 ** 0 = 1, as in MATLAB); others use ``np.power``.
+    """
+    e = exponent[:, 0]
+    out = np.empty(np.broadcast_shapes(base.shape, exponent.shape))
+    for val in np.unique(e):
+        rows = np.flatnonzero(e == val)
+        full = rows.size == e.size
+        x = base if full else base[..., rows, :]
+        if val == 0:
+            r = np.ones_like(x)
+        elif val == 1:
+            r = x.copy()
+        elif val == 2:
+            r = x * x
+        elif val == -1:
+            r = 1.0 / x
+        elif val == -2:
+            r = 1.0 / (x * x)
+        elif val == 0.5:
+            r = np.sqrt(x)
+        else:
+            r = np.power(x, val)
+        if full:
+            out[...] = r
+        else:
+            out[..., rows, :] = r
+    return out
+
+
+def find_neighbors(
+    x: F8,
+    y: F8,
+    z: F8,
+    heading: F8,
+    alive: B8,
+    P: LawParams,
+    *,
+    width: int,
+    chunk_elems: int = 4_000_000,
+) -> tuple[NDArray[np.intp], B8]:
+    """KNN within radius and field of view (``findNeighborhood_KNNInFixedRadius``, spec §3.6).
+
+    Inputs (B, N) are the *saved* state. Candidates of i: alive j ≠ i with |Δx| ≤ R, |Δy| ≤ R,
+    d3 ≤ R and (if fov < 2π) acos((Δx cos ψ_i + Δy sin ψ_i)/d3) ≤ fov/2 (d3 = 0 is kept, as
+    the seed's NaN comparison does). The nearest k by d3 (stable for ties) fill the first slots.
+    Returns idx (K, B, N) int and valid (K, B, N) bool with K = ``width``. Pairwise distances
+    are computed in chunks of rows so B·N·N never exceeds ``chunk_elems`` at once.
+    """
+    b, n = x.shape
+    idx = np.zeros((width, b, n), dtype=np.intp)
+    valid = np.zeros((width, b, n), dtype=bool)
+    if width == 0 or n == 0:
+        return idx, valid
+    R = P["neighborRadius"][:, :, None]
+    half_fov = P["fov"][:, :, None] / 2.0
+    limited_fov = P["fov"][:, :, None] < 2 * math.pi
+    kk = P["k"][:, 0].astype(np.intp)
+    rows_per = max(1, chunk_elems // max(1, b * n))
+    cols = np.arange(n)
+    for start in range(0, n, rows_per):
+        sl = slice(start, min(n, start + rows_per))
+        dx = x[:, None, :] - x[:, sl, None]
+        dy = y[:, None, :] - y[:, sl, None]
+        dz = z[:, None, :] - z[:, sl, None]
+        d3 = np.sqrt(dx * dx + dy * dy + dz * dz)
+        cand = alive[:, None, :] & (np.abs(dx) <= R) & (np.abs(dy) <= R) & (d3 <= R)
+        cand &= cols[None, None, :] != np.arange(sl.start, sl.stop)[None, :, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cosang = (dx * np.cos(heading[:, sl, None]) + dy * np.sin(heading[:, sl, None])) / d3
+            ang = np.arccos(np.clip(cosang, -1.0, 1.0))
+        cand &= ~(limited_fov & (ang > half_fov))
+        key = np.where(cand, d3, np.inf)
+        order = np.argsort(key, axis=2, kind="stable")[:, :, :width]
+        ok = np.take_along_axis(cand, order, axis=2)
+        rank = np.arange(order.shape[2])[None, None, :]
+        ok &= rank < kk[:, None, None]
+        pad = width - order.shape[2]
+        if pad > 0:
+            order = np.concatenate([order, np.zeros((*order.shape[:2], pad), np.intp)], axis=2)
+            ok = np.concatenate([ok, np.zeros((*ok.shape[:2], pad), bool)], axis=2)
+        idx[:, :, sl] = np.moveaxis(order, 2, 0)
+        valid[:, :, sl] = np.moveaxis(ok, 2, 0)
+    return idx, valid
+
+
+@dataclass(slots=True)
+class BoidsAccel:
+    """Controller output per glider, (B, N): desired planar acceleration (ax, ay) m/s² (seed
+    units), ``collision`` (a valid neighbour closer than collisionKillDistance) and the
+    cohesion magnitude ‖K_c·c‖ (seed Figs 6–10)."""
+
+    ax: F8
+    ay: F8
+    collision: B8
+    cohesion_mag: F8
+
+
+def boids_accel(
+    own: dict[str, F8],
+    nb: dict[str, F8],
+    valid: B8,
+    P: LawParams,
+    waggle_sign: F8,
+) -> BoidsAccel:
+    """Desired acceleration of every glider (``agentControl_Unified``/``_Baseline``, §3.4).
+
+    own: x, y, z, heading, speed, vz, each (B, N) (the saved state); nb: the same keys, each
+    (K, B, N), the neighbours' saved state; valid (K, B, N); waggle_sign (B, N) in {−1, 0, 1}.
+    Hazards guarded without changing other results: a neighbour straight above or below
+    (dxy = 0) has ê = 0 and adds no cohesion, separation or alignment; a target at distance 0
+    adds no migration; a distance of 0 never reaches a negative power.
+    """
+    R = P["neighborRadius"]
+    rx = nb["x"] - own["x"]
+    ry = nb["y"] - own["y"]
+    rz = nb["z"] - own["z"]
+    d3 = np.sqrt(rx * rx + ry * ry + rz * rz)
+    dxy = np.sqrt(rx * rx + ry * ry)
+    flat = valid & (dxy > 0)
+    safe_dxy = np.where(flat, dxy, 1.0)
+    ex = np.where(flat, rx / safe_dxy, 0.0)
+    ey = np.where(flat, ry / safe_dxy, 0.0)
+    collision = np.any(valid & (d3 < P["collisionKillDistance"]), axis=0)
+
+    # relative velocities, own velocity from the (unchanged) current heading
+    vix = own["speed"] * np.cos(own["heading"])
+    viy = own["speed"] * np.sin(own["heading"])
+    rvx = nb["speed"] * np.cos(nb["heading"]) - vix
+    rvy = nb["speed"] * np.sin(nb["heading"]) - viy
+    dw = nb["vz"] - own["vz"]
+
+    unified = P["unified"]
+    ign, wmax = P["cohesionAscensionIgnore"], P["cohesionAscensionMax"]
+    dwc = np.where(dw > wmax, wmax, dw)
+    dwc = np.where(dwc < ign, ign, dwc)
+    height = power(np.maximum(1.0 - own["z"] / P["agentCeiling"], 0.0), P["heightFactorPower"])
+    asc = power((dwc - ign) / (wmax - ign), P["ascensionFactorPower"])
+    weight = np.where(unified, height * asc, 1.0)
+    ndxy = safe_dxy / R
+    ndxyz = np.where(flat, d3, 1.0) / R
+    coh_w = np.where(flat, weight * power(ndxy, P["cohPower"]), 0.0)
+    seen_s = flat & (~unified | (np.abs(rz) < P["separationHeightWidth"] / 2))
+    seen_a = flat & (~unified | (np.abs(rz) < P["alignmentHeightWidth"] / 2))
+    sep_w = np.where(seen_s, power(ndxyz, P["sepPower"]), 0.0)
+    ali_w = np.where(seen_a, power(ndxy, P["aliPower"]), 0.0)
+
+    n = np.sum(valid, axis=0)
+    inv_n = np.where(n > 0, 1.0 / np.maximum(n, 1), 0.0)
+    cx = np.sum(coh_w * ex, axis=0) * inv_n
+    cy = np.sum(coh_w * ey, axis=0) * inv_n
+    sx = np.sum(-ex * sep_w, axis=0) * inv_n
+    sy = np.sum(-ey * sep_w, axis=0) * inv_n
+    alx = np.sum(rvx * ali_w, axis=0) * inv_n
+    aly = np.sum(rvy * ali_w, axis=0) * inv_n
+
+    tx = P["target_x"] - own["x"]
+    ty = P["target_y"] - own["y"]
+    dist = np.sqrt(tx * tx + ty * ty)
+    mscale = np.where(dist > 0, power(np.where(dist > 0, dist, 1.0), P["migPower"]), 0.0)
+    mx, my = tx * mscale, ty * mscale
+
+    wx = -np.sin(own["heading"]) * waggle_sign
+    wy = np.cos(own["heading"]) * waggle_sign
+
+    Ks, Kc, Ka = P["separation"], P["cohesion"], P["alignment"]
+    Km, Kw = P["migration"], P["waggle"]
+    ax = sx * Ks + cx * Kc + alx * Ka + mx * Km + wx * Kw
+    ay = sy * Ks + cy * Kc + aly * Ka + my * Km + wy * Kw
+    coh_mag = np.sqrt((cx * Kc) ** 2 + (cy * Kc) ** 2)
+    return BoidsAccel(ax=ax, ay=ay, collision=collision, cohesion_mag=coh_mag)
+
+
+@dataclass(frozen=True, slots=True)
+class GliderObs:
+    """What one glider knows of itself or of a neighbour.
+
+    x, y, z: position m (ENU); heading rad from +x; speed: airspeed m/s; vz: vertical speed m/s
+    (> 0 climbing); updraft: the air's vertical speed at the glider, m/s (used only by a law
+    with thermalBankFactor ≠ 0).
+    """
+
+    x: float
+    y: float
+    z: float
+    heading: float
+    speed: float
+    vz: float
+    updraft: float = 0.0
+
+
+_OBS_KEYS = ("x", "y", "z", "heading", "speed", "vz")
+
+
+def controller_command(
+    own: GliderObs,
+    neighbours: Sequence[GliderObs] | NDArray[np.floating],
+    law: Law,
+    *,
+    controller: Literal["unified", "baseline"] | None = None,
+    waggle_sign: float = 0.0,
+) -> tuple[float, float]:
+    """(bank_cmd rad, airspeed_cmd m/s) of one glider, from its own state and its neighbours.
+
+    ``neighbours``: GliderObs items or an array (n, 6) of columns x, y, z, heading, speed, vz,
+    already selected by the seed's neighbourhood rule (the server's ``/glider/i/neighbors``).
+    ``controller`` defaults to ``law.controller``. The commands are unclipped: the glider
+    applies its speed and bank limits (and rate limits) when it flies them, exactly as the
+    swarm does for Boids-flown gliders, so flying these commands reproduces the swarm.
+    A neighbour within collisionKillDistance would kill the glider in the swarm; here it is
+    only part of the sum.
+    """
+    if controller is not None and controller != law.controller:
+        law = law.replace(controller=controller)
+    if isinstance(neighbours, np.ndarray):
+        arr = np.asarray(neighbours, dtype=np.float64)
+        if arr.size == 0:
+            arr = arr.reshape(0, 6)
+        if arr.ndim != 2 or arr.shape[1] != 6:
+            raise ValueError(f"neighbours array must have shape (n, 6), got {arr.shape}")
+    else:
+        arr = np.array(
+            [[getattr(o, k) for k in _OBS_KEYS] for o in neighbours], dtype=np.float64
+        ).reshape(-1, 6)
+    P = law_params([law])
+    own_d = {k: np.array([[float(getattr(own, k))]]) for k in _OBS_KEYS}
+    K = arr.shape[0]
+    nb = {k: arr[:, j].reshape(K, 1, 1).copy() for j, k in enumerate(_OBS_KEYS)}
+    valid = np.ones((K, 1, 1), dtype=bool)
+    acc = boids_accel(own_d, nb, valid, P, np.array([[float(waggle_sign)]]))
+    bank, speed = accel_to_command(
+        acc.ax,
+        acc.ay,
+        own_d["heading"],
+        own_d["speed"],
+        dt=law.dt,
+        g=P["g"],
+        thermal_bank_factor=P["thermalBankFactor"],
+        updraft=np.array([[float(own.updraft)]]),
+    )
+    return float(bank[0, 0]), float(speed[0, 0])

@@ -1,0 +1,609 @@
+"""Swarm stepping, metrics and runs: many gliders of many runs at once, one physics.
+
+State arrays are (B, N): B runs (the batch), N glider slots (runs with fewer gliders are padded
+with slots that are never alive). One step follows the seed's order (spec §3.1):
+
+1. thermals fade (``staticStep``);
+2. the state is saved; every glider reads its neighbours' *saved* state;
+3. on step 1 and every ``neighborFrameSkip``-th step the neighbour lists are rebuilt (§3.6);
+4. each alive glider: collision check (dies, does not move), Boids acceleration → commands (or
+   the external commands of gliders flown by an autopilot), then :func:`glider_step`;
+5. deaths take effect; metrics accumulate from the saved state of the gliders still alive.
+
+Randomness: run b with seed s draws thermals then gliders from ``derive_rng(s, "soaring",
+"spawn")`` and waggle signs from ``derive_rng(s, "soaring", "waggle")``, so a run's result is
+bit-identical whatever batch it is stepped in. Sums over gliders and neighbours are sequential
+(``cumsum``) for the same reason.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.rng import derive_rng
+from sim_core.soaring.boids import LawParams, boids_accel, find_neighbors, law_params
+from sim_core.soaring.glider import accel_to_command, glider_step
+from sim_core.soaring.law import Law
+from sim_core.soaring.thermals import (
+    Thermals,
+    _updraft_xy,
+    fade_step,
+    spawn_thermals,
+    stack_thermals,
+)
+from sim_core.soaring.trace import Trace
+
+__all__ = [
+    "METRIC_NAMES",
+    "Commands",
+    "Metrics",
+    "RunResult",
+    "SwarmSim",
+    "SwarmState",
+    "batch_key",
+    "run",
+    "run_batch",
+]
+
+F8 = NDArray[np.float64]
+B8 = NDArray[np.bool_]
+
+METRIC_NAMES: tuple[str, ...] = (
+    "surviving",
+    "survivingPercent",
+    "flightTime",
+    "heightScore",
+    "thermalUseScore",
+    "explorationPercent",
+    "collisionDeaths",
+    "groundDeaths",
+    "finalHeightMax",
+    "finalHeightMin",
+    "finalHeightAvg",
+)
+
+
+@dataclass(slots=True)
+class SwarmState:
+    """Glider state, struct of arrays (B, N): x, y, z m; heading rad (from +x); bank rad;
+    speed (airspeed) m/s; omega (turn rate) rad/s; vz m/s (> 0 climbing); alive."""
+
+    x: F8
+    y: F8
+    z: F8
+    heading: F8
+    bank: F8
+    speed: F8
+    omega: F8
+    vz: F8
+    alive: B8
+
+    def copy(self) -> SwarmState:
+        return SwarmState(*(np.array(getattr(self, f)) for f in _STATE_FIELDS))
+
+    def select(self, runs: NDArray[np.intp]) -> SwarmState:
+        return SwarmState(*(getattr(self, f)[runs] for f in _STATE_FIELDS))
+
+
+_STATE_FIELDS = ("x", "y", "z", "heading", "bank", "speed", "omega", "vz", "alive")
+
+
+@dataclass(frozen=True, slots=True)
+class Commands:
+    """External commands for gliders flown by an outside autopilot.
+
+    bank_cmd rad and airspeed_cmd m/s, and ``mask`` (True = use these commands), each
+    broadcastable to (B, N). Unmasked gliders fly the law's Boids controller. Commands are
+    limited like the Boids ones (speed/bank limits, optional rate limits).
+    """
+
+    bank_cmd: NDArray[np.floating]
+    airspeed_cmd: NDArray[np.floating]
+    mask: NDArray[np.bool_]
+
+
+@dataclass(frozen=True, slots=True)
+class Metrics:
+    """Seed 002 output metrics of one run (§3.8); survivingPercent is 0–100.
+
+    finalHeightAvg is NaN when no glider is alive (:meth:`to_json` gives null).
+    """
+
+    surviving: int
+    survivingPercent: float
+    flightTime: float
+    heightScore: float
+    thermalUseScore: float
+    explorationPercent: float
+    collisionDeaths: int
+    groundDeaths: int
+    finalHeightMax: float
+    finalHeightMin: float
+    finalHeightAvg: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {name: getattr(self, name) for name in METRIC_NAMES}
+
+    def to_json(self) -> dict[str, Any]:
+        """As :meth:`to_dict`, with NaN replaced by None."""
+        return {
+            k: (None if isinstance(v, float) and math.isnan(v) else v)
+            for k, v in self.to_dict().items()
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class RunResult:
+    """One finished run: its law, seed, metrics, steps flown, and the trace if asked for."""
+
+    law: Law
+    seed: int
+    metrics: Metrics
+    steps: int
+    trace: Trace | None = None
+
+
+def batch_key(law: Law) -> tuple[Any, ...]:
+    """Laws with equal keys can share a batch (same dt, duration and frame skips)."""
+    return (law.dt, law.steps, law.neighborFrameSkip, law.mapDivFrameSkip,
+            law.mapDivResolution, law.stopWhenDead)
+
+
+def _seqsum(a: NDArray[Any], axis: int) -> NDArray[Any]:
+    """Sum along ``axis`` strictly in index order (independent of shape and padding)."""
+    if a.shape[axis] == 0:
+        return np.sum(a, axis=axis)
+    return np.take(np.cumsum(a, axis=axis), -1, axis=axis)
+
+
+def _spawn_agents(law: Law, rng: np.random.Generator) -> dict[str, F8]:
+    """Initial glider state of one run (§3.5), arrays (N,)."""
+    if law.agents is not None:
+        a = np.array(
+            [[p.x, p.y, p.z, p.heading, p.speed, 0.0] for p in law.agents], dtype=np.float64
+        ).reshape(-1, 6)
+    else:
+        n = law.numAgents
+        u = rng.random((n, 6))
+        (x0, y0), (x1, y1) = law.agentSpawnPosRange
+        z0, z1 = law.agentSpawnAltiRange
+        (v0, w0), (v1, w1) = law.agentSpawnVelRange
+        lo = np.array([x0, y0, z0, 0.0, v0, w0])
+        hi = np.array([x1, y1, z1, 2 * math.pi, v1, w1])
+        a = lo + (hi - lo) * u
+    return {"x": a[:, 0], "y": a[:, 1], "z": a[:, 2], "heading": a[:, 3], "speed": a[:, 4],
+            "omega": a[:, 5]}
+
+
+@dataclass(slots=True)
+class _Acc:
+    """Metric accumulators, (B,) arrays (visited: (B, res*res))."""
+
+    n_agents: NDArray[np.int64]
+    living: NDArray[np.int64]
+    flight: F8
+    height: F8
+    thermal: F8
+    visited: B8
+    coll: NDArray[np.int64]
+    ground: NDArray[np.int64]
+    hmax: F8
+    hmin: F8
+    havg: F8
+
+    def select(self, runs: NDArray[np.intp]) -> _Acc:
+        return _Acc(*(getattr(self, f)[runs] for f in self.__slots__))
+
+
+@dataclass(slots=True)
+class _TraceBuf:
+    t: list[float] = field(default_factory=list)
+    rows: list[dict[str, NDArray[np.generic]]] = field(default_factory=list)
+
+
+class SwarmSim:
+    """Step B soaring runs of N gliders at once.
+
+    ``SwarmSim(law, seed=s, batch=B)`` runs the law B times with seeds s, s+1, ..., s+B−1
+    (``seed=None``: the law's ``rngSeed``). ``SwarmSim([law_0, law_1, ...], seed=[s0, s1, ...])``
+    runs different laws (same :func:`batch_key`); seeds default to each law's ``rngSeed``.
+
+    ``state`` (copies, (B, N)), ``step(commands=None)``, ``neighbors(i, run=0)``,
+    ``metrics(run=0)``, ``done`` (every run finished: all steps flown, or all gliders dead with
+    stopWhenDead), ``thermals`` (copy), ``updraft_at(xy)``.
+    """
+
+    def __init__(
+        self,
+        law: Law | Sequence[Law],
+        *,
+        seed: int | Sequence[int] | None = None,
+        batch: int = 1,
+        trace: bool = False,
+    ) -> None:
+        if isinstance(law, Law):
+            if batch < 1:
+                raise ValueError(f"batch must be >= 1, got {batch}")
+            base = law.rngSeed if seed is None else seed
+            if not isinstance(base, int):
+                raise ValueError(f"seed must be an int with a single law, got {seed!r}")
+            laws: list[Law] = [law] * batch
+            seeds = [base + b for b in range(batch)]
+        else:
+            laws = list(law)
+            if not laws:
+                raise ValueError("SwarmSim needs at least one law")
+            if seed is None:
+                seeds = [lw.rngSeed for lw in laws]
+            elif isinstance(seed, int):
+                seeds = [seed + b for b in range(len(laws))]
+            else:
+                seeds = [int(s) for s in seed]
+            if len(seeds) != len(laws):
+                raise ValueError(f"{len(laws)} laws need {len(laws)} seeds, got {len(seeds)}")
+        keys = {batch_key(lw) for lw in laws}
+        if len(keys) != 1:
+            raise ValueError(
+                "laws of one batch must share dt, totalTime, neighborFrameSkip, "
+                f"mapDivFrameSkip, mapDivResolution and stopWhenDead; got {sorted(keys)}"
+            )
+        self.laws = laws
+        self.seeds = seeds
+        self.run_ids = np.arange(len(laws))
+        first = laws[0]
+        self.dt = first.dt
+        self.total_steps = first.steps
+        self._nfs = first.neighborFrameSkip
+        self._mfs = first.mapDivFrameSkip
+        self._res = first.mapDivResolution
+        self._stop_when_dead = first.stopWhenDead
+        self.P: LawParams = law_params(laws)
+        B = len(laws)
+        n = max(lw.n_agents for lw in laws)
+        self._width = max(0, min(max(lw.k for lw in laws), n - 1))
+        ths: list[Thermals] = []
+        st = {f: np.zeros((B, n)) for f in ("x", "y", "z", "heading", "speed", "omega")}
+        alive = np.zeros((B, n), dtype=bool)
+        for b, (lw, s) in enumerate(zip(laws, seeds, strict=True)):
+            rng = derive_rng(s, "soaring", "spawn")
+            ths.append(spawn_thermals(lw, rng))
+            ag = _spawn_agents(lw, rng)
+            m = lw.n_agents
+            for f in st:
+                st[f][b, :m] = ag[f]
+            alive[b, :m] = True
+        self._thermals = stack_thermals(ths)
+        self._state = SwarmState(
+            x=st["x"], y=st["y"], z=st["z"], heading=st["heading"], bank=np.zeros((B, n)),
+            speed=st["speed"], omega=st["omega"], vz=np.zeros((B, n)), alive=alive,
+        )
+        self._waggle_rngs = [derive_rng(s, "soaring", "waggle") for s in seeds]
+        self._waggle_sign = np.zeros((B, n))
+        self._waggle_left = np.zeros((B, n))
+        self._nb_idx = np.zeros((self._width, B, n), dtype=np.intp)
+        self._nb_valid = np.zeros((self._width, B, n), dtype=bool)
+        self.cohesion_mag = np.zeros((B, n))
+        self.step_count = 0
+        n_agents = np.array([lw.n_agents for lw in laws], dtype=np.int64)
+        self._map_min = np.array([lw.mapSize[0] for lw in laws])[:, None]
+        self._cell = np.array([(lw.mapSize[1] - lw.mapSize[0]) / self._res for lw in laws])[:, None]
+        self._acc = _Acc(
+            n_agents=n_agents,
+            living=n_agents.copy(),
+            flight=np.zeros(B),
+            height=np.zeros(B),
+            thermal=np.zeros(B),
+            visited=np.zeros((B, self._res * self._res), dtype=bool),
+            coll=np.zeros(B, dtype=np.int64),
+            ground=np.zeros(B, dtype=np.int64),
+            hmax=self.P["agentFloor"][:, 0].copy(),
+            hmin=self.P["agentCeiling"][:, 0].copy(),
+            havg=np.full(B, np.nan),
+        )
+        self._end_step = np.full(B, -1, dtype=np.int64)
+        self._trace: _TraceBuf | None = _TraceBuf() if trace else None
+        if self._trace is not None:
+            self._record()
+
+    # -- read-only views ---------------------------------------------------------------------
+    @property
+    def batch(self) -> int:
+        return len(self.laws)
+
+    @property
+    def state(self) -> SwarmState:
+        """A copy of the glider state, arrays (B, N)."""
+        return self._state.copy()
+
+    @property
+    def thermals(self) -> Thermals:
+        """A copy of the thermal state, arrays (B, T)."""
+        return self._thermals.copy()
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time flown, s."""
+        return self.step_count * self.dt
+
+    @property
+    def finished(self) -> B8:
+        """(B,) True for runs that have ended (all steps, or all dead with stopWhenDead)."""
+        out = self.step_count >= self.total_steps
+        if self._stop_when_dead:
+            return np.asarray(out | ((self._acc.living == 0) & (self.step_count >= 1)))
+        return np.full(self.batch, out)
+
+    @property
+    def done(self) -> bool:
+        return bool(np.all(self.finished))
+
+    def updraft_at(self, xy: NDArray[np.floating]) -> F8:
+        """w m/s at points xy (B, M, 2) → (B, M) for the current thermals."""
+        pts = np.asarray(xy, dtype=np.float64)
+        return _updraft_xy(pts[..., 0], pts[..., 1], self._thermals)
+
+    def neighbors(self, i: int, run: int = 0) -> list[int]:
+        """Neighbour list of glider i (seed's KNN in radius and FOV), nearest first, as used by
+        the last step (refreshed every neighborFrameSkip steps from saved state); before the
+        first step, the list the first step will use."""
+        n = self._state.x.shape[1]
+        if not 0 <= i < n:
+            raise ValueError(f"glider index {i} out of range 0..{n - 1}")
+        if self.step_count == 0:
+            s = self._state
+            idx, valid = find_neighbors(s.x, s.y, s.z, s.heading, s.alive, self.P,
+                                        width=self._width)
+        else:
+            idx, valid = self._nb_idx, self._nb_valid
+        return [int(j) for j, ok in zip(idx[:, run, i], valid[:, run, i], strict=True) if ok]
+
+    def metrics(self, run: int = 0) -> Metrics:
+        """Metrics of one run so far (final once the run is finished)."""
+        a = self._acc
+        n_agents = int(a.n_agents[run])
+        living = int(a.living[run])
+        started = self.step_count >= 1
+        return Metrics(
+            surviving=living,
+            survivingPercent=100.0 * living / n_agents if n_agents else 0.0,
+            flightTime=float(a.flight[run]),
+            heightScore=float(a.height[run]),
+            thermalUseScore=float(a.thermal[run]),
+            explorationPercent=100.0 * int(a.visited[run].sum()) / self._res**2,
+            collisionDeaths=int(a.coll[run]),
+            groundDeaths=int(a.ground[run]),
+            finalHeightMax=float(a.hmax[run]),
+            finalHeightMin=float(a.hmin[run]),
+            finalHeightAvg=float(a.havg[run]) if started else math.nan,
+        )
+
+    def all_metrics(self) -> list[Metrics]:
+        return [self.metrics(b) for b in range(self.batch)]
+
+    # -- stepping ----------------------------------------------------------------------------
+    def step(self, commands: Commands | None = None) -> None:
+        """Advance every run by one step of dt (see the module docstring for the order)."""
+        self.step_count += 1
+        step = self.step_count
+        P, s, th = self.P, self._state, self._thermals
+        fade_step(th, by_time=P["fade_by_time"], rate=P["fade_rate"], top=P["fade_top"],
+                  bottom=P["fade_bottom"], dt=self.dt)
+        B, n = s.x.shape
+        if step == 1 or step % self._nfs == 0:
+            self._nb_idx, self._nb_valid = find_neighbors(
+                s.x, s.y, s.z, s.heading, s.alive, P, width=self._width
+            )
+        own = {"x": s.x, "y": s.y, "z": s.z, "heading": s.heading, "speed": s.speed, "vz": s.vz}
+        flat = self._nb_idx + (np.arange(B) * n)[None, :, None]
+        nb = {k: v.ravel()[flat] for k, v in own.items()}
+        w_th = _updraft_xy(s.x, s.y, th)
+        external = (
+            np.broadcast_to(np.asarray(commands.mask, dtype=bool), (B, n))
+            if commands is not None else np.zeros((B, n), dtype=bool)
+        )
+        self._update_waggle(s.alive & ~external)
+        acc = boids_accel(own, nb, self._nb_valid, P, self._waggle_sign)
+        self.cohesion_mag = acc.cohesion_mag
+        bank_cmd, speed_cmd = accel_to_command(
+            acc.ax, acc.ay, s.heading, s.speed, dt=self.dt, g=P["g"],
+            thermal_bank_factor=P["thermalBankFactor"], updraft=w_th,
+        )
+        if commands is not None:
+            bank_cmd = np.where(external, np.asarray(commands.bank_cmd, dtype=np.float64), bank_cmd)
+            speed_cmd = np.where(
+                external, np.asarray(commands.airspeed_cmd, dtype=np.float64), speed_cmd
+            )
+        gs = glider_step(
+            s.x, s.y, s.z, s.heading, s.bank, s.speed, bank_cmd, speed_cmd, w_th,
+            dt=self.dt, g=P["g"], speed_min=P["forwardSpeedMin"], speed_max=P["forwardSpeedMax"],
+            bank_min=P["bankMin"], bank_max=P["bankMax"],
+            sink_abc=(P["Sink_A"], P["Sink_B"], P["Sink_C"]),
+            ceiling=P["agentCeiling"], floor=P["agentFloor"],
+            bank_rate_max=P["bank_rate_max"], speed_rate_max=P["speed_rate_max"],
+        )
+        alive = s.alive
+        collided = alive & acc.collision
+        flew = alive & ~collided
+        grounded = flew & gs.ground
+        moved = flew & ~grounded
+        saved_z, saved_vz = s.z, s.vz
+        self._state = SwarmState(
+            x=np.where(moved, gs.x, s.x),
+            y=np.where(moved, gs.y, s.y),
+            z=np.where(moved, gs.z, s.z),
+            heading=np.where(moved, gs.heading, s.heading),
+            bank=np.where(flew, gs.bank, s.bank),
+            speed=np.where(moved, gs.speed, s.speed),
+            omega=np.where(moved, gs.omega, s.omega),
+            vz=np.where(moved, gs.vz, s.vz),
+            alive=alive & ~collided & ~grounded,
+        )
+        self._update_metrics(step, saved_z, saved_vz, s.x, s.y, collided, grounded)
+        fin = self.finished & (self._end_step < 0)
+        self._end_step[fin] = step
+        if self._trace is not None:
+            self._record()
+
+    def _update_waggle(self, flying: B8) -> None:
+        gains = self.P["waggle"][:, 0]
+        for b in np.flatnonzero(gains != 0):
+            due = np.flatnonzero(flying[b] & (self._waggle_left[b] <= 0))
+            if due.size:
+                lo, hi = self.laws[b].waggleDurationRange
+                u = self._waggle_rngs[b].random((due.size, 2))
+                self._waggle_sign[b, due] = 2.0 * np.floor(u[:, 0] + 0.5) - 1.0
+                self._waggle_left[b, due] = lo + (hi - lo) * u[:, 1]
+            self._waggle_left[b] = np.where(flying[b], self._waggle_left[b] - self.dt,
+                                            self._waggle_left[b])
+
+    def _update_metrics(
+        self, step: int, z: F8, vz: F8, x: F8, y: F8, collided: B8, grounded: B8
+    ) -> None:
+        a, alive, dt = self._acc, self._state.alive, self.dt
+        a.coll += collided.sum(axis=1)
+        a.ground += grounded.sum(axis=1)
+        living = alive.sum(axis=1)
+        a.living = living
+        a.flight = a.flight + living * dt
+        zdt = np.where(alive, z * dt, 0.0)
+        a.height = _seqsum(np.concatenate([a.height[:, None], zdt], axis=1), axis=1)
+        climbing = (alive & (vz > 0)).sum(axis=1)
+        a.thermal = a.thermal + climbing * dt
+        floor, ceil = self.P["agentFloor"][:, 0], self.P["agentCeiling"][:, 0]
+        if alive.shape[1]:
+            a.hmax = np.maximum(floor, np.max(np.where(alive, z, -np.inf), axis=1))
+            a.hmin = np.minimum(ceil, np.min(np.where(alive, z, np.inf), axis=1))
+        else:
+            a.hmax, a.hmin = floor.copy(), ceil.copy()
+        zsum = _seqsum(np.where(alive, z, 0.0), axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a.havg = zsum / living
+        if step == 1 or step % self._mfs == 0:
+            ix = np.ceil((x - self._map_min) / self._cell).astype(np.int64)
+            iy = np.ceil((y - self._map_min) / self._cell).astype(np.int64)
+            res = self._res
+            inside = alive & (ix > 0) & (ix <= res) & (iy > 0) & (iy <= res)
+            rows, cols = np.nonzero(inside)
+            a.visited[rows, (ix[rows, cols] - 1) * res + (iy[rows, cols] - 1)] = True
+
+    def _record(self) -> None:
+        buf = self._trace
+        if buf is None:
+            return
+        s = self._state
+        buf.t.append(self.step_count * self.dt)
+        buf.rows.append({
+            "x": s.x, "y": s.y, "z": s.z, "heading": s.heading, "bank": s.bank,
+            "airspeed": s.speed, "vz": s.vz, "alive": s.alive, "cohesion": self.cohesion_mag,
+            "thermal_strength": self._thermals.strength,
+        })
+
+    def trace(self, run: int = 0) -> Trace:
+        """The recorded trace of one run (``trace=True``), up to the step it finished."""
+        if self._trace is None:
+            raise ValueError("this SwarmSim was created with trace=False")
+        end = self._end_step[run]
+        count = (end if end >= 0 else self.step_count) + 1
+        m = self.laws[run].n_agents
+        rows = self._trace.rows[:count]
+        t_slots = int(self._thermals.valid[run].sum())
+
+        def col(name: str, width: int) -> NDArray[Any]:
+            return np.stack([r[name][run, :width] for r in rows]) if rows else np.zeros((0, width))
+
+        return Trace(
+            t=np.asarray(self._trace.t[:count], dtype=np.float64),
+            x=col("x", m), y=col("y", m), z=col("z", m), heading=col("heading", m),
+            bank=col("bank", m), airspeed=col("airspeed", m), vz=col("vz", m),
+            alive=col("alive", m).astype(bool), cohesion=col("cohesion", m),
+            thermal_x=self._thermals.x[run, :t_slots].copy(),
+            thermal_y=self._thermals.y[run, :t_slots].copy(),
+            thermal_radius=self._thermals.radius[run, :t_slots].copy(),
+            thermal_strength=col("thermal_strength", t_slots),
+        )
+
+    def _keep(self, runs: NDArray[np.intp]) -> None:
+        """Drop every run not in ``runs`` (used to stop stepping finished runs)."""
+        self.laws = [self.laws[r] for r in runs]
+        self.seeds = [self.seeds[r] for r in runs]
+        self.run_ids = self.run_ids[runs]
+        self.P = self.P.select(runs)
+        self._thermals = self._thermals.select(runs)
+        self._state = self._state.select(runs)
+        self._waggle_rngs = [self._waggle_rngs[r] for r in runs]
+        self._waggle_sign = self._waggle_sign[runs]
+        self._waggle_left = self._waggle_left[runs]
+        self._nb_idx = self._nb_idx[:, runs]
+        self._nb_valid = self._nb_valid[:, runs]
+        self.cohesion_mag = self.cohesion_mag[runs]
+        self._map_min = self._map_min[runs]
+        self._cell = self._cell[runs]
+        self._acc = self._acc.select(runs)
+        self._end_step = self._end_step[runs]
+
+
+def run(law: Law, *, seed: int | None = None, trace: bool = False) -> RunResult:
+    """Fly one run to the end (``seed=None``: ``law.rngSeed``)."""
+    return run_batch([law], seeds=None if seed is None else [seed], trace=trace)[0]
+
+
+def run_batch(
+    laws: Sequence[Law],
+    *,
+    seeds: Sequence[int] | None = None,
+    trace: bool = False,
+    compact_every: int = 50,
+) -> list[RunResult]:
+    """Fly many runs at once, vectorised over (runs, gliders); results in input order.
+
+    Laws are grouped by :func:`batch_key` (same dt, duration, frame skips); within a group,
+    finished runs are dropped from the batch every ``compact_every`` steps. Each result is
+    bit-identical to running that law alone.
+    """
+    laws = list(laws)
+    seed_list = [lw.rngSeed for lw in laws] if seeds is None else [int(s) for s in seeds]
+    if len(seed_list) != len(laws):
+        raise ValueError(f"{len(laws)} laws need {len(laws)} seeds, got {len(seed_list)}")
+    groups: dict[tuple[Any, ...], list[int]] = {}
+    for i, lw in enumerate(laws):
+        groups.setdefault(batch_key(lw), []).append(i)
+    results: list[RunResult | None] = [None] * len(laws)
+    for members in groups.values():
+        sim = SwarmSim([laws[i] for i in members], seed=[seed_list[i] for i in members],
+                       trace=trace)
+        while not sim.done:
+            sim.step()
+            if not trace and sim.step_count % compact_every == 0:
+                fin = sim.finished
+                if fin.any() and not fin.all():
+                    _collect(sim, np.flatnonzero(fin), members, seed_list, results, trace)
+                    sim._keep(np.flatnonzero(~fin))
+        _collect(sim, np.arange(sim.batch), members, seed_list, results, trace)
+    return [r for r in results if r is not None]
+
+
+
+def _collect(
+    sim: SwarmSim,
+    rows: NDArray[np.intp],
+    members: list[int],
+    seeds: list[int],
+    results: list[RunResult | None],
+    trace: bool,
+) -> None:
+    """Store the results of batch rows ``rows`` at their input positions."""
+    for r in rows:
+        ri = int(r)
+        i = members[int(sim.run_ids[ri])]
+        end = int(sim._end_step[ri])
+        results[i] = RunResult(
+            law=sim.laws[ri], seed=seeds[i], metrics=sim.metrics(ri),
+            steps=end if end >= 0 else sim.step_count,
+            trace=sim.trace(ri) if trace else None,
+        )

@@ -1,0 +1,230 @@
+"""Thermals of seed 002: the "Mexican hat" updraft profile, random spawn, and the fade cycle.
+
+Profile (``spec/seed_models.md`` §3.2): for horizontal distance d to the centre and radius R,
+u = (3d/R)², w = W·e^(−u)·(1 − u) if d < R, else 0; where several thermals contain a point
+the first in list order wins. No altitude dependence, no sink outside thermals.
+
+All arrays of a :class:`Thermals` have shape (B, T): B runs (the batch), T thermal slots;
+slots with ``valid == False`` are padding and never contain a point.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.soaring.law import Law
+
+__all__ = ["Thermals", "fade_step", "spawn_thermals", "stack_thermals", "updraft"]
+
+F8 = NDArray[np.float64]
+B8 = NDArray[np.bool_]
+
+
+@dataclass(slots=True)
+class Thermals:
+    """Thermal state, struct of arrays shaped (B, T).
+
+    x, y: centre, m. radius: R, m. strength: current W, m/s. w_max: plateau top, m/s.
+    direction: +1 ramping up, −1 ramping down. timer: plateau time spent, in steps
+    (``thermalFadeMode: steps``) or seconds (``seconds``). fade: whether this thermal fades.
+    valid: False for padding slots.
+    """
+
+    x: F8
+    y: F8
+    radius: F8
+    strength: F8
+    w_max: F8
+    direction: F8
+    timer: F8
+    fade: B8
+    valid: B8
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.x.shape[0]), int(self.x.shape[1]))
+
+    def copy(self) -> Thermals:
+        return Thermals(*(np.array(getattr(self, f)) for f in self.__slots__))
+
+    def select(self, runs: NDArray[np.intp]) -> Thermals:
+        """The thermals of the given runs (batch rows)."""
+        return Thermals(*(getattr(self, f)[runs] for f in self.__slots__))
+
+
+def _rand_ir(rng: np.random.Generator, lo: float, hi: float) -> float:
+    """The seed's ``Utility.randIR``: lo + (hi − lo)·U(0, 1)."""
+    return lo + (hi - lo) * float(rng.random())
+
+
+def _matlab_round(v: float) -> float:
+    """MATLAB ``round``: half away from zero."""
+    return float(np.sign(v) * np.floor(abs(v) + 0.5))
+
+
+def spawn_thermals(law: Law, rng: np.random.Generator) -> Thermals:
+    """Thermals of one run (B = 1): the pinned list, or random ones with the no-overlap rule.
+
+    Random draw per thermal, in order (§3.2): R = round(U(Rmin, Rmax)); x0, y0 =
+    round(U(s0 + R + 1, s1 − R − 1)); W_max = round(U(Smin + 1, Smax)); W(0) = round(U(1, W_max)).
+    A thermal overlapping an earlier one (‖c_i − c_j‖ ≤ R_i + R_j) is re-drawn up to
+    ``thermalSpawnAttempts`` times; if it still overlaps, creation stops there.
+    """
+    if law.thermals is not None:
+        pinned = law.thermals
+        arr = np.array([[t.x, t.y, t.radius, t.strength] for t in pinned], dtype=np.float64)
+        arr = arr.reshape(len(pinned), 4)
+        fade = np.array([t.fade for t in pinned], dtype=bool)
+        return _make(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], arr[:, 3], fade)
+    s0, s1 = law.thermalSpawnRange
+    xs: list[float] = []
+    ys: list[float] = []
+    rs: list[float] = []
+    ws: list[float] = []
+    wm: list[float] = []
+    for _ in range(law.numThermals):
+        placed = False
+        for _attempt in range(law.thermalSpawnAttempts):
+            r = _matlab_round(_rand_ir(rng, law.thermalRadiusMin, law.thermalRadiusMax))
+            x0 = _matlab_round(_rand_ir(rng, s0 + r + 1, s1 - r - 1))
+            y0 = _matlab_round(_rand_ir(rng, s0 + r + 1, s1 - r - 1))
+            w_max = _matlab_round(
+                _rand_ir(rng, law.thermalStrengthMin + 1, law.thermalStrengthMax)
+            )
+            w0 = _matlab_round(_rand_ir(rng, 1.0, w_max))
+            if all(np.hypot(x0 - x, y0 - y) > r + rr for x, y, rr in zip(xs, ys, rs, strict=True)):
+                xs.append(x0)
+                ys.append(y0)
+                rs.append(r)
+                ws.append(w0)
+                wm.append(w_max)
+                placed = True
+                break
+        if not placed:
+            break
+    n = len(xs)
+    return _make(
+        np.array(xs, dtype=np.float64),
+        np.array(ys, dtype=np.float64),
+        np.array(rs, dtype=np.float64),
+        np.array(ws, dtype=np.float64),
+        np.array(wm, dtype=np.float64),
+        np.ones(n, dtype=bool),
+    )
+
+
+def _make(x: F8, y: F8, r: F8, w: F8, w_max: F8, fade: B8) -> Thermals:
+    t = x.shape[0]
+    return Thermals(
+        x=x.reshape(1, t),
+        y=y.reshape(1, t),
+        radius=r.reshape(1, t),
+        strength=w.reshape(1, t).copy(),
+        w_max=w_max.reshape(1, t),
+        direction=np.ones((1, t)),
+        timer=np.zeros((1, t)),
+        fade=fade.reshape(1, t),
+        valid=np.ones((1, t), dtype=bool),
+    )
+
+
+def stack_thermals(items: Sequence[Thermals], width: int | None = None) -> Thermals:
+    """Concatenate single-run thermals along the batch axis, padding to a common T."""
+    t = max([it.shape[1] for it in items] + [width or 0])
+
+    def pad(name: str, fill: float | bool) -> NDArray[Any]:
+        rows = []
+        for it in items:
+            a = getattr(it, name)
+            extra = t - a.shape[1]
+            rows.append(np.concatenate([a, np.full((a.shape[0], extra), fill, a.dtype)], axis=1))
+        return np.concatenate(rows, axis=0) if rows else np.zeros((0, t))
+
+    return Thermals(
+        x=pad("x", 0.0),
+        y=pad("y", 0.0),
+        radius=pad("radius", 1.0),
+        strength=pad("strength", 0.0),
+        w_max=pad("w_max", 0.0),
+        direction=pad("direction", 1.0),
+        timer=pad("timer", 0.0),
+        fade=pad("fade", False),
+        valid=pad("valid", False),
+    )
+
+
+def updraft(xy: NDArray[np.floating], thermals: Thermals) -> F8:
+    """Vertical air speed w at horizontal positions ``xy``, m/s (> 0 up).
+
+    xy : shape (B, M, 2) with thermals shaped (B, T); a single run may also pass xy (M, 2)
+    with B == 1. Returns shape (B, M) (or (M,)). The first thermal in list order whose disc
+    contains the point decides (seed ``findThermalIndex``).
+    """
+    pts = np.asarray(xy, dtype=np.float64)
+    single = pts.ndim == 2
+    if single:
+        if thermals.shape[0] != 1:
+            raise ValueError(
+                f"xy of shape {pts.shape} needs one run of thermals, got B={thermals.shape[0]}"
+            )
+        pts = pts[None]
+    if pts.ndim != 3 or pts.shape[-1] != 2:
+        raise ValueError(f"xy must have shape (B, M, 2) or (M, 2), got {np.shape(xy)}")
+    w = _updraft_xy(pts[..., 0], pts[..., 1], thermals)
+    return w[0] if single else w
+
+
+def _updraft_xy(x: F8, y: F8, th: Thermals) -> F8:
+    """w at points (B, M) for thermals (B, T)."""
+    b, m = x.shape
+    t = th.shape[1]
+    if t == 0 or m == 0:
+        return np.zeros((b, m))
+    dx = x[:, :, None] - th.x[:, None, :]
+    dy = y[:, :, None] - th.y[:, None, :]
+    d = np.sqrt(dx * dx + dy * dy)
+    inside = (d < th.radius[:, None, :]) & th.valid[:, None, :]
+    first = np.argmax(inside, axis=2)
+    hit = np.take_along_axis(inside, first[..., None], axis=2)[..., 0]
+    dsel = np.take_along_axis(d, first[..., None], axis=2)[..., 0]
+    rsel = np.take_along_axis(th.radius, first.reshape(b, m), axis=1)
+    wsel = np.take_along_axis(th.strength, first.reshape(b, m), axis=1)
+    q = 3.0 * dsel / rsel
+    u = q * q
+    w = wsel * np.exp(-u) * (1.0 - u)
+    return np.where(hit, w, 0.0)
+
+
+def fade_step(
+    th: Thermals, *, by_time: NDArray[Any], rate: F8, top: F8, bottom: F8, dt: float
+) -> None:
+    """Advance the fade cycle by one step, in place (seed ``fadeThermals``, §3.2).
+
+    Per run (arrays (B, 1)): ``rate`` is the change of W per step, m/s; ``top``/``bottom`` the
+    plateau lengths, in steps (``by_time`` False: the timer counts steps) or seconds (True: the
+    timer counts seconds, ``dt`` per step, so the cycle does not depend on dt).
+    """
+    active = th.fade & th.valid
+    if not active.any():
+        return
+    w = th.strength
+    at_top = w >= th.w_max - 1e-5
+    rounded = np.sign(w) * np.floor(np.abs(w) * 10.0 + 0.5) / 10.0
+    at_bottom = ~at_top & (rounded <= 1e-5)
+    incr = np.where(by_time, dt, 1.0)
+    tol = np.where(by_time, 1e-9, 0.0)
+    top_done = at_top & (th.timer >= top - tol)
+    bottom_done = at_bottom & (th.timer >= bottom - tol)
+    new_dir = np.where(top_done, -1.0, np.where(bottom_done, 1.0, th.direction))
+    moving = (~at_top & ~at_bottom) | top_done | bottom_done
+    new_w = np.where(moving, w + new_dir * rate, w)
+    plateau = (at_top | at_bottom) & ~(top_done | bottom_done)
+    new_timer = np.where(top_done | bottom_done, 0.0, np.where(plateau, th.timer + incr, th.timer))
+    th.strength = np.where(active, new_w, w)
+    th.direction = np.where(active, new_dir, th.direction)
+    th.timer = np.where(active, new_timer, th.timer)
