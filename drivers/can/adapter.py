@@ -1,0 +1,506 @@
+"""The CAN autopilot adapter node: bus topics ⇄ the glider CAN profile (docs/can.md).
+
+``AutopilotAdapter`` (launch node name ``autopilot``) bridges the echoloop bus and a python-can
+bus carrying the "raw" profile of ``drivers/can/glider.dbc``:
+
+* ``/glider/<id>/state`` → GLIDER_STATE_POS + GLIDER_STATE_MOTION at ``state_rate_hz`` (the
+  latest state, while it is younger than ``state_timeout_s`` of wall time);
+* ``/glider/<id>/neighbors`` → NEIGHBOR_POS + NEIGHBOR_MOTION pairs (positions relative to the
+  state sent in the same tick, at most 15, nearest first), right after the state frames, when a
+  new list has arrived and at most at ``neighbor_rate_hz``;
+* AUTOPILOT_CMD (``bank_cmd_rad``, ``airspeed_cmd_mps``) → ``/glider/<id>/cmd`` at once;
+* BRIDGE_HEARTBEAT out and AUTOPILOT_HEARTBEAT in, per node, at ``heartbeat_hz``.
+
+Command supervision, per glider, evaluated at ``heartbeat_hz`` (``cmd_state`` in the bridge
+heartbeat and in ``/diagnostics``):
+
+``WAITING``  no command yet, less than ``failsafe_after_s`` since start: nothing is published;
+``FRESH``    the last command is at most ``cmd_timeout_s`` old;
+``HOLD``     older than ``cmd_timeout_s``: the last command is re-published (hold last);
+``FAILSAFE`` older than ``failsafe_after_s`` (or never any), or the autopilot's heartbeat
+             reports ``FAULT``: the failsafe command is published — wings level
+             (``failsafe_bank_rad`` = 0) at best-glide speed (``failsafe_airspeed_mps``, default
+             sqrt(Sink_C / Sink_A) of the seed polar = 11.36 m/s). The next command frame ends it.
+
+Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
+recovery, re-open); no exception leaves the adapter's threads. Counters are in :meth:`stats`
+and published on ``/diagnostics`` (by the node, every ``diagnostics_period_s``).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+
+from drivers.can.bus import CanBusConfig, CanLink, LinkPolicy
+from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
+from hil_bridge.clock import SimClock
+from hil_bridge.errors import CodecError
+from hil_bridge.messages import GliderCmd, GliderNeighbors, GliderState
+from hil_bridge.node import DEFAULT_BUS, Node, Publisher
+from hil_bridge.qos import SENSOR
+from sim_core.soaring.law import Law
+
+__all__ = [
+    "BRIDGE_MODES",
+    "CMD_STATES",
+    "MAX_NEIGHBOURS",
+    "AutopilotAdapter",
+    "best_glide_speed",
+    "parse_gliders",
+]
+
+#: cmd_state values (BRIDGE_HEARTBEAT.cmd_state, the DBC's value table).
+CMD_STATES = {"WAITING": 0, "FRESH": 1, "HOLD": 2, "FAILSAFE": 3}
+#: bridge_mode values (BRIDGE_HEARTBEAT.bridge_mode).
+BRIDGE_MODES = {"INIT": 0, "RUN": 1, "DEGRADED": 2, "BUS_OFF": 3}
+#: Neighbours per list the profile carries (nb_count is 4 bits).
+MAX_NEIGHBOURS = 15
+_LINK_STATE_CODES = {"up": 0, "degraded": 1, "bus_off": 2, "down": 3, "closed": 4}
+_AP_FAULT = 3
+
+
+def best_glide_speed(law: Law | None = None) -> float:
+    """Airspeed of the best glide ratio of the law's polar, m/s: sqrt(Sink_C / Sink_A).
+
+    The sink polar is A v² + B v + C (< 0); the glide ratio v / |sink| peaks where
+    d/dv (A v + B + C / v) = 0, i.e. v² = C / A. Seed law: sqrt(2.3782 / 0.01843) = 11.36 m/s.
+    """
+    law = law if law is not None else Law()
+    return math.sqrt(law.Sink_C / law.Sink_A)
+
+
+def parse_gliders(gliders: Any) -> dict[int, int]:
+    """Glider id → node id. A list gives node ids by position (``[3, 7]`` → {3: 0, 7: 1});
+    a mapping gives them explicitly (``{3: 0, 7: 5}``). Node ids 0..15, unique."""
+    if isinstance(gliders, int) and not isinstance(gliders, bool):
+        gliders = [gliders]
+    if isinstance(gliders, str):
+        gliders = [x for x in gliders.split(",") if x.strip()]
+    try:
+        pairs = (
+            [(int(g), int(n)) for g, n in gliders.items()]
+            if isinstance(gliders, Mapping)
+            else [(int(g), i) for i, g in enumerate(gliders)]
+        )
+    except (TypeError, ValueError):
+        raise ValueError(
+            "gliders: expected a list of glider ids or a mapping {glider_id: node_id}, "
+            f"got {gliders!r}"
+        ) from None
+    mapping = dict(pairs)
+    if not mapping:
+        raise ValueError("gliders: expected at least one glider id")
+    if len(mapping) != len(pairs):
+        raise ValueError(f"gliders: duplicate glider id in {gliders!r}")
+    nodes = list(mapping.values())
+    if len(set(nodes)) != len(nodes):
+        raise ValueError(f"gliders: node ids must be unique, got {mapping}")
+    bad = [n for n in nodes if not 0 <= n <= MAX_NODE_ID]
+    if bad:
+        raise ValueError(f"gliders: node ids must be in 0..{MAX_NODE_ID}, got {bad}")
+    return mapping
+
+
+@dataclass(slots=True)
+class _Glider:
+    gid: int
+    node: int
+    state: GliderState | None = None
+    state_wall: float = -math.inf
+    neighbours: GliderNeighbors | None = None
+    nb_new: bool = False
+    nb_sent_wall: float = -math.inf
+    state_counter: int = 0
+    nb_set: int = 0
+    last_cmd: tuple[float, float] | None = None
+    cmd_wall: float = -math.inf
+    cmd_counter: int | None = None
+    ap_wall: float = -math.inf
+    ap_mode: int = 0
+    ap_counter: int | None = None
+    ap_alive: bool = False
+    cmd_state: int = 0
+    hb_counter: int = 0
+
+
+def _positive(name: str, value: float) -> float:
+    v = float(value)
+    if not (v > 0 and math.isfinite(v)):
+        raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
+    return v
+
+
+class AutopilotAdapter(Node):
+    """Launchable CAN adapter (see the module docstring). Node name ``autopilot`` in launch files.
+
+    Params: ``interface``, ``channel``, ``bitrate`` (python-can bus), ``can_log`` (candump log
+    path, ``.log``), ``gliders`` (glider ids, or {glider_id: node_id}), ``state_rate_hz`` (50),
+    ``neighbor_rate_hz`` (10), ``heartbeat_hz`` (10), ``state_timeout_s`` (1.0),
+    ``cmd_timeout_s`` (0.5), ``failsafe_after_s`` (2.0), ``failsafe_bank_rad`` (0),
+    ``failsafe_airspeed_mps`` (best glide), ``heartbeat_timeout_s`` (1.0), ``can_options``
+    (extra ``can.Bus`` kwargs), ``faults`` (:class:`CanFaultConfig` mapping),
+    ``diagnostics_period_s`` (1.0).
+    """
+
+    def __init__(
+        self,
+        name: str = "autopilot",
+        *,
+        bus: str = DEFAULT_BUS,
+        interface: str = "virtual",
+        channel: str | int = "glider",
+        bitrate: int | None = None,
+        can_log: str | Path | None = None,
+        gliders: Any = (0,),
+        state_rate_hz: float = 50.0,
+        neighbor_rate_hz: float = 10.0,
+        heartbeat_hz: float = 10.0,
+        state_timeout_s: float = 1.0,
+        cmd_timeout_s: float = 0.5,
+        failsafe_after_s: float = 2.0,
+        failsafe_bank_rad: float = 0.0,
+        failsafe_airspeed_mps: float | None = None,
+        heartbeat_timeout_s: float = 1.0,
+        can_options: Mapping[str, Any] | None = None,
+        faults: Mapping[str, Any] | None = None,
+        diagnostics_period_s: float = 1.0,
+    ) -> None:
+        self.gliders = parse_gliders(gliders)
+        self.state_rate_hz = _positive("state_rate_hz", state_rate_hz)
+        self.neighbor_rate_hz = _positive("neighbor_rate_hz", neighbor_rate_hz)
+        self.heartbeat_hz = _positive("heartbeat_hz", heartbeat_hz)
+        self.state_timeout_s = _positive("state_timeout_s", state_timeout_s)
+        self.cmd_timeout_s = _positive("cmd_timeout_s", cmd_timeout_s)
+        self.failsafe_after_s = _positive("failsafe_after_s", failsafe_after_s)
+        if self.failsafe_after_s < self.cmd_timeout_s:
+            raise ValueError(
+                f"failsafe_after_s ({failsafe_after_s}) must be >= cmd_timeout_s ({cmd_timeout_s})"
+            )
+        self.heartbeat_timeout_s = _positive("heartbeat_timeout_s", heartbeat_timeout_s)
+        self.failsafe_cmd = (
+            float(failsafe_bank_rad),
+            _positive("failsafe_airspeed_mps", failsafe_airspeed_mps)
+            if failsafe_airspeed_mps is not None else best_glide_speed(),
+        )
+        if not abs(self.failsafe_cmd[0]) < math.pi / 2:
+            raise ValueError(f"failsafe_bank_rad: expected |bank| < pi/2, got {failsafe_bank_rad}")
+        self.bus_config = CanBusConfig.from_params(
+            interface=interface, channel=channel, bitrate=bitrate,
+            options=dict(can_options or {}), faults=dict(faults) if faults else None,
+        )
+        if self.bus_config.interface not in can.interfaces.BACKENDS:
+            raise ValueError(
+                f"interface: unknown python-can interface {interface!r}; "
+                f"expected one of {sorted(can.interfaces.BACKENDS)}"
+            )
+        self.can_log = can_log
+        super().__init__(
+            name, bus=bus, clock=SimClock("lockstep"), diagnostics_period_s=diagnostics_period_s
+        )
+        self.codec = GliderCanCodec()
+        self._glider = {gid: _Glider(gid, node) for gid, node in self.gliders.items()}
+        self._by_node = {g.node: g for g in self._glider.values()}
+        self._glock = threading.Lock()
+        self._c: Counter[str] = Counter()
+        self._clock_lock = threading.Lock()
+        self._stop_evt = threading.Event()
+        self._can_threads: list[threading.Thread] = []
+        self._link: CanLink | None = None
+        self._start_wall = time.monotonic()
+        self._cmd_pubs: dict[int, Publisher[GliderCmd]] = {}
+        for gid in self.gliders:
+            self._cmd_pubs[gid] = self.create_publisher(GliderCmd, f"/glider/{gid}/cmd", SENSOR)
+            self.create_subscription(
+                GliderState, f"/glider/{gid}/state", self._make_state_cb(gid), SENSOR
+            )
+            self.create_subscription(
+                GliderNeighbors, f"/glider/{gid}/neighbors", self._make_nb_cb(gid), SENSOR
+            )
+        self.follow_bus_clock()
+
+    # -- launchable contract ------------------------------------------------------------------
+    def start(self) -> AutopilotAdapter:
+        """Start the bus node, open the CAN bus and start the CAN threads (non-blocking)."""
+        if self._can_threads or self._stop_evt.is_set():
+            return self
+        super().start()
+        self._start_wall = time.monotonic()
+        self._link = CanLink(
+            self.bus_config, policy=LinkPolicy(), log_path=self.can_log, stop_event=self._stop_evt
+        )
+        for target, suffix in ((self._can_rx_loop, "can-rx"), (self._can_tx_loop, "can-tx")):
+            t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
+            t.start()
+            self._can_threads.append(t)
+        return self
+
+    def stop(self) -> None:
+        """Stop the CAN threads, close the CAN bus (flushing the log) and the node (idempotent)."""
+        self._stop_evt.set()
+        for t in self._can_threads:
+            t.join(timeout=5.0)
+        self._can_threads.clear()
+        if self._link is not None:
+            self._link.close()
+        super().stop()
+
+    def stats(self) -> dict[str, Any]:
+        """Node counters plus ``can_*`` (link), adapter counters, saturation and per-glider
+        ``cmd_state:<id>`` / ``ap_alive:<id>`` (numbers, so they reach ``/diagnostics``)."""
+        out = super().stats()
+        with self._glock:
+            out.update(self._c)
+            for g in self._glider.values():
+                out[f"cmd_state:{g.gid}"] = g.cmd_state
+                out[f"ap_alive:{g.gid}"] = int(g.ap_alive)
+        if self._link is not None:
+            link = self._link.stats()
+            state = str(link.pop("state"))
+            out.update({f"can_{k}": v for k, v in link.items()})
+            out["can_state"] = _LINK_STATE_CODES.get(state, -1)
+            out["can_link"] = state
+        sat = self.codec.saturation_counts()
+        out["saturated_tx"] = sum(sat["tx"].values())
+        out["saturated_rx"] = sum(sat["rx"].values())
+        return out
+
+    def cmd_state(self, gid: int) -> str:
+        """The current command supervision state of glider ``gid`` (a key of CMD_STATES)."""
+        with self._glock:
+            code = self._glider[gid].cmd_state
+        return next(k for k, v in CMD_STATES.items() if v == code)
+
+    # -- bus callbacks (node executor thread) -------------------------------------------------
+    def _make_state_cb(self, gid: int) -> Any:
+        def on_state(msg: GliderState) -> None:
+            with self._glock:
+                g = self._glider[gid]
+                g.state, g.state_wall = msg, time.monotonic()
+                self._c["states_in"] += 1
+
+        return on_state
+
+    def _make_nb_cb(self, gid: int) -> Any:
+        def on_neighbors(msg: GliderNeighbors) -> None:
+            with self._glock:
+                g = self._glider[gid]
+                g.neighbours, g.nb_new = msg, True
+                self._c["neighbor_lists_in"] += 1
+
+        return on_neighbors
+
+    def _stamp(self, g: _Glider) -> int:
+        t = self.now_ns()
+        return max(t, g.state.stamp_ns) if g.state is not None else t
+
+    # -- CAN transmit -------------------------------------------------------------------------
+    def _can_tx_loop(self) -> None:
+        now = time.monotonic()
+        next_state = next_hb = now
+        state_period, hb_period = 1.0 / self.state_rate_hz, 1.0 / self.heartbeat_hz
+        while not self._stop_evt.is_set():
+            now = time.monotonic()
+            if now >= next_state:
+                self._send_states(now)
+                next_state = max(next_state + state_period, now)
+            if now >= next_hb:
+                self._supervise(now)
+                self._send_heartbeats()
+                next_hb = max(next_hb + hb_period, now)
+            self._stop_evt.wait(max(0.0, min(next_state, next_hb) - time.monotonic()))
+
+    def _send(self, name: str, node: int, values: Mapping[str, float]) -> bool:
+        link = self._link
+        if link is None:
+            return False
+        try:
+            msg = self.codec.encode(name, node, values)
+        except ValueError:
+            self._inc("tx_encode_errors")
+            return False
+        return link.send(msg)
+
+    def _inc(self, key: str, n: int = 1) -> None:
+        with self._glock:
+            self._c[key] += n
+
+    def _send_states(self, now: float) -> None:
+        nb_period = 1.0 / self.neighbor_rate_hz
+        for g in self._glider.values():
+            with self._glock:
+                st = g.state
+                if st is None or now - g.state_wall > self.state_timeout_s:
+                    continue
+                g.state_counter = (g.state_counter + 1) % 16
+                counter = g.state_counter
+                nbs = None
+                if g.nb_new and now - g.nb_sent_wall >= nb_period:
+                    nbs, g.nb_new, g.nb_sent_wall = g.neighbours, False, now
+                    g.nb_set = (g.nb_set + 1) % 16
+                nb_set = g.nb_set
+            ok = self._send(
+                "GLIDER_STATE_POS", g.node, {"x_m": st.x, "y_m": st.y, "z_m": st.z}
+            )
+            ok &= self._send(
+                "GLIDER_STATE_MOTION", g.node,
+                {"heading_rad": st.heading, "bank_rad": st.bank, "airspeed_mps": st.airspeed,
+                 "vz_mps": st.vz, "alive": float(st.alive), "state_counter": counter},
+            )
+            self._inc("states_sent" if ok else "states_dropped")
+            if nbs is not None:
+                self._send_neighbours(g, st, nbs, nb_set)
+
+    def _send_neighbours(
+        self, g: _Glider, own: GliderState, nbs: GliderNeighbors, nb_set: int
+    ) -> None:
+        k = len(nbs.ids)
+        if k > MAX_NEIGHBOURS:
+            self._inc("nb_truncated")
+            k = MAX_NEIGHBOURS
+        if k == 0:
+            ok = self._send(
+                "NEIGHBOR_MOTION", g.node,
+                {"nb_slot": 0, "nb_count": 0, "nb_heading_rad": 0.0, "nb_airspeed_mps": 0.0,
+                 "nb_vz_mps": 0.0, "nb_set": nb_set},
+            )
+            self._inc("nb_lists_sent" if ok else "nb_lists_dropped")
+            return
+        ok = True
+        for i in range(k):
+            ok &= self._send(
+                "NEIGHBOR_POS", g.node,
+                {"nb_slot": i, "nb_dx_m": float(nbs.x[i]) - own.x,
+                 "nb_dy_m": float(nbs.y[i]) - own.y, "nb_dz_m": float(nbs.z[i]) - own.z},
+            )
+            ok &= self._send(
+                "NEIGHBOR_MOTION", g.node,
+                {"nb_slot": i, "nb_count": k, "nb_heading_rad": float(nbs.heading[i]),
+                 "nb_airspeed_mps": float(nbs.airspeed[i]), "nb_vz_mps": float(nbs.vz[i]),
+                 "nb_set": nb_set},
+            )
+        self._inc("nb_lists_sent" if ok else "nb_lists_dropped")
+
+    def _send_heartbeats(self) -> None:
+        link = self._link
+        link_state = link.state if link is not None else "down"
+        for g in self._glider.values():
+            with self._glock:
+                g.hb_counter = (g.hb_counter + 1) % 256
+                counter, cmd_state = g.hb_counter, g.cmd_state
+                has_state = g.state is not None
+                sim_ms = (g.state.stamp_ns // 1_000_000) % (1 << 32) if g.state is not None else 0
+            if not has_state:
+                mode = BRIDGE_MODES["INIT"]
+            elif link_state == "bus_off":
+                mode = BRIDGE_MODES["BUS_OFF"]
+            elif link_state == "up":
+                mode = BRIDGE_MODES["RUN"]
+            else:
+                mode = BRIDGE_MODES["DEGRADED"]
+            ok = self._send(
+                "BRIDGE_HEARTBEAT", g.node,
+                {"bridge_counter": counter, "bridge_mode": mode, "cmd_state": cmd_state,
+                 "sim_time_ms": sim_ms},
+            )
+            self._inc("heartbeats_sent" if ok else "heartbeats_dropped")
+
+    # -- command supervision ------------------------------------------------------------------
+    def _supervise(self, now: float) -> None:
+        for g in self._glider.values():
+            with self._glock:
+                ap_alive = now - g.ap_wall <= self.heartbeat_timeout_s
+                if g.ap_alive and not ap_alive:
+                    self._c["ap_heartbeat_lost"] += 1
+                g.ap_alive = ap_alive
+                age = now - (g.cmd_wall if g.last_cmd is not None else self._start_wall)
+                if ap_alive and g.ap_mode == _AP_FAULT:
+                    state = CMD_STATES["FAILSAFE"]
+                elif g.last_cmd is not None and age <= self.cmd_timeout_s:
+                    state = CMD_STATES["FRESH"]
+                elif age <= self.failsafe_after_s:
+                    state = CMD_STATES["HOLD"] if g.last_cmd is not None else CMD_STATES["WAITING"]
+                else:
+                    state = CMD_STATES["FAILSAFE"]
+                if state != g.cmd_state:
+                    if state == CMD_STATES["HOLD"]:
+                        self._c["hold_entries"] += 1
+                    elif state == CMD_STATES["FAILSAFE"]:
+                        self._c["failsafe_entries"] += 1
+                g.cmd_state = state
+                last = g.last_cmd
+            if state == CMD_STATES["HOLD"] and last is not None:
+                self._publish_cmd(g, last)
+                self._inc("cmd_hold_published")
+            elif state == CMD_STATES["FAILSAFE"]:
+                self._publish_cmd(g, self.failsafe_cmd)
+                self._inc("cmd_failsafe_published")
+
+    def _publish_cmd(self, g: _Glider, cmd: tuple[float, float]) -> None:
+        with self._glock:
+            step = g.state.step if g.state is not None else 0
+            stamp = self._stamp(g)
+        self._cmd_pubs[g.gid].publish(
+            GliderCmd(
+                stamp_ns=stamp, bank_cmd=cmd[0], airspeed_cmd=cmd[1], glider_id=g.gid, step=step
+            )
+        )
+
+    # -- CAN receive --------------------------------------------------------------------------
+    def _can_rx_loop(self) -> None:
+        while not self._stop_evt.is_set():
+            link = self._link
+            if link is None:
+                return
+            msg = link.recv(0.05)
+            if msg is None:
+                continue
+            try:
+                frame = self.codec.decode(msg)
+            except CodecError:
+                self._inc("rx_decode_errors")
+                continue
+            self._on_frame(frame)
+
+    def _on_frame(self, frame: DecodedFrame) -> None:
+        g = self._by_node.get(frame.node_id)
+        s = frame.signals
+        if frame.name == "AUTOPILOT_CMD":
+            if g is None:
+                self._inc("rx_unknown_node")
+                return
+            cmd = (s["bank_cmd_rad"], s["airspeed_cmd_mps"])
+            counter = int(s["cmd_counter"])
+            with self._glock:
+                if g.cmd_counter is not None and counter != (g.cmd_counter + 1) % 256:
+                    self._c["cmd_frames_lost"] += (counter - g.cmd_counter - 1) % 256
+                g.cmd_counter = counter
+                g.last_cmd, g.cmd_wall = cmd, time.monotonic()
+                if g.cmd_state == CMD_STATES["FAILSAFE"]:
+                    self._c["failsafe_exits"] += 1
+                g.cmd_state = CMD_STATES["FRESH"]
+                self._c["cmd_frames_in"] += 1
+            self._publish_cmd(g, cmd)
+            self._inc("cmd_forwarded")
+        elif frame.name == "AUTOPILOT_HEARTBEAT":
+            if g is None:
+                self._inc("rx_unknown_node")
+                return
+            counter = int(s["ap_counter"])
+            with self._glock:
+                if g.ap_counter is not None and counter != (g.ap_counter + 1) % 256:
+                    self._c["ap_heartbeats_lost"] += (counter - g.ap_counter - 1) % 256
+                g.ap_counter = counter
+                g.ap_wall = time.monotonic()
+                g.ap_mode = int(s["ap_mode"])
+                self._c["ap_heartbeats_in"] += 1
+        else:
+            self._inc("rx_foreign_bridge")

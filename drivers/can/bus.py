@@ -1,0 +1,394 @@
+"""A python-can bus from config that survives bus errors: :class:`CanLink`.
+
+``CanBusConfig`` names the python-can interface, channel and bitrate, so the same code runs on
+``virtual`` (in-process, tests and the demo), ``socketcan`` (``can0``/``vcan0``), ``pcan``
+(``PCAN_USBBUS1``), ... with no code change; ``faults`` wraps the bus in
+:class:`drivers.faults.can_bus.FaultInjectingBus`.
+
+:class:`CanLink` contracts (one receive thread and one send thread may use it at once):
+
+1. ``send(msg) -> bool`` never raises a bus error. "Send buffer full" (``ENOBUFS``/``EAGAIN``
+   or any other transmit error) is retried up to ``send_retries`` times with exponential
+   back-off from ``send_backoff_s``; a frame that still fails is dropped and counted.
+2. Bus-off (``state == BusState.ERROR``, an error frame with ``CAN_ERR_BUSOFF``, or a transmit
+   error ``ENETDOWN``) puts the link in ``bus_off``: frames are dropped (counted) without waiting;
+   every back-off interval (``reopen_backoff_s`` doubling up to ``max_backoff_s``) one frame is
+   tried, and if the bus still refuses it the bus is shut down and re-opened (a controller
+   restart). The first frame that goes through returns the link to ``up``.
+3. ``recv(timeout)`` never raises a bus error: receive errors are counted and back off; error
+   frames are counted (and steer the bus-off state) and never returned; ``reopen_after_failures``
+   consecutive receive errors re-open the bus. A bus that cannot be opened leaves the link
+   ``down`` and is retried with back-off.
+4. With ``log_path`` every frame sent and received (error frames too) is written by python-can's
+   ``can.Logger`` (``.log`` = candump ``-L`` format, readable by ``can.LogReader``).
+5. ``close()`` is idempotent and flushes the log.
+"""
+
+from __future__ import annotations
+
+import errno
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+from can import BusABC, BusState
+
+from drivers.faults.can_bus import (
+    CAN_ERR_BUSOFF,
+    CAN_ERR_RESTARTED,
+    CanFaultConfig,
+    FaultInjectingBus,
+    fault_rngs,
+)
+from sim_core.config import from_dict
+
+__all__ = ["CanBusConfig", "CanLink", "LinkPolicy", "LinkState"]
+
+LinkState = str  # "up" | "degraded" | "bus_off" | "down" | "closed"
+
+_BUFFER_FULL = {errno.ENOBUFS, errno.EAGAIN}
+_BUS_DOWN = {errno.ENETDOWN, errno.ENETUNREACH, errno.ENODEV}
+
+
+@dataclass(frozen=True, slots=True)
+class CanBusConfig:
+    """Where the CAN bus is: python-can ``interface``, ``channel`` and ``bitrate``.
+
+    ``bitrate`` None leaves the interface's own setting (socketcan takes it from
+    ``ip link set can0 type can bitrate ...``). ``options`` are further ``can.Bus`` keyword
+    arguments (e.g. ``{receive_own_messages: true}``). ``faults`` injects bus faults.
+    """
+
+    interface: str = "virtual"
+    channel: str = "glider"
+    bitrate: int | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+    faults: CanFaultConfig | None = None
+
+    def __post_init__(self) -> None:
+        if not self.interface:
+            raise ValueError("interface: expected a python-can interface name, e.g. 'virtual'")
+        if self.bitrate is not None and not 0 < self.bitrate <= 8_000_000:
+            raise ValueError(f"bitrate: expected bits/s in (0, 8e6], got {self.bitrate}")
+
+    @classmethod
+    def from_params(
+        cls,
+        *,
+        interface: str = "virtual",
+        channel: str | int = "glider",
+        bitrate: int | None = None,
+        options: dict[str, Any] | None = None,
+        faults: CanFaultConfig | dict[str, Any] | None = None,
+    ) -> CanBusConfig:
+        """Build from launch-style params (``faults`` may be a mapping of CanFaultConfig)."""
+        if isinstance(faults, dict):
+            faults = from_dict(CanFaultConfig, faults, path="faults")
+        return cls(
+            interface=str(interface), channel=str(channel), bitrate=bitrate,
+            options=dict(options or {}), faults=faults,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class LinkPolicy:
+    """Retry and back-off tunables of :class:`CanLink` (seconds)."""
+
+    send_timeout_s: float = 0.005
+    send_retries: int = 3
+    send_backoff_s: float = 0.0005
+    reopen_backoff_s: float = 0.05
+    max_backoff_s: float = 2.0
+    reopen_after_failures: int = 10
+
+    def __post_init__(self) -> None:
+        for name in ("send_timeout_s", "send_backoff_s", "reopen_backoff_s", "max_backoff_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0 s, got {getattr(self, name)}")
+        if self.send_retries < 0:
+            raise ValueError(f"send_retries must be >= 0, got {self.send_retries}")
+        if self.reopen_after_failures < 1:
+            raise ValueError(
+                f"reopen_after_failures must be >= 1, got {self.reopen_after_failures}"
+            )
+
+
+def _known_interfaces() -> list[str]:
+    return sorted(can.interfaces.BACKENDS)
+
+
+class CanLink:
+    """A resilient python-can bus (see the module docstring for the contracts)."""
+
+    def __init__(
+        self,
+        config: CanBusConfig,
+        *,
+        policy: LinkPolicy | None = None,
+        log_path: str | Path | None = None,
+        stop_event: threading.Event | None = None,
+    ) -> None:
+        if config.interface not in can.interfaces.BACKENDS:
+            raise ValueError(
+                f"interface: unknown python-can interface {config.interface!r}; "
+                f"expected one of {_known_interfaces()}"
+            )
+        self.config = config
+        self.policy = policy if policy is not None else LinkPolicy()
+        self._stop = stop_event if stop_event is not None else threading.Event()
+        self._lock = threading.RLock()
+        self._log_lock = threading.Lock()
+        self._count_lock = threading.Lock()
+        self._bus: BusABC | None = None
+        self._rngs: tuple[np.random.Generator, np.random.Generator] | None = (
+            fault_rngs(config.faults.seed) if config.faults is not None else None
+        )
+        self._state: LinkState = "down"
+        self._bus_off_since = 0.0
+        self._next_probe = 0.0
+        self._probe_backoff = self.policy.reopen_backoff_s
+        self._next_open = 0.0
+        self._open_backoff = self.policy.reopen_backoff_s
+        self._rx_fail = 0
+        self._tx_fail = 0
+        self._closed = False
+        self.counters: Counter[str] = Counter()
+        self._logger: can.Listener | None = None
+        if log_path is not None:
+            path = Path(log_path)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            kwargs: dict[str, Any] = {}
+            if path.suffix == ".log":
+                kwargs["channel"] = str(config.channel)
+            self._logger = can.Logger(path, **kwargs)
+        self._try_open(first=True)
+
+    # -- state --------------------------------------------------------------------------------
+    @property
+    def state(self) -> LinkState:
+        return self._state
+
+    @property
+    def bus(self) -> BusABC | None:
+        """The current python-can bus (replaced on re-open); None while down."""
+        return self._bus
+
+    def _inc(self, name: str, n: int = 1) -> None:
+        with self._count_lock:
+            self.counters[name] += n
+
+    def stats(self) -> dict[str, int | float | str]:
+        with self._count_lock:
+            out: dict[str, int | float | str] = dict(self.counters)
+        out["state"] = self._state
+        return out
+
+    # -- open / re-open -----------------------------------------------------------------------
+    def _make_bus(self) -> BusABC:
+        cfg = self.config
+        kwargs: dict[str, Any] = dict(cfg.options)
+        if cfg.bitrate is not None:
+            kwargs["bitrate"] = cfg.bitrate
+        bus: BusABC = can.Bus(interface=cfg.interface, channel=cfg.channel, **kwargs)
+        if cfg.faults is not None:
+            bus = FaultInjectingBus(bus, cfg.faults, rngs=self._rngs)
+        return bus
+
+    def _try_open(self, *, first: bool = False) -> bool:
+        with self._lock:
+            if self._closed:
+                return False
+            try:
+                bus = self._make_bus()
+            except (can.CanError, OSError) as exc:
+                if isinstance(exc, can.CanInterfaceNotImplementedError):
+                    raise ValueError(
+                        f"interface {self.config.interface!r} is not usable here: {exc}"
+                    ) from None
+                self._inc("open_failures")
+                self._state = "down"
+                self._next_open = time.monotonic() + self._open_backoff
+                self._open_backoff = min(2 * self._open_backoff, self.policy.max_backoff_s)
+                return False
+            self._bus = bus
+            self._state = "up"
+            self._open_backoff = self.policy.reopen_backoff_s
+            self._rx_fail = self._tx_fail = 0
+            if not first:
+                self._inc("reopens")
+            return True
+
+    def _reopen(self) -> bool:
+        with self._lock:
+            old, self._bus = self._bus, None
+            if old is not None:
+                try:
+                    old.shutdown()
+                except (can.CanError, OSError):
+                    self._inc("shutdown_errors")
+            return self._try_open()
+
+    def _ensure_open(self) -> BusABC | None:
+        bus = self._bus
+        if bus is not None:
+            return bus
+        if time.monotonic() >= self._next_open:
+            self._try_open()
+        return self._bus
+
+    # -- bus-off ------------------------------------------------------------------------------
+    def _enter_bus_off(self) -> None:
+        with self._lock:
+            if self._state != "bus_off":
+                self._inc("bus_off")
+                self._state = "bus_off"
+                self._bus_off_since = time.monotonic()
+                self._probe_backoff = self.policy.reopen_backoff_s
+                self._next_probe = self._bus_off_since + self._probe_backoff
+
+    def _leave_bus_off(self) -> None:
+        with self._lock:
+            if self._state == "bus_off":
+                self._inc("bus_off_recoveries")
+                self._inc("bus_off_ms", int(1000 * (time.monotonic() - self._bus_off_since)))
+                self._state = "up"
+
+    # -- send ---------------------------------------------------------------------------------
+    def send(self, msg: can.Message) -> bool:
+        """Send ``msg``; True if the bus took it (see contract 1–2). Never raises a bus error."""
+        if self._closed:
+            return False
+        bus = self._ensure_open()
+        if bus is None:
+            self._inc("tx_dropped_down")
+            return False
+        if self._state == "bus_off" or bus.state == BusState.ERROR:
+            self._enter_bus_off()
+            now = time.monotonic()
+            if now < self._next_probe:
+                self._inc("tx_dropped_bus_off")
+                return False
+            self._probe_backoff = min(2 * self._probe_backoff, self.policy.max_backoff_s)
+            self._next_probe = now + self._probe_backoff
+            if bus.state == BusState.ERROR or not self._try_send_once(bus, msg):
+                self._reopen()
+                self._inc("tx_dropped_bus_off")
+                return False
+            self._leave_bus_off()
+            self._sent(msg)
+            return True
+        backoff = self.policy.send_backoff_s
+        for attempt in range(self.policy.send_retries + 1):
+            try:
+                bus.send(msg, timeout=self.policy.send_timeout_s)
+            except can.CanOperationError as exc:
+                code = exc.error_code
+                if code in _BUS_DOWN:
+                    self._enter_bus_off()
+                    self._inc("tx_dropped_bus_off")
+                    return False
+                self._inc("tx_buffer_full" if code in _BUFFER_FULL else "tx_errors")
+            except (can.CanError, OSError):
+                self._inc("tx_errors")
+            else:
+                self._tx_fail = 0
+                if attempt:
+                    self._inc("tx_retried_ok")
+                if self._state == "degraded":
+                    self._state = "up"
+                self._sent(msg)
+                return True
+            if attempt < self.policy.send_retries and self._stop.wait(backoff):
+                break
+            backoff *= 2
+        self._inc("tx_dropped")
+        self._tx_fail += 1
+        self._state = "degraded"
+        if self._tx_fail >= self.policy.reopen_after_failures:
+            self._reopen()
+        return False
+
+    def _try_send_once(self, bus: BusABC, msg: can.Message) -> bool:
+        try:
+            bus.send(msg, timeout=self.policy.send_timeout_s)
+        except (can.CanError, OSError):
+            return False
+        return True
+
+    def _sent(self, msg: can.Message) -> None:
+        self._inc("tx_frames")
+        if self._logger is not None:
+            msg.timestamp = time.time()
+            msg.is_rx = False
+            self._log(msg)
+
+    def _log(self, msg: can.Message) -> None:
+        with self._log_lock:
+            if self._logger is not None:
+                self._logger.on_message_received(msg)
+
+    # -- receive ------------------------------------------------------------------------------
+    def recv(self, timeout: float) -> can.Message | None:
+        """The next data frame, or None after ``timeout`` s (contract 3). Never raises."""
+        if self._closed:
+            return None
+        bus = self._ensure_open()
+        if bus is None:
+            self._stop.wait(min(timeout, max(0.0, self._next_open - time.monotonic())))
+            return None
+        try:
+            msg = bus.recv(timeout)
+        except (can.CanError, OSError, ValueError):
+            if bus is not self._bus or self._closed:
+                return None
+            self._inc("rx_errors")
+            self._rx_fail += 1
+            if self._rx_fail >= self.policy.reopen_after_failures:
+                self._reopen()
+            else:
+                self._stop.wait(
+                    min(self.policy.max_backoff_s, self.policy.send_backoff_s * 2**self._rx_fail)
+                )
+            return None
+        self._rx_fail = 0
+        if msg is None:
+            return None
+        self._log(msg)
+        if msg.is_error_frame:
+            self._inc("error_frames")
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                self._enter_bus_off()
+            elif msg.arbitration_id & CAN_ERR_RESTARTED:
+                self._leave_bus_off()
+            return None
+        self._inc("rx_frames")
+        return msg
+
+    # -- close --------------------------------------------------------------------------------
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._state = "closed"
+            bus, self._bus = self._bus, None
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except (can.CanError, OSError):
+                self._inc("shutdown_errors")
+        with self._log_lock:
+            if self._logger is not None:
+                self._logger.stop()
+                self._logger = None
+
+    def __enter__(self) -> CanLink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

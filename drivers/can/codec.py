@@ -1,0 +1,260 @@
+"""Encode and decode the glider CAN profile ("raw" profile, ``glider.dbc``) with cantools.
+
+The DBC is the source of truth: frame layouts, scaling and physical ranges are read from it.
+Each message is defined for node 0; node ``n`` (0..15) uses ``frame_id = base_id + n`` with every
+base id a multiple of 0x10, so the node id is the low nibble of the frame id.
+
+Contracts:
+
+1. ``encode`` takes physical values (SI units, radians). A value outside the signal's DBC
+   ``[min|max]`` (including ``±inf``) is clamped to the nearer limit and counted per signal in
+   the ``tx`` saturation counters; it never wraps. NaN is refused with ``ValueError``.
+   Angle signals (``heading_rad``, ``nb_heading_rad``) are first normalised to ``[-pi, pi)``.
+2. ``decode`` takes a received frame and returns physical values. A raw value that decodes
+   outside ``[min|max]`` (the field has spare codes beyond the range) is clamped and counted in
+   the ``rx`` saturation counters.
+3. A frame that is not part of the profile (extended/remote/error/FD frame, unknown base id,
+   wrong length) raises :class:`hil_bridge.errors.CodecError`; callers drop and count it.
+4. Counters are thread-safe; one codec may serve a receive and a transmit thread.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import cast
+
+import can
+import cantools
+from cantools.database.can import Database
+from cantools.database.can import Message as DbcMessage
+
+from hil_bridge.errors import CodecError
+
+__all__ = [
+    "ANGLE_SIGNALS",
+    "DBC_PATH",
+    "MAX_NODE_ID",
+    "DecodedFrame",
+    "GliderCanCodec",
+    "SignalSpec",
+    "load_database",
+]
+
+#: The profile's DBC (installed with the package).
+DBC_PATH = Path(__file__).resolve().with_name("glider.dbc")
+#: Node ids run 0..MAX_NODE_ID (the low nibble of the frame id).
+MAX_NODE_ID = 15
+#: Signals that are angles and are normalised to [-pi, pi) before encoding.
+ANGLE_SIGNALS = frozenset({"heading_rad", "nb_heading_rad"})
+
+_TWO_PI = 2.0 * math.pi
+
+
+def load_database(path: str | Path = DBC_PATH) -> Database:
+    """Load a DBC with cantools and check the profile's id rules (base ids multiples of 0x10)."""
+    db = cantools.database.load_file(str(path), database_format="dbc")
+    if not isinstance(db, Database):
+        raise ValueError(f"{path}: not a CAN database")
+    for msg in db.messages:
+        if msg.is_extended_frame or msg.frame_id > 0x7FF:
+            raise ValueError(f"{path}: message {msg.name} must use an 11-bit identifier")
+        if msg.frame_id % 0x10:
+            raise ValueError(
+                f"{path}: message {msg.name} base id {msg.frame_id:#x} is not a multiple of 0x10"
+            )
+        if msg.length != 8:
+            raise ValueError(f"{path}: message {msg.name} must be 8 bytes, not {msg.length}")
+    return db
+
+
+@dataclass(frozen=True, slots=True)
+class SignalSpec:
+    """Physical range and resolution of one signal, as the DBC states them."""
+
+    name: str
+    minimum: float
+    maximum: float
+    scale: float
+    bits: int
+    signed: bool
+    unit: str
+
+
+@dataclass(frozen=True, slots=True)
+class DecodedFrame:
+    """One received profile frame: message name, node id and physical signal values."""
+
+    name: str
+    node_id: int
+    signals: Mapping[str, float]
+
+
+@dataclass(frozen=True, slots=True)
+class _MessageSpec:
+    message: DbcMessage
+    signals: tuple[SignalSpec, ...]
+
+
+def _normalise_angle(value: float) -> float:
+    wrapped = (value + math.pi) % _TWO_PI - math.pi
+    return -math.pi if wrapped >= math.pi else wrapped
+
+
+class GliderCanCodec:
+    """cantools-backed codec for the glider profile with node-id offsetting and saturation."""
+
+    def __init__(self, dbc_path: str | Path = DBC_PATH) -> None:
+        self.database = load_database(dbc_path)
+        self._by_name: dict[str, _MessageSpec] = {}
+        self._by_base: dict[int, _MessageSpec] = {}
+        for msg in self.database.messages:
+            specs = []
+            for sig in msg.signals:
+                if sig.minimum is None or sig.maximum is None:
+                    raise ValueError(f"{dbc_path}: signal {sig.name} needs a [min|max] range")
+                specs.append(
+                    SignalSpec(
+                        name=sig.name,
+                        minimum=float(sig.minimum),
+                        maximum=float(sig.maximum),
+                        scale=float(sig.scale),
+                        bits=int(sig.length),
+                        signed=bool(sig.is_signed),
+                        unit=sig.unit or "",
+                    )
+                )
+            entry = _MessageSpec(msg, tuple(specs))
+            self._by_name[msg.name] = entry
+            self._by_base[msg.frame_id] = entry
+        self._lock = threading.Lock()
+        self._tx_saturated: Counter[str] = Counter()
+        self._rx_saturated: Counter[str] = Counter()
+
+    # -- lookup -------------------------------------------------------------------------------
+    @property
+    def message_names(self) -> tuple[str, ...]:
+        return tuple(self._by_name)
+
+    def signals(self, name: str) -> tuple[SignalSpec, ...]:
+        """The signal specs of message ``name`` in DBC order."""
+        return self._spec(name).signals
+
+    def base_id(self, name: str) -> int:
+        return int(self._spec(name).message.frame_id)
+
+    def frame_id(self, name: str, node_id: int) -> int:
+        """``base_id(name) + node_id``; ``node_id`` must be in 0..15."""
+        _check_node_id(node_id)
+        return self.base_id(name) + node_id
+
+    def _spec(self, name: str) -> _MessageSpec:
+        try:
+            return self._by_name[name]
+        except KeyError:
+            raise ValueError(
+                f"unknown CAN message {name!r}; expected one of {sorted(self._by_name)}"
+            ) from None
+
+    # -- encode -------------------------------------------------------------------------------
+    def encode_payload(self, name: str, values: Mapping[str, float]) -> bytes:
+        """The 8 data bytes of message ``name`` for physical ``values`` (every signal needed)."""
+        spec = self._spec(name)
+        clamped: dict[str, float] = {}
+        saturated: list[str] = []
+        for sig in spec.signals:
+            try:
+                raw = values[sig.name]
+            except KeyError:
+                raise ValueError(f"{name}: missing value for signal {sig.name!r}") from None
+            value = float(raw)
+            if math.isnan(value):
+                raise ValueError(f"{name}: signal {sig.name!r} is NaN")
+            if sig.name in ANGLE_SIGNALS and math.isfinite(value):
+                value = _normalise_angle(value)
+            if value < sig.minimum:
+                value = sig.minimum
+                saturated.append(sig.name)
+            elif value > sig.maximum:
+                value = sig.maximum
+                saturated.append(sig.name)
+            clamped[sig.name] = value
+        extra = set(values) - set(clamped)
+        if extra:
+            raise ValueError(f"{name}: unknown signal(s) {sorted(extra)}")
+        if saturated:
+            with self._lock:
+                self._tx_saturated.update(saturated)
+        return bytes(spec.message.encode(clamped, scaling=True, strict=True))
+
+    def encode(self, name: str, node_id: int, values: Mapping[str, float]) -> can.Message:
+        """A python-can frame of message ``name`` for node ``node_id``."""
+        return can.Message(
+            arbitration_id=self.frame_id(name, node_id),
+            is_extended_id=False,
+            dlc=8,
+            data=self.encode_payload(name, values),
+        )
+
+    # -- decode -------------------------------------------------------------------------------
+    def decode(self, msg: can.Message) -> DecodedFrame:
+        """Decode a received frame; raises :class:`CodecError` for a frame not in the profile."""
+        if msg.is_error_frame:
+            raise CodecError("error frame")
+        if msg.is_remote_frame:
+            raise CodecError(f"remote frame id {msg.arbitration_id:#x}")
+        if msg.is_extended_id:
+            raise CodecError(f"extended id {msg.arbitration_id:#x} is not in the profile")
+        if msg.is_fd:
+            raise CodecError(f"CAN FD frame id {msg.arbitration_id:#x} is not in the profile")
+        return self.decode_payload(int(msg.arbitration_id), bytes(msg.data))
+
+    def decode_payload(self, frame_id: int, data: bytes) -> DecodedFrame:
+        """Decode ``data`` received with 11-bit ``frame_id``."""
+        if not 0 <= frame_id <= 0x7FF:
+            raise CodecError(f"frame id {frame_id:#x} is not an 11-bit identifier")
+        spec = self._by_base.get(frame_id & ~0xF)
+        if spec is None:
+            raise CodecError(f"frame id {frame_id:#x} has no message in the profile")
+        if len(data) != 8:
+            raise CodecError(f"{spec.message.name}: length {len(data)}, expected 8")
+        decoded = spec.message.decode(data, decode_choices=False, scaling=True)
+        if not isinstance(decoded, dict):
+            raise CodecError(f"{spec.message.name}: unexpected container payload")
+        signals: dict[str, float] = {}
+        saturated: list[str] = []
+        for sig in spec.signals:
+            value = float(cast(float, decoded[sig.name]))
+            if value < sig.minimum:
+                value = sig.minimum
+                saturated.append(sig.name)
+            elif value > sig.maximum:
+                value = sig.maximum
+                saturated.append(sig.name)
+            signals[sig.name] = value
+        if saturated:
+            with self._lock:
+                self._rx_saturated.update(saturated)
+        return DecodedFrame(spec.message.name, frame_id & 0xF, signals)
+
+    # -- counters -----------------------------------------------------------------------------
+    def saturation_counts(self) -> dict[str, dict[str, int]]:
+        """``{"tx": {signal: n}, "rx": {signal: n}}``: values clamped to the DBC range."""
+        with self._lock:
+            return {"tx": dict(self._tx_saturated), "rx": dict(self._rx_saturated)}
+
+    @property
+    def saturated_total(self) -> int:
+        with self._lock:
+            return sum(self._tx_saturated.values()) + sum(self._rx_saturated.values())
+
+
+def _check_node_id(node_id: int) -> None:
+    if isinstance(node_id, bool) or not isinstance(node_id, int):
+        raise ValueError(f"node_id must be an int in 0..{MAX_NODE_ID}, got {node_id!r}")
+    if not 0 <= node_id <= MAX_NODE_ID:
+        raise ValueError(f"node_id must be in 0..{MAX_NODE_ID}, got {node_id}")
