@@ -185,7 +185,7 @@ class FrameDecoder:
                     frame = self._decode(bytes(self._buf))
                     if frame is not None:
                         frames.append(frame)
-                    self._buf.clear()
+                self._buf.clear()
             start = end + 1
         return frames
 

@@ -84,7 +84,7 @@ ECHO_SAMPLE_BYTES: dict[Encoding, int] = {Encoding.INT16: 2, Encoding.IQ16: 4, E
 PING = struct.Struct("<HfffB")  # 15 bytes
 ECHO_HEADER = struct.Struct("<HHHBBIfI")  # 20 bytes
 CONFIG = struct.Struct("<BBBBIIIH")  # 18 bytes
-STATUS = struct.Struct("<BBHIIIII")  # 28 bytes
+STATUS = struct.Struct("<BBHIIIIII")  # 28 bytes
 HEARTBEAT = struct.Struct("<IB")  # 5 bytes
 ERROR = struct.Struct("<HH")  # 4 bytes + UTF-8 text
 MAX_ERROR_TEXT = 200
@@ -405,6 +405,7 @@ class EchoAssembler:
 
     def __init__(self) -> None:
         self._key: tuple[int, int, int, int, int, float, int] | None = None
+        self._abandoned: tuple[int, int, int, int, int, float, int] | None = None
         self._next = 0
         self._parts: list[bytes] = []
         self.complete = 0
@@ -418,6 +419,7 @@ class EchoAssembler:
     def _abandon(self) -> None:
         if self._key is not None:
             self.incomplete += 1
+            self._abandoned = self._key
         self._key, self._next, self._parts = None, 0, []
 
     def flush(self) -> None:
@@ -433,7 +435,7 @@ class EchoAssembler:
             self._abandon()
         if self._key is None:
             if c.chunk != 0:
-                if c.chunk == c.n_chunks - 1:
+                if c.chunk == c.n_chunks - 1 and key != self._abandoned:
                     self.incomplete += 1  # an echo whose first chunk(s) never arrived
                 return None
             self._key = key

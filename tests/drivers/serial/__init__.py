@@ -1,0 +1,1 @@
+"""Tests of the serial sonar-head edge (drivers.serial, mocks, urlhandlers, faults)."""
