@@ -1,0 +1,445 @@
+"""Launch = data + runner: run a YAML node graph as threads of one process.
+
+A launch file is plain data (no substitutions, conditions or event handlers)::
+
+    bus: mem://demo              # optional; default the spec's tcp://127.0.0.1:7400
+    duration: 20                 # optional default run time in seconds (CLI --duration wins)
+    record: out/run.mcap         # optional MCAP recording of every topic (CLI --record wins)
+    nodes:
+      - name: server
+        entry: hil_bridge.server:SimServer
+        params: {scene: {...}}
+      - name: sonar_head
+        entry: drivers.serial.adapter:SonarHeadAdapter
+        params: {port: /dev/ttyUSB0}
+
+It is validated once, at load, into :class:`LaunchSpec` (unknown keys raise a
+:class:`~sim_core.config.ConfigError` naming the key; every ``entry`` must import and name a
+class). Each entry implements the *launchable* contract: ``Cls(name, *, bus, **params)``,
+``start()`` (non-blocking), ``stop()`` (idempotent, joins its threads) and ``stats() -> dict``.
+
+Why threads in one process, not processes: python-can's ``virtual`` interface only connects
+buses of one process (the CAN adapter and the mock autopilot must share it), the mock sonar
+head owns the master side of a pty whose slave path the serial adapter opens (both ends are
+created and torn down together), and the ``mem://`` bus used by tests is in-process. The heavy
+work (echo synthesis) is numpy/finufft code that releases the GIL.
+
+Precedence of settings: CLI arguments (``--param``, ``--duration``, ``--record``) > the file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+from typing import Any, Protocol, runtime_checkable
+
+from sim_core.config import ConfigError, apply_overrides, from_dict, load_yaml, parse_override
+
+__all__ = [
+    "BusMonitor",
+    "LaunchSpec",
+    "Launchable",
+    "NodeSpec",
+    "RunSummary",
+    "load",
+    "main",
+    "parse_param_overrides",
+    "resolve_entry",
+    "run",
+]
+
+DEFAULT_BUS = "tcp://127.0.0.1:7400"
+
+
+@runtime_checkable
+class Launchable(Protocol):
+    """What every launch entry implements (constructor ``Cls(name, *, bus, **params)``)."""
+
+    def start(self) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def stats(self) -> dict[str, Any]: ...
+
+
+@dataclass(frozen=True, slots=True)
+class NodeSpec:
+    """One node of a launch file: a unique ``name``, ``entry`` ``"pkg.module:Class"``, params."""
+
+    name: str
+    entry: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.name.replace("_", "a").isalnum():
+            raise ValueError(f"name: expected [A-Za-z0-9_]+, got {self.name!r}")
+        module, sep, attr = self.entry.partition(":")
+        if not sep or not module or not attr:
+            raise ValueError(f"entry: expected 'package.module:Class', got {self.entry!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class LaunchSpec:
+    """A validated launch file (see the module docstring)."""
+
+    nodes: tuple[NodeSpec, ...]
+    bus: str = DEFAULT_BUS
+    duration: float | None = None
+    record: str | None = None
+    live: bool = False
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.nodes:
+            raise ValueError("nodes: expected at least one node")
+        seen: set[str] = set()
+        for node in self.nodes:
+            if node.name in seen:
+                raise ValueError(f"nodes: duplicate node name {node.name!r}")
+            seen.add(node.name)
+        if self.duration is not None and not self.duration > 0:
+            raise ValueError(f"duration: expected seconds > 0, got {self.duration}")
+
+    def node(self, name: str) -> NodeSpec:
+        for node in self.nodes:
+            if node.name == name:
+                return node
+        raise KeyError(name)
+
+
+def resolve_entry(entry: str, *, where: str = "entry") -> type:
+    """Import ``"pkg.module:Class"``; a missing module or attribute raises ConfigError."""
+    module_name, _, attr = entry.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(f"{where}: cannot import module {module_name!r} ({exc})") from None
+    try:
+        obj = getattr(module, attr)
+    except AttributeError:
+        raise ConfigError(f"{where}: module {module_name!r} has no attribute {attr!r}") from None
+    if not isinstance(obj, type):
+        raise ConfigError(f"{where}: {entry!r} is not a class")
+    for method in ("start", "stop", "stats"):
+        if not callable(getattr(obj, method, None)):
+            raise ConfigError(f"{where}: {entry!r} has no {method}() (not a launchable node)")
+    return obj
+
+
+def parse_param_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``["server.scene.seed=3", "sonar_head.port=/dev/ttyUSB0"]`` -> per-node dotted overrides."""
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        key, value = parse_override(item)
+        node, sep, rest = key.partition(".")
+        if not sep or not rest:
+            raise ConfigError(f"--param {item!r}: expected NODE.KEY=VALUE")
+        out.setdefault(node, {})[rest] = value
+    return out
+
+
+def load(
+    path: str | Path | Mapping[str, Any],
+    *,
+    params_overrides: Mapping[str, Mapping[str, Any]] | None = None,
+) -> LaunchSpec:
+    """Load and validate a launch file (or an already parsed mapping).
+
+    ``params_overrides`` maps node name -> {dotted param key: value}; an unknown node name raises.
+    Every entry is imported here, so a typo fails before any node starts.
+    """
+    data = path if isinstance(path, Mapping) else load_yaml(path)
+    where = "launch" if isinstance(path, Mapping) else str(path)
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: expected a mapping with a 'nodes' list, got {data!r}")
+    if params_overrides:
+        nodes = data.get("nodes")
+        names = [n.get("name") for n in nodes if isinstance(n, Mapping)] if isinstance(
+            nodes, list
+        ) else []
+        unknown = sorted(set(params_overrides) - set(names))
+        if unknown:
+            raise ConfigError(f"--param: unknown node(s) {unknown}; the file has {names}")
+        new_nodes = []
+        for n in nodes or []:
+            over = params_overrides.get(n.get("name")) if isinstance(n, Mapping) else None
+            if over:
+                n = {**n, "params": apply_overrides(n.get("params") or {}, over)}
+            new_nodes.append(n)
+        data = {**data, "nodes": new_nodes}
+    try:
+        spec = from_dict(LaunchSpec, data)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    for i, node in enumerate(spec.nodes):
+        resolve_entry(node.entry, where=f"{where}: nodes[{i}].entry")
+    return spec
+
+
+def _percentiles(values: Sequence[float]) -> dict[str, float]:
+    if not values:
+        return {"n": 0, "p50": math.nan, "p90": math.nan, "p99": math.nan, "max": math.nan}
+    ordered = sorted(values)
+
+    def pct(q: float) -> float:
+        pos = q * (len(ordered) - 1)
+        lo = math.floor(pos)
+        hi = min(lo + 1, len(ordered) - 1)
+        return ordered[lo] + (ordered[hi] - ordered[lo]) * (pos - lo)
+
+    return {"n": len(ordered), "p50": pct(0.5), "p90": pct(0.9), "p99": pct(0.99),
+            "max": ordered[-1]}
+
+
+class BusMonitor:
+    """Launchable bus-level observer behind the run summary (one raw subscription to all).
+
+    Counts messages per topic, sequence gaps per (publisher, topic) as drops, the state path
+    latency (receive time minus the header's ``pub_ns``, both ``time.monotonic_ns``) and
+    ping -> echo latency (echo arrival minus ping arrival, matched by sonar and ``ping_seq``).
+    Undecodable messages are counted in ``bad``, never raised.
+    """
+
+    def __init__(self, name: str, *, bus: str) -> None:
+        self.name = name
+        self.bus = bus
+        self._transport: Any = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._counts: dict[str, int] = {}
+        self._first: dict[str, int] = {}
+        self._last: dict[str, int] = {}
+        self._seq: dict[tuple[str, str], int] = {}
+        self._gaps = 0
+        self._bad = 0
+        self._state_ms: deque[float] = deque(maxlen=50000)
+        self._ping_echo_ms: deque[float] = deque(maxlen=10000)
+        self._pings: dict[tuple[str, int], int] = {}
+
+    def start(self) -> None:
+        from hil_bridge.transport import open_transport
+
+        self._transport = open_transport(self.bus)
+        self._transport.subscribe(b"")
+        self._thread = threading.Thread(target=self._loop, name=f"{self.name}-rx", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._transport is not None:
+            self._transport.wakeup()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._transport is not None:
+            self._transport.close()
+
+    def _loop(self) -> None:
+        from hil_bridge.codec import decode_header, decode_payload, topic_from_frame
+        from hil_bridge.errors import HilError
+
+        while not self._stop.is_set():
+            try:
+                frames = self._transport.recv(timeout=0.1)
+            except HilError:
+                return
+            if frames is None:
+                continue
+            now = time.monotonic_ns()
+            try:
+                topic = topic_from_frame(frames[0])
+                header = decode_header(frames[1])
+                ping_key: tuple[str, int] | None = None
+                if topic.startswith("/sonar/") and topic.endswith(("/ping", "/echo")):
+                    msg = decode_payload(header.type, header.v, frames[2])
+                    ping_key = (topic.rsplit("/", 1)[0], int(getattr(msg, "ping_seq", -1)))
+            except (HilError, ValueError, IndexError):
+                with self._lock:
+                    self._bad += 1
+                continue
+            with self._lock:
+                self._counts[topic] = self._counts.get(topic, 0) + 1
+                self._first.setdefault(topic, now)
+                self._last[topic] = now
+                key = (header.src, topic)
+                prev = self._seq.get(key)
+                if prev is not None and header.seq > prev + 1:
+                    self._gaps += header.seq - prev - 1
+                self._seq[key] = header.seq
+                if topic.startswith("/glider/") and topic.endswith("/state"):
+                    self._state_ms.append((now - header.pub_ns) / 1e6)
+                elif ping_key is not None and topic.endswith("/ping"):
+                    self._pings[ping_key] = now
+                    if len(self._pings) > 4096:
+                        self._pings.pop(next(iter(self._pings)))
+                elif ping_key is not None:
+                    t_ping = self._pings.pop(ping_key, None)
+                    if t_ping is not None:
+                        self._ping_echo_ms.append((now - t_ping) / 1e6)
+
+    def stats(self) -> dict[str, Any]:
+        with self._lock:
+            topics = {}
+            for topic, n in self._counts.items():
+                span = (self._last[topic] - self._first[topic]) / 1e9
+                topics[topic] = {"count": n, "rate_hz": (n - 1) / span if span > 0 else 0.0}
+            return {
+                "topics": topics,
+                "messages": sum(self._counts.values()),
+                "seq_gaps": self._gaps,
+                "bad": self._bad,
+                "state_latency_ms": _percentiles(list(self._state_ms)),
+                "ping_echo_ms": _percentiles(list(self._ping_echo_ms)),
+            }
+
+
+@dataclass(slots=True)
+class RunSummary:
+    """What a run produced: wall time, why it stopped, per-node stats, bus-level monitor counts."""
+
+    wall_s: float
+    stopped_by: str
+    nodes: dict[str, dict[str, Any]]
+    monitor: dict[str, Any] = field(default_factory=dict)
+    record: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+class _StopFlag:
+    """A stop event plus the reason; set from signal handlers or the duration timer."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.reason = "duration"
+
+    def set(self, reason: str) -> None:
+        if not self.event.is_set():
+            self.reason = reason
+            self.event.set()
+
+
+def _instantiate(spec: LaunchSpec) -> list[tuple[str, Any]]:
+    nodes: list[tuple[str, Any]] = []
+    for i, node in enumerate(spec.nodes):
+        cls = resolve_entry(node.entry, where=f"nodes[{i}].entry")
+        try:
+            obj = cls(node.name, bus=spec.bus, **node.params)
+        except TypeError as exc:
+            raise ConfigError(f"nodes[{i}] ({node.name}).params: {exc}") from None
+        nodes.append((node.name, obj))
+    return nodes
+
+
+def run(
+    path: str | Path | Mapping[str, Any] | LaunchSpec,
+    *,
+    params_overrides: Mapping[str, Mapping[str, Any]] | None = None,
+    duration: float | None = None,
+    record: str | Path | None = None,
+    live: bool | None = None,
+    stop_event: threading.Event | None = None,
+    handle_signals: bool = True,
+    on_started: Callable[[LaunchSpec], None] | None = None,
+) -> RunSummary:
+    """Start every node of a launch file in order, wait, stop them in reverse order.
+
+    The run ends at ``duration`` seconds (argument, else the file's; ``None`` = until a signal),
+    on SIGINT/SIGTERM (handlers installed only when called from the main thread and
+    ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every topic to MCAP with
+    :class:`hil_bridge.bag.Recorder`. ``live`` starts the Foxglove view (:mod:`hil_bridge.live`).
+    ``on_started(spec)`` is called once every node runs. A node that fails to start stops the
+    ones already started and re-raises.
+    """
+    spec = path if isinstance(path, LaunchSpec) else load(path, params_overrides=params_overrides)
+    run_for = duration if duration is not None else spec.duration
+    record_path = str(record) if record is not None else spec.record
+    want_live = spec.live if live is None else live
+
+    flag = _StopFlag()
+    previous: dict[int, Any] = {}
+    if handle_signals and threading.current_thread() is threading.main_thread():
+
+        def _on_signal(signum: int, _frame: FrameType | None) -> None:
+            flag.set(signal.Signals(signum).name)
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, _on_signal)
+
+    started: list[tuple[str, Any]] = []
+    extras: list[Any] = []
+    t0 = time.monotonic()
+    try:
+        monitor = BusMonitor("launch_monitor", bus=spec.bus)
+        monitor.start()
+        extras.append(monitor)
+        if record_path is not None:
+            from hil_bridge.bag import Recorder
+
+            Path(record_path).parent.mkdir(parents=True, exist_ok=True)
+            recorder = Recorder(record_path, bus=spec.bus)
+            recorder.start()
+            extras.append(recorder)
+        for name, obj in _instantiate(spec):
+            obj.start()
+            started.append((name, obj))
+        if want_live:
+            from hil_bridge.live import LiveView
+
+            view = LiveView("live", bus=spec.bus)
+            view.start()
+            extras.append(view)
+        if on_started is not None:
+            on_started(spec)
+        deadline = None if run_for is None else t0 + run_for
+        while not flag.event.is_set():
+            if stop_event is not None and stop_event.is_set():
+                flag.set("stop_event")
+                break
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                flag.set("duration")
+                break
+            flag.event.wait(0.05 if remaining is None else min(0.05, remaining))
+    finally:
+        node_stats: dict[str, dict[str, Any]] = {}
+        for name, obj in reversed(started):
+            obj.stop()
+            node_stats[name] = obj.stats()
+        monitor_stats: dict[str, Any] = {}
+        for extra in reversed(extras):
+            extra.stop()
+            if isinstance(extra, BusMonitor):
+                monitor_stats = extra.stats()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return RunSummary(
+        wall_s=time.monotonic() - t0,
+        stopped_by=flag.reason,
+        nodes={name: node_stats[name] for name, _ in started},
+        monitor=monitor_stats,
+        record=record_path,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m hil_bridge.launch FILE [...]``: the same as ``echoloop launch``."""
+    from hil_bridge.cli import main as echoloop_main
+
+    return echoloop_main(["launch", *(sys.argv[1:] if argv is None else argv)])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,582 @@
+"""The simulation server: a launchable node that owns a Scene and the sim clock.
+
+Topics (ids are the scene's vehicle/glider/sonar ids)::
+
+    publishes  /clock                     every tick
+               /glider/<id>/state         every tick, for every swarm glider and path vehicle
+               /glider/<id>/neighbors     after every physics step, only for registered gliders
+               /sonar/<id>/echo           one per answered /sonar/<id>/ping
+               /diagnostics               every ``diagnostics_period_s`` of wall time
+    subscribes /glider/<id>/cmd           bank_cmd (rad), airspeed_cmd (m/s)
+               /sonar/<id>/ping           ping_seq, az, el (rad, body frame), beamwidth (rad)
+
+**Registration.** A glider's autopilot registers by publishing on ``/glider/<id>/cmd`` (its first
+command, even a rejected one, registers it) or by being listed in the ``autopilots`` parameter.
+Only registered gliders get ``/neighbors`` and, in ``lockstep`` mode, are waited for. Gliders
+without an autopilot fly the law's Boids controller (``SwarmSim.step`` with an external-command
+mask).
+
+**Commands.** A command is *rejected* (counted, the last good one held) if a value is non-finite,
+``|bank_cmd| >= pi/2`` or ``airspeed_cmd`` is outside (0, 3 * forwardSpeedMax]; otherwise it is
+clipped to the law's bank and speed limits (counted in ``cmd_clipped``) and held until the next
+good one. The law's optional ``bankRateMax``/``speedRateMax`` rate limits are applied by the
+swarm's stepping. Commands for path vehicles are counted in ``cmd_ignored``.
+
+**Echoes.** Each ping is answered at the pose of its sonar's vehicle when the ping *arrives*
+(the latest published state), with the beam boresight at world azimuth ``heading + az`` and
+elevation ``el`` (bank and pitch are not applied). Echoes are computed on a worker thread with a
+bounded queue (``echo_queue`` pings; when full the oldest waiting ping is dropped and counted),
+so a slow echo never delays the state stream.
+
+**Time.** The server ticks at ``state_rate_hz`` of sim time. The swarm steps every ``law.dt`` of
+sim time (zero-order hold of its state between steps); path vehicles are sampled at each tick.
+Clock modes: ``realtime`` (ticks paced to the wall clock times ``rate``), ``fast`` (unpaced),
+``lockstep`` (before each physics step, wait up to ``lockstep_timeout_s`` for a new command from
+every registered autopilot; a miss counts a stall and the step proceeds on held commands; an
+autopilot that misses ``lockstep_max_stalls`` steps in a row is not waited for again until it
+next sends). Stamps are integer sim nanoseconds and never decrease.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from hil_bridge.messages import (
+    Clock,
+    Diagnostics,
+    GliderCmd,
+    GliderNeighbors,
+    GliderState,
+    SonarEcho,
+    SonarPing,
+    ThermalMarkers,
+)
+from sim_core.config import ConfigError, from_dict
+from sim_core.scene import ClockSpec, Scene, load_scene
+
+__all__ = ["ServerParams", "SimServer", "percentiles"]
+
+
+def percentiles(values: Sequence[float]) -> dict[str, float]:
+    """``{"n", "p50", "p90", "p99", "max"}`` of ``values`` (NaN percentiles when empty)."""
+    if not values:
+        return {"n": 0, "p50": math.nan, "p90": math.nan, "p99": math.nan, "max": math.nan}
+    a = np.asarray(values, dtype=np.float64)
+    p50, p90, p99 = np.percentile(a, [50, 90, 99])
+    return {"n": int(a.size), "p50": float(p50), "p90": float(p90), "p99": float(p99),
+            "max": float(a.max())}
+
+
+@dataclass(frozen=True, slots=True)
+class ServerParams:
+    """Validated parameters of :class:`SimServer` (launch ``params``)."""
+
+    scene: Any
+    clock: ClockSpec | None = None
+    state_rate_hz: float | None = None
+    embed_proxy: bool = True
+    autopilots: tuple[int, ...] = ()
+    echo_queue: int = 4
+    diagnostics_period_s: float = 1.0
+    stop_after_s: float | None = None
+    publish_thermals: bool = True
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.scene, str | Mapping | Path):
+            raise ValueError(f"scene: expected a YAML path or a mapping, got {self.scene!r}")
+        if self.echo_queue < 1:
+            raise ValueError(f"echo_queue: expected >= 1, got {self.echo_queue}")
+        if not self.diagnostics_period_s > 0:
+            raise ValueError(f"diagnostics_period_s: expected > 0, got {self.diagnostics_period_s}")
+        if self.stop_after_s is not None and not self.stop_after_s > 0:
+            raise ValueError(f"stop_after_s: expected > 0, got {self.stop_after_s}")
+        if self.state_rate_hz is not None and not 0 < self.state_rate_hz <= 2000:
+            raise ValueError(f"state_rate_hz: expected 0 < rate <= 2000, got {self.state_rate_hz}")
+
+
+_REJECT_BANK = math.pi / 2
+
+
+class SimServer:
+    """Launchable simulation server (see the module docstring for topics and semantics).
+
+    ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
+    autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
+    publish_thermals=True)``. ``scene`` is a scene YAML path or mapping
+    (:mod:`sim_core.scene`); ``clock`` and ``state_rate_hz`` override the scene's.
+    ``stop_after_s``: stop ticking at that sim time (the node keeps answering pings).
+    """
+
+    def __init__(self, name: str, *, bus: str, **params: Any) -> None:
+        self.name = name
+        self.bus = bus
+        self.params = from_dict(ServerParams, params, path=f"{name}.params")
+        scene_src = self.params.scene
+        self.scene: Scene = load_scene(
+            str(scene_src) if isinstance(scene_src, Path) else scene_src
+        )
+        spec = self.scene.spec
+        self.clock_spec: ClockSpec = self.params.clock or spec.clock
+        self.state_rate_hz = float(self.params.state_rate_hz or spec.state_rate_hz)
+        self.tick_ns = round(1e9 / self.state_rate_hz)
+        self._lock = threading.Lock()
+        self._cmd_cond = threading.Condition(self._lock)
+        self._stop = threading.Event()
+        self._done = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._started = False
+        self._stopped = False
+        self._c: dict[str, int] = dict.fromkeys(
+            (
+                "ticks", "physics_steps", "states_published", "neighbors_published",
+                "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
+                "cmd_ignored", "pings_received", "pings_dropped", "pings_unknown_sonar",
+                "echoes_published", "echo_errors", "stalls", "stalled_steps", "late_ticks",
+                "lockstep_released", "diagnostics_published",
+            ),
+            0,
+        )
+        self._ping_echo_ms: deque[float] = deque(maxlen=10000)
+        self._echo_compute_ms: deque[float] = deque(maxlen=10000)
+        self._sim_ns = 0
+        # glider index (swarm) by id; path vehicles by id
+        self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
+        self._vehicle_ids = set(self.scene.vehicle_ids)
+        self._poses: dict[int, tuple[float, float, float, float]] = {}
+        self._registered: set[int] = {int(a) for a in self.params.autopilots}
+        unknown = sorted(self._registered - set(self._glider_index) - self._vehicle_ids)
+        if unknown:
+            raise ConfigError(f"{name}.params.autopilots: unknown glider id(s) {unknown}")
+        self._freewheel: set[int] = set()
+        self._consecutive_stalls: dict[int, int] = {}
+        self._cmd_arrivals: dict[int, int] = {}
+        self._good_cmd: dict[int, tuple[float, float]] = {}
+        self._pings: queue.Queue[tuple[int, SonarPing, tuple[float, float, float, float], float]]
+        self._pings = queue.Queue(maxsize=self.params.echo_queue)
+        self._node: Any = None
+        self._proxy: Any = None
+        self._pubs: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ launchable contract
+
+    def start(self) -> None:
+        """Start the proxy (if embedded), the node, the tick loop and the echo worker."""
+        if self._started:
+            return
+        self._started = True
+        from hil_bridge.clock import SimClock
+        from hil_bridge.node import Node
+        from hil_bridge.qos import COMMAND, LATCHED, SENSOR
+
+        if self.params.embed_proxy:
+            from hil_bridge.proxy import proxy_for
+
+            self._proxy = proxy_for(self.bus)
+            if self._proxy is not None:
+                self._proxy.start()
+        # The server steps the clock itself (it paces realtime ticks against the wall clock).
+        self.clock = SimClock("lockstep" if self.clock_spec.mode == "lockstep" else "fast")
+        self._node = Node(self.name, bus=self.bus, clock=self.clock, diagnostics_period_s=0)
+        node = self._node
+        self._pubs["/clock"] = node.create_publisher(Clock, "/clock", qos=SENSOR)
+        self._pubs["/diagnostics"] = node.create_publisher(Diagnostics, "/diagnostics", qos=SENSOR)
+        if self.scene.spec.swarm is not None and self.params.publish_thermals:
+            self._pubs["/thermals"] = node.create_publisher(
+                ThermalMarkers, "/thermals", qos=LATCHED
+            )
+        for gid in (*self._glider_index, *sorted(self._vehicle_ids)):
+            self._pubs[f"/glider/{gid}/state"] = node.create_publisher(
+                GliderState, f"/glider/{gid}/state", qos=SENSOR
+            )
+            node.create_subscription(
+                GliderCmd, f"/glider/{gid}/cmd", self._make_cmd_callback(gid), qos=COMMAND
+            )
+        for gid in self._glider_index:
+            self._pubs[f"/glider/{gid}/neighbors"] = node.create_publisher(
+                GliderNeighbors, f"/glider/{gid}/neighbors", qos=SENSOR
+            )
+        for sonar in self.scene.spec.sonars:
+            self._pubs[f"/sonar/{sonar.id}/echo"] = node.create_publisher(
+                SonarEcho, f"/sonar/{sonar.id}/echo", qos=SENSOR
+            )
+            node.create_subscription(
+                SonarPing, f"/sonar/{sonar.id}/ping", self._make_ping_callback(sonar.id),
+                qos=SENSOR,
+            )
+        node.start()
+        # build what the tick loop needs before the first tick (lazy parts stay lazy)
+        swarm = self.scene.swarm
+        if self._vehicle_ids:
+            _ = self.scene.trajectories
+        self._update_poses(None if swarm is None else swarm.state)
+        self._threads = [
+            threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),
+        ]
+        if self.scene.spec.sonars:
+            self._threads.append(
+                threading.Thread(target=self._echo_loop, name=f"{self.name}-echo", daemon=True)
+            )
+        for t in self._threads:
+            t.start()
+
+    def stop(self) -> None:
+        """Stop ticking and echoing, join threads, close the node and proxy (idempotent)."""
+        if self._stopped:
+            return
+        self._stopped = True
+        self._stop.set()
+        with self._cmd_cond:
+            self._cmd_cond.notify_all()
+        for t in self._threads:
+            t.join()
+        if self._node is not None:
+            self._node.stop()
+        if self._proxy is not None:
+            self._proxy.stop()
+
+    def stats(self) -> dict[str, Any]:
+        """Counters, the sim time, registered autopilots and latency percentiles (ms)."""
+        with self._lock:
+            out: dict[str, Any] = dict(self._c)
+            out["sim_time_s"] = self._sim_ns / 1e9
+            out["registered"] = sorted(self._registered)
+            out["freewheeling"] = sorted(self._freewheel)
+            ping_echo = list(self._ping_echo_ms)
+            compute = list(self._echo_compute_ms)
+        out["clock_mode"] = self.clock_spec.mode
+        out["built"] = sorted(self.scene.built)
+        out["ping_echo_ms"] = percentiles(ping_echo)
+        out["echo_compute_ms"] = percentiles(compute)
+        if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
+            out["gliders_alive"] = int(np.count_nonzero(self.scene.swarm.state.alive[0]))
+        return out
+
+    def wait_done(self, timeout: float | None = None) -> bool:
+        """Block until the tick loop ended (``stop_after_s`` reached or stopped)."""
+        return self._done.wait(timeout)
+
+    # ------------------------------------------------------------------ callbacks (bus thread)
+
+    def _make_cmd_callback(self, gid: int) -> Any:
+        def on_cmd(msg: GliderCmd) -> None:
+            self._on_cmd(gid, msg)
+
+        return on_cmd
+
+    def _make_ping_callback(self, sonar_id: int) -> Any:
+        def on_ping(msg: SonarPing) -> None:
+            self._on_ping(sonar_id, msg)
+
+        return on_ping
+
+    def _on_cmd(self, gid: int, msg: GliderCmd) -> None:
+        with self._cmd_cond:
+            self._c["cmd_received"] += 1
+            if gid in self._vehicle_ids:
+                self._c["cmd_ignored"] += 1
+                return
+            self._registered.add(gid)
+            if gid in self._freewheel:
+                self._freewheel.discard(gid)
+                self._consecutive_stalls[gid] = 0
+            self._cmd_arrivals[gid] = self._cmd_arrivals.get(gid, 0) + 1
+            checked = self._check_cmd(msg.bank_cmd, msg.airspeed_cmd)
+            if checked is None:
+                self._c["cmd_rejected"] += 1
+            else:
+                bank, speed, clipped = checked
+                self._good_cmd[gid] = (bank, speed)
+                self._c["cmd_applied"] += 1
+                self._c["cmd_clipped"] += int(clipped)
+            self._cmd_cond.notify_all()
+
+    def _check_cmd(self, bank: float, speed: float) -> tuple[float, float, bool] | None:
+        law = self.scene.law
+        b, v = float(bank), float(speed)
+        if not (math.isfinite(b) and math.isfinite(v)):
+            return None
+        if abs(b) >= _REJECT_BANK or not 0 < v <= 3 * float(law.forwardSpeedMax):
+            return None
+        bc = min(max(b, float(law.bankMin)), float(law.bankMax))
+        vc = min(max(v, float(law.forwardSpeedMin)), float(law.forwardSpeedMax))
+        return bc, vc, (bc != b or vc != v)
+
+    def _on_ping(self, sonar_id: int, msg: SonarPing) -> None:
+        t_recv = time.monotonic()
+        mount = self.scene.sonar(sonar_id).mount
+        with self._lock:
+            self._c["pings_received"] += 1
+            pose = self._poses[mount]
+        item = (sonar_id, msg, pose, t_recv)
+        while True:
+            try:
+                self._pings.put_nowait(item)
+                return
+            except queue.Full:
+                try:
+                    self._pings.get_nowait()
+                except queue.Empty:
+                    continue
+                with self._lock:
+                    self._c["pings_dropped"] += 1
+
+    # ------------------------------------------------------------------ echo worker
+
+    def _echo_loop(self) -> None:
+        from sim_core.sonar import Beam, synthesize
+
+        while not self._stop.is_set():
+            try:
+                sonar_id, ping, pose, t_recv = self._pings.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            x, y, z, heading = pose
+            sonar = self.scene.sonar(sonar_id)
+            t0 = time.monotonic()
+            try:
+                position = np.array([x, y, z], dtype=np.float64)
+                beam = Beam.from_az_el(
+                    position, heading + float(ping.az), float(ping.el), float(ping.beamwidth)
+                )
+                leaves = self.scene.leaves_near(position)
+                echo = synthesize(
+                    leaves, beam, self.scene.echo_params(sonar_id), fidelity=sonar.fidelity
+                )
+            except ValueError:
+                with self._lock:
+                    self._c["echo_errors"] += 1
+                continue
+            t1 = time.monotonic()
+            samples = np.asarray(echo.samples, dtype=np.float32)
+            bound = echo.error_bound
+            msg = SonarEcho(
+                stamp_ns=self._now_ns(),
+                ping_seq=int(ping.ping_seq),
+                fs=float(echo.fs),
+                samples=samples,
+                leaves_in_beam=int(echo.leaves_in_beam),
+                fidelity=str(echo.fidelity),
+                sonar_id=sonar_id,
+                dropped=int(echo.dropped),
+                error_bound=math.nan if bound is None else float(bound),
+                compute_ns=int((t1 - t0) * 1e9),
+            )
+            self._pubs[f"/sonar/{sonar_id}/echo"].publish(msg)
+            t2 = time.monotonic()
+            with self._lock:
+                self._c["echoes_published"] += 1
+                self._echo_compute_ms.append((t1 - t0) * 1e3)
+                self._ping_echo_ms.append((t2 - t_recv) * 1e3)
+
+    # ------------------------------------------------------------------ tick loop
+
+    def _now_ns(self) -> int:
+        with self._lock:
+            return self._sim_ns
+
+    def _update_poses(self, st: Any) -> None:
+        """Refresh ``_poses`` (id -> x, y, z, heading) from the swarm state and the paths."""
+        poses: dict[int, tuple[float, float, float, float]] = {}
+        if st is not None:
+            for gid, i in self._glider_index.items():
+                poses[gid] = (
+                    float(st.x[0, i]), float(st.y[0, i]), float(st.z[0, i]),
+                    float(st.heading[0, i]),
+                )
+        if self._vehicle_ids:
+            t_s = self._sim_ns / 1e9
+            for vid, traj in self.scene.trajectories.items():
+                s = traj.sample(t_s)
+                poses[vid] = (float(s["x"]), float(s["y"]), float(s["z"]), float(s["heading"]))
+        with self._lock:
+            self._poses = poses
+
+    def _commands_for_step(self) -> Any:
+        """The held good commands as :class:`sim_core.soaring.Commands`, or None if none."""
+        from sim_core.soaring import Commands
+
+        n = self.scene.swarm.state.x.shape[1]
+        bank = np.zeros((1, n))
+        speed = np.zeros((1, n))
+        mask = np.zeros((1, n), dtype=bool)
+        with self._lock:
+            for gid, (b, v) in self._good_cmd.items():
+                i = self._glider_index[gid]
+                bank[0, i], speed[0, i], mask[0, i] = b, v, True
+        if not mask.any():
+            return None
+        return Commands(bank_cmd=bank, airspeed_cmd=speed, mask=mask)
+
+    def _wait_lockstep(self, since: dict[int, int]) -> None:
+        """Wait for one new command from each registered, non-freewheeling autopilot."""
+        deadline = time.monotonic() + self.clock_spec.lockstep_timeout_s
+        with self._cmd_cond:
+            while True:
+                waiting = [
+                    g for g in self._registered
+                    if g in self._glider_index and g not in self._freewheel
+                    and self._cmd_arrivals.get(g, 0) <= since.get(g, 0)
+                ]
+                remaining = deadline - time.monotonic()
+                if not waiting or self._stop.is_set() or remaining <= 0:
+                    break
+                self._cmd_cond.wait(remaining)
+            if waiting and not self._stop.is_set():
+                self._c["stalled_steps"] += 1
+                self._c["stalls"] += len(waiting)
+                for g in waiting:
+                    n = self._consecutive_stalls.get(g, 0) + 1
+                    self._consecutive_stalls[g] = n
+                    if n >= self.clock_spec.lockstep_max_stalls:
+                        self._freewheel.add(g)
+                        self._c["lockstep_released"] += 1
+            for g in self._registered:
+                if g not in waiting:
+                    self._consecutive_stalls[g] = 0
+
+    def _publish_tick(self, t_ns: int, st: Any, physics_stepped: bool) -> None:
+        pubs = self._pubs
+        pubs["/clock"].publish(Clock(stamp_ns=t_ns))
+        n_states = 0
+        if st is not None:
+            step = int(self.scene.swarm.step_count)
+            for gid, i in self._glider_index.items():
+                pubs[f"/glider/{gid}/state"].publish(GliderState(
+                    stamp_ns=t_ns, x=float(st.x[0, i]), y=float(st.y[0, i]),
+                    z=float(st.z[0, i]), heading=float(st.heading[0, i]),
+                    bank=float(st.bank[0, i]), airspeed=float(st.speed[0, i]),
+                    vz=float(st.vz[0, i]), alive=bool(st.alive[0, i]), glider_id=gid, step=step,
+                ))
+                n_states += 1
+            if physics_stepped:
+                self._publish_neighbors(t_ns, st, step)
+        if self._vehicle_ids:
+            t_s = t_ns / 1e9
+            tick = int(self._c["ticks"])
+            for vid, traj in self.scene.trajectories.items():
+                s = traj.sample(t_s)
+                pubs[f"/glider/{vid}/state"].publish(GliderState(
+                    stamp_ns=t_ns, x=float(s["x"]), y=float(s["y"]), z=float(s["z"]),
+                    heading=float(s["heading"]), bank=float(s["bank"]),
+                    airspeed=float(s["airspeed"]), vz=float(s["vz"]), alive=True,
+                    glider_id=vid, step=tick,
+                ))
+                n_states += 1
+        with self._lock:
+            self._c["clock_published"] += 1
+            self._c["states_published"] += n_states
+
+    def _publish_neighbors(self, t_ns: int, st: Any, step: int) -> None:
+        with self._lock:
+            targets = sorted(g for g in self._registered if g in self._glider_index)
+        if not targets:
+            return
+        swarm = self.scene.swarm
+        gids = np.array(list(self._glider_index), dtype=np.int32)
+        for gid in targets:
+            idx = np.asarray(swarm.neighbors(self._glider_index[gid]), dtype=np.intp)
+            self._pubs[f"/glider/{gid}/neighbors"].publish(GliderNeighbors(
+                stamp_ns=t_ns, glider_id=gid, ids=gids[idx], x=st.x[0, idx], y=st.y[0, idx],
+                z=st.z[0, idx], heading=st.heading[0, idx], bank=st.bank[0, idx],
+                airspeed=st.speed[0, idx], vz=st.vz[0, idx], step=step,
+            ))
+        with self._lock:
+            self._c["neighbors_published"] += len(targets)
+
+    def _publish_thermals(self, t_ns: int) -> None:
+        if "/thermals" not in self._pubs:
+            return
+        th = self.scene.swarm.thermals
+        ok = th.valid[0]
+        self._pubs["/thermals"].publish(ThermalMarkers(
+            stamp_ns=t_ns, x=th.x[0, ok], y=th.y[0, ok], radius=th.radius[0, ok],
+            w_max=th.w_max[0, ok],
+        ))
+
+    def _publish_diagnostics(self, t_ns: int) -> None:
+        stats = self.stats()
+        counters: dict[str, int | float] = {
+            k: v for k, v in stats.items() if isinstance(v, int | float) and not isinstance(v, bool)
+        }
+        for key in ("ping_echo_ms", "echo_compute_ms"):
+            for p in ("p50", "p99"):
+                val = stats[key][p]
+                if math.isfinite(val):
+                    counters[f"{key}_{p}"] = val
+        node = self._node.stats()
+        for key in ("sent", "received", "dropped", "decode_errors", "callback_errors"):
+            counters[f"bus_{key}"] = int(node[key])
+        self._pubs["/diagnostics"].publish(
+            Diagnostics(stamp_ns=t_ns, node=self.name, counters=counters)
+        )
+        with self._lock:
+            self._c["diagnostics_published"] += 1
+
+    def _tick_loop(self) -> None:
+        try:
+            self._run_ticks()
+        finally:
+            self._done.set()
+
+    def _run_ticks(self) -> None:
+        mode: Literal["realtime", "lockstep", "fast"] = self.clock_spec.mode
+        swarm = self.scene.swarm
+        phys_ns = round(float(self.scene.law.dt) * 1e9) if swarm is not None else 0
+        stop_s = self.params.stop_after_s
+        stop_ns = None if stop_s is None else round(stop_s * 1e9)
+        wall0 = time.monotonic()
+        next_diag = wall0
+        tick = 0
+        since: dict[int, int] = {}
+        if swarm is not None:
+            self._publish_thermals(0)
+        while not self._stop.is_set():
+            t_ns = tick * self.tick_ns
+            if stop_ns is not None and t_ns > stop_ns:
+                break
+            stepped = False
+            if swarm is not None:
+                while (swarm.step_count + 1) * phys_ns <= t_ns:
+                    if mode == "lockstep":
+                        self._wait_lockstep(since)
+                    if self._stop.is_set():
+                        return
+                    swarm.step(self._commands_for_step())
+                    with self._lock:
+                        self._c["physics_steps"] += 1
+                    stepped = True
+            st = swarm.state if swarm is not None else None
+            with self._lock:
+                self._sim_ns = max(self._sim_ns, t_ns)
+            if t_ns > self.clock.now_ns():
+                self.clock.set_ns(t_ns)
+            self._update_poses(st)
+            self._publish_tick(t_ns, st, stepped)
+            if stepped:
+                with self._lock:
+                    since = dict(self._cmd_arrivals)
+            with self._lock:
+                self._c["ticks"] += 1
+            tick += 1
+            now = time.monotonic()
+            if now >= next_diag:
+                self._publish_diagnostics(t_ns)
+                next_diag = now + self.params.diagnostics_period_s
+            if mode == "realtime":
+                target = wall0 + (tick * self.tick_ns / 1e9) / self.clock_spec.rate
+                remaining = target - time.monotonic()
+                if remaining > 0:
+                    self._stop.wait(remaining)
+                elif remaining < -self.tick_ns / 1e9:
+                    with self._lock:
+                        self._c["late_ticks"] += 1

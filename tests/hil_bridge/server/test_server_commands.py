@@ -1,0 +1,100 @@
+"""SimServer: lockstep stalls, command limits, held commands, registration (mem:// bus)."""
+
+from __future__ import annotations
+
+import math
+import threading
+from typing import Any
+
+import pytest
+
+from hil_bridge.messages import GliderCmd, GliderNeighbors, GliderState
+from hil_bridge.node import Node
+from hil_bridge.qos import COMMAND
+from hil_bridge.server import SimServer
+from sim_core.config import ConfigError
+
+SWARM = {"overrides": {"numAgents": 3, "dt": 0.1}, "seed": 4}
+
+
+def _scene(mode: str, **clock: Any) -> dict[str, Any]:
+    return {"swarm": SWARM, "state_rate_hz": 20, "clock": {"mode": mode, **clock}}
+
+
+def test_lockstep_with_a_silent_autopilot_stalls_then_freewheels() -> None:
+    scene = _scene("lockstep", lockstep_timeout_s=0.01, lockstep_max_stalls=3)
+    srv = SimServer("server", bus="mem://lockstep_silent", scene=scene, autopilots=[1],
+                    stop_after_s=1.0)
+    srv.start()
+    try:
+        assert srv.wait_done(timeout=60), "lockstep deadlocked on a silent autopilot"
+    finally:
+        srv.stop()
+    st = srv.stats()
+    assert st["physics_steps"] == 10
+    assert st["stalls"] == 3  # then the silent autopilot is no longer waited for
+    assert st["lockstep_released"] == 1
+    assert st["freewheeling"] == [1]
+
+
+def test_commands_apply_with_limits_and_bad_ones_are_counted() -> None:
+    """A lockstep autopilot answers each physics step with the next scripted command."""
+    script = [
+        (0.1, 10.0),            # good
+        (math.nan, 10.0),       # rejected: non-finite -> hold (0.1, 10)
+        (2.0, 10.0),            # rejected: |bank| >= pi/2
+        (0.1, -1.0),            # rejected: airspeed <= 0
+        (-0.5, 20.0),           # clipped to (bankMin, forwardSpeedMax)
+        (-0.5, 20.0),
+    ]
+    bus = "mem://commands"
+    scene = _scene("lockstep", lockstep_timeout_s=5.0)
+    srv = SimServer("server", bus=bus, scene=scene, autopilots=[0], stop_after_s=0.6)
+    ap = Node("autopilot", bus=bus)
+    cmd_pub = ap.create_publisher(GliderCmd, "/glider/0/cmd", COMMAND)
+    banks: dict[int, float] = {}
+    neighbour_msgs: list[GliderNeighbors] = []
+    sent = {"n": 0}
+    lock = threading.Lock()
+
+    def on_state(msg: GliderState) -> None:
+        with lock:
+            banks[msg.step] = msg.bank
+            if msg.step == sent["n"] and sent["n"] < len(script):
+                bank, speed = script[sent["n"]]
+                sent["n"] += 1
+                cmd_pub.publish(GliderCmd(stamp_ns=msg.stamp_ns, bank_cmd=bank,
+                                          airspeed_cmd=speed, glider_id=0, step=msg.step))
+
+    ap.create_subscription(GliderState, "/glider/0/state", on_state)
+    ap.create_subscription(GliderNeighbors, "/glider/0/neighbors", neighbour_msgs.append)
+    other: list[GliderNeighbors] = []
+    ap.create_subscription(GliderNeighbors, "/glider/1/neighbors", other.append)
+    ap.start()
+    srv.start()
+    try:
+        assert srv.wait_done(timeout=60)
+    finally:
+        srv.stop()
+        ap.stop()
+    st = srv.stats()
+    assert st["cmd_rejected"] == 3
+    assert st["cmd_applied"] == 3
+    assert st["cmd_clipped"] == 2
+    assert st["stalls"] == 0
+    # Step k is flown on the command answering step k-1: 0.1 for steps 1..4 (held through the
+    # three rejected ones), then bankMin for steps 5 and 6.
+    law_bank_min = srv.scene.law.bankMin
+    assert [round(banks[k], 6) for k in (1, 2, 3, 4)] == [0.1] * 4
+    assert banks[5] == pytest.approx(law_bank_min)
+    # neighbour lists only for the glider whose autopilot registered
+    assert neighbour_msgs and not other
+
+
+def test_unknown_autopilot_id_and_bad_params_fail_at_construction() -> None:
+    with pytest.raises(ConfigError, match="autopilots: unknown glider id"):
+        SimServer("server", bus="mem://bad", scene=_scene("fast"), autopilots=[42])
+    with pytest.raises(ConfigError, match="unknown key"):
+        SimServer("server", bus="mem://bad", scene=_scene("fast"), colour="red")
+    with pytest.raises(ConfigError, match="echo_queue"):
+        SimServer("server", bus="mem://bad", scene=_scene("fast"), echo_queue=0)
