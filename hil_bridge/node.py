@@ -1,0 +1,604 @@
+"""Nodes: rclpy-shaped publishers, subscriptions and timers over one bus transport.
+
+A :class:`Node` opens its transport when constructed (so publishers and subscriptions made in
+``__init__`` are live at once) and runs two threads after :meth:`Node.start`:
+
+- ``<name>-rx`` receives, decodes, deduplicates, acknowledges ``COMMAND`` messages and queues
+  each message on its subscription's keep-last queue (depth from the QoS profile; overflow is
+  dropped and counted; reliable subscriptions never drop an acknowledged message). It never
+  runs user code, so a slow callback cannot stall reception.
+- ``<name>-exec`` runs subscription callbacks, timers (on the node's :class:`SimClock`),
+  ``COMMAND`` retransmissions and the periodic ``/diagnostics`` publication, one at a time (like
+  rclpy's single-threaded executor).
+
+A frame that does not decode (unknown type, newer version, wrong type for the topic, corrupt)
+is dropped and counted as ``decode_errors``; an exception in a callback is logged and counted as
+``callback_errors``; neither ever ends a thread. Publisher ``seq`` gaps are counted as
+``dropped`` (the message was lost upstream, e.g. at a full queue).
+
+The *launchable* contract (``Cls(name, *, bus, **params)``, ``start()``, ``stop()``,
+``stats()``) is met by :class:`Node` and by subclasses that add their own parameters.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any, Generic, TypeVar
+
+from hil_bridge.clock import SimClock, default_clock
+from hil_bridge.codec import Envelope, Header, decode_header, decode_payload, encode, validate_topic
+from hil_bridge.errors import CodecError
+from hil_bridge.messages import Clock, CmdAck, Diagnostics, Message
+from hil_bridge.qos import LATCHED, SENSOR, QoSProfile, qos_profile
+from hil_bridge.transport import DEFAULT_BUS, Transport, open_transport
+
+__all__ = ["DEFAULT_BUS", "Node", "Publisher", "Subscription", "Timer"]
+
+log = logging.getLogger(__name__)
+
+M = TypeVar("M", bound=Message)
+
+_NODE_IDS = itertools.count()
+_RX_SLICE_S = 0.02
+_SEEN_WINDOW = 1024
+
+
+def _topic_counters() -> dict[str, int]:
+    return {
+        "sent": 0,
+        "received": 0,
+        "dropped": 0,
+        "duplicates": 0,
+        "decode_errors": 0,
+        "callback_errors": 0,
+        "retransmits": 0,
+        "acked": 0,
+        "ack_failed": 0,
+    }
+
+
+class Publisher(Generic[M]):
+    """Made by :meth:`Node.create_publisher`. ``publish(msg)`` returns the message's ``seq``."""
+
+    def __init__(
+        self, node: Node, msg_type: type[M], topic: str, qos: QoSProfile, frame_id: str
+    ) -> None:
+        self.node = node
+        self.msg_type = msg_type
+        self.topic = topic
+        self.qos = qos
+        self.frame_id = frame_id
+        self.topic_frame = topic.encode() + b"\0"
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._last: list[bytes] | None = None
+        self._acked = threading.Condition(self._lock)
+        #: seq -> [frames, first_sent_mono, next_retry_mono]
+        self._pending: dict[int, list[Any]] = {}
+        self._failed: deque[int] = deque(maxlen=_SEEN_WINDOW)
+        self._counters = node._topic(topic)
+
+    def publish(self, msg: M) -> int:
+        """Send ``msg`` (its ``stamp_ns`` goes in the header); return its ``seq``."""
+        if type(msg) is not self.msg_type:
+            raise TypeError(
+                f"publisher of {self.topic!r} sends {self.msg_type.__name__}, "
+                f"got {type(msg).__name__}"
+            )
+        with self._lock:
+            seq = self._seq
+            frames = encode(
+                self.topic,
+                msg,
+                seq=seq,
+                pub_ns=time.monotonic_ns(),
+                frame_id=self.frame_id,
+                src=self.node.src,
+            )
+            self.node.transport.publish(frames)
+            self._seq = seq + 1
+            self._counters["sent"] += 1
+            if self.qos.latched:
+                self._last = frames
+            if self.qos.reliable:
+                now = time.monotonic()
+                self._pending[seq] = [frames, now, now + self.qos.retry_period_s]
+        if self.qos.reliable:
+            self.node._wake_exec()
+        return seq
+
+    def wait_for_subscribers(self, timeout: float) -> bool:
+        """True once a subscription to this topic is known to receive what is published next
+        (the slow-joiner guard; no sleeping). False after ``timeout`` seconds."""
+        return self.node.transport.wait_for_subscriber(self.topic, timeout)
+
+    def wait_for_ack(self, seq: int, timeout: float) -> bool:
+        """``COMMAND`` publishers: True once ``seq`` is acknowledged, False on timeout or when
+        it was given up (``ack_timeout_s``)."""
+        if not self.qos.reliable:
+            raise ValueError(f"publisher of {self.topic!r} is not reliable (qos {self.qos.name})")
+        with self._lock:
+            if seq >= self._seq:
+                raise ValueError(f"seq {seq} was never published on {self.topic!r}")
+            return self._acked.wait_for(lambda: seq not in self._pending, timeout) and (
+                seq not in self._failed
+            )
+
+    @property
+    def pending(self) -> int:
+        """Reliable messages not yet acknowledged."""
+        with self._lock:
+            return len(self._pending)
+
+    def _ack(self, seq: int) -> None:
+        with self._lock:
+            if self._pending.pop(seq, None) is not None:
+                self._counters["acked"] += 1
+                self._acked.notify_all()
+
+    def _retransmit(self, now: float) -> float | None:
+        """Re-send due messages; return the next due time (monotonic s) or None."""
+        nxt: float | None = None
+        with self._lock:
+            for seq in list(self._pending):
+                entry = self._pending[seq]
+                frames, first, due = entry
+                if now - first >= self.qos.ack_timeout_s:
+                    del self._pending[seq]
+                    self._failed.append(seq)
+                    self._counters["ack_failed"] += 1
+                    self._acked.notify_all()
+                    continue
+                if now >= due:
+                    self.node.transport.publish(frames)
+                    self._counters["retransmits"] += 1
+                    due = entry[2] = now + self.qos.retry_period_s
+                nxt = due if nxt is None else min(nxt, due)
+        return nxt
+
+    def _resend_latched(self, prefix: bytes) -> None:
+        with self._lock:
+            last = self._last
+        if last is not None and self.topic_frame.startswith(prefix):
+            self.node.transport.publish(last)
+            self._counters["latched_resends"] = self._counters.get("latched_resends", 0) + 1
+
+
+class Subscription(Generic[M]):
+    """Made by :meth:`Node.create_subscription`; ``callback(msg)`` (or ``callback(envelope)``
+    with ``envelope=True``) runs on the node's executor thread."""
+
+    def __init__(
+        self,
+        node: Node,
+        msg_type: type[M],
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoSProfile,
+        envelope: bool,
+    ) -> None:
+        self.node = node
+        self.msg_type = msg_type
+        self.topic = topic
+        self.callback = callback
+        self.qos = qos
+        self.envelope = envelope
+        self.queue: deque[Envelope] = deque()
+        self._last_seq: dict[str, int] = {}
+        self._seen: dict[str, tuple[set[int], deque[int]]] = {}
+        self._counters = node._topic(topic)
+
+    def _is_duplicate(self, header: Header) -> bool:
+        """Track ``seq`` per publisher: count gaps as drops, report repeats."""
+        if self.qos.reliable:
+            seen, order = self._seen.setdefault(header.src, (set(), deque()))
+            if header.seq in seen:
+                return True
+            seen.add(header.seq)
+            order.append(header.seq)
+            if len(order) > _SEEN_WINDOW:
+                seen.discard(order.popleft())
+            return False
+        last = self._last_seq.get(header.src)
+        if last is not None:
+            if header.seq <= last:
+                return True
+            if header.seq > last + 1:
+                self._counters["dropped"] += header.seq - last - 1
+        self._last_seq[header.src] = header.seq
+        return False
+
+
+class Timer:
+    """Made by :meth:`Node.create_timer`; fires every ``period_ns`` of the node's sim clock."""
+
+    def __init__(self, node: Node, period_s: float, callback: Callable[[], None]) -> None:
+        if not period_s > 0:
+            raise ValueError(f"timer period must be > 0 s, got {period_s!r}")
+        self.node = node
+        self.period_ns = max(1, round(period_s * 1e9))
+        self.callback = callback
+        self.next_ns = node.clock.now_ns() + self.period_ns
+        self.fired = 0
+        self.overruns = 0
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+        self.node._wake_exec()
+
+
+class Node:
+    """A bus participant: ``Node(name, *, bus=DEFAULT_BUS, clock=None, diagnostics_period_s=1.0)``.
+
+    ``clock`` defaults to :func:`~hil_bridge.clock.default_clock`. ``diagnostics_period_s``
+    (wall seconds; 0 disables) sets how often ``/diagnostics`` carries :meth:`stats`.
+    Use as a context manager or call :meth:`stop` (idempotent) to close threads and sockets.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        bus: str = DEFAULT_BUS,
+        clock: SimClock | None = None,
+        diagnostics_period_s: float = 1.0,
+    ) -> None:
+        if not isinstance(name, str) or not name or not name.replace("_", "a").isalnum():
+            raise ValueError(f"node name must be a non-empty [A-Za-z0-9_] string, got {name!r}")
+        if diagnostics_period_s < 0:
+            raise ValueError(f"diagnostics_period_s must be >= 0, got {diagnostics_period_s}")
+        self.name = name
+        self.bus = bus
+        self.clock = clock if clock is not None else default_clock()
+        self.src = f"{name}#{os.getpid():x}.{next(_NODE_IDS)}.{os.urandom(3).hex()}"
+        self.diagnostics_period_s = diagnostics_period_s
+        self._counters_by_topic: dict[str, dict[str, int]] = {}
+        self._publishers: list[Publisher[Any]] = []
+        self._subs: dict[bytes, list[Subscription[Any]]] = {}
+        self._timers: list[Timer] = []
+        self._ack_pubs: dict[str, Publisher[CmdAck]] = {}
+        self._ack_targets: dict[str, Publisher[Any]] = {}
+        self._lock = threading.RLock()
+        self._exec_cond = threading.Condition()
+        self._ready: deque[Subscription[Any]] = deque()
+        self._stopping = False
+        self._stopped = False
+        self._threads: list[threading.Thread] = []
+        self._diag_pub: Publisher[Diagnostics] | None = None
+        self.transport: Transport = open_transport(bus)
+        self.transport.on_subscribe = self._on_remote_subscribe
+        self.clock.add_listener(self._wake_exec)
+
+    # -- construction API (rclpy shapes) ---------------------------------------------------
+    def _topic(self, topic: str) -> dict[str, int]:
+        with self._lock:
+            counters = self._counters_by_topic.get(topic)
+            if counters is None:
+                counters = self._counters_by_topic[topic] = _topic_counters()
+            return counters
+
+    def create_publisher(
+        self,
+        msg_type: type[M],
+        topic: str,
+        qos: QoSProfile | str = SENSOR,
+        *,
+        frame_id: str = "",
+    ) -> Publisher[M]:
+        """A publisher of ``msg_type`` on ``topic`` with ``qos`` (SENSOR, COMMAND or LATCHED)."""
+        self._check_type(msg_type)
+        validate_topic(topic)
+        profile = qos_profile(qos)
+        pub = Publisher(self, msg_type, topic, profile, frame_id)
+        with self._lock:
+            self._publishers.append(pub)
+            if profile.reliable:
+                self._ack_targets[topic] = pub
+        if profile.reliable:
+            self._add_subscription(CmdAck, f"{topic}/ack", self._on_ack, SENSOR, False)
+        return pub
+
+    def create_subscription(
+        self,
+        msg_type: type[M],
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoSProfile | str = SENSOR,
+        *,
+        envelope: bool = False,
+    ) -> Subscription[M]:
+        """Call ``callback(msg)`` for each ``msg_type`` message on ``topic`` (``envelope=True``:
+        ``callback(Envelope)`` with topic, header and raw payload)."""
+        self._check_type(msg_type)
+        validate_topic(topic)
+        profile = qos_profile(qos)
+        if profile.reliable:
+            with self._lock:
+                if topic not in self._ack_pubs:
+                    self._ack_pubs[topic] = self.create_publisher(CmdAck, f"{topic}/ack")
+        return self._add_subscription(msg_type, topic, callback, profile, envelope)
+
+    def _add_subscription(
+        self,
+        msg_type: type[M],
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoSProfile,
+        envelope: bool,
+    ) -> Subscription[M]:
+        sub = Subscription(self, msg_type, topic, callback, qos, envelope)
+        frame = topic.encode() + b"\0"
+        with self._lock:
+            self._subs[frame] = [*self._subs.get(frame, []), sub]
+        self.transport.subscribe(frame)
+        return sub
+
+    def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
+        """Call ``callback()`` every ``period_s`` seconds of the node's sim clock."""
+        timer = Timer(self, period_s, callback)
+        with self._lock:
+            self._timers.append(timer)
+        self._wake_exec()
+        return timer
+
+    @staticmethod
+    def _check_type(msg_type: type) -> None:
+        if not (isinstance(msg_type, type) and issubclass(msg_type, Message) and msg_type.TYPE):
+            raise TypeError(f"msg_type must be a registered message class, got {msg_type!r}")
+
+    def now_ns(self) -> int:
+        """The node's sim time (for ``stamp_ns``)."""
+        return self.clock.now_ns()
+
+    def follow_bus_clock(self, topic: str = "/clock") -> Subscription[Clock]:
+        """Drive this node's clock from ``/clock`` (the clock must be owner-stepped)."""
+        if not self.clock.owner_stepped:
+            raise ValueError("follow_bus_clock needs a 'lockstep' or 'fast' SimClock on the node")
+
+        def on_clock(msg: Clock) -> None:
+            if msg.stamp_ns > self.clock.now_ns():
+                self.clock.set_ns(msg.stamp_ns)
+
+        return self.create_subscription(Clock, topic, on_clock, LATCHED)
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def start(self) -> Node:
+        """Start the receive and executor threads (non-blocking; idempotent)."""
+        with self._lock:
+            if self._threads or self._stopped:
+                if self._stopped:
+                    raise RuntimeError(f"node {self.name!r} was stopped; make a new one")
+                return self
+            if self.diagnostics_period_s > 0 and self._diag_pub is None:
+                self._diag_pub = self.create_publisher(Diagnostics, "/diagnostics")
+            self._threads = [
+                threading.Thread(target=self._rx_loop, name=f"{self.name}-rx", daemon=True),
+                threading.Thread(target=self._exec_loop, name=f"{self.name}-exec", daemon=True),
+            ]
+            for thread in self._threads:
+                thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop threads, join them and close the transport (idempotent)."""
+        with self._lock:
+            if self._stopped:
+                return
+            self._stopped = True
+            self._stopping = True
+            threads, self._threads = self._threads, []
+        self.transport.wakeup()
+        self._wake_exec()
+        for thread in threads:
+            if thread is not threading.current_thread():
+                thread.join()
+        self.clock.remove_listener(self._wake_exec)
+        self.transport.close()
+
+    @property
+    def running(self) -> bool:
+        return bool(self._threads) and not self._stopping
+
+    def __enter__(self) -> Node:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    # -- counters ----------------------------------------------------------------------------
+    def stats(self) -> dict[str, Any]:
+        """``{"node", "sent", "received", "dropped", "duplicates", "decode_errors",
+        "callback_errors", "retransmits", "acked", "ack_failed", "timer_overruns",
+        "topics": {topic: {...}}, "transport": {...}}``."""
+        with self._lock:
+            topics = {t: dict(c) for t, c in self._counters_by_topic.items()}
+            overruns = sum(t.overruns for t in self._timers)
+        totals: dict[str, Any] = {"node": self.name}
+        for key in _topic_counters():
+            totals[key] = sum(c.get(key, 0) for c in topics.values())
+        totals["timer_overruns"] = overruns
+        totals["topics"] = topics
+        totals["transport"] = self.transport.stats()
+        return totals
+
+    def _diagnostics(self) -> Diagnostics:
+        stats = self.stats()
+        counters: dict[str, int | float] = {
+            k: v for k, v in stats.items() if isinstance(v, (int, float))
+        }
+        for topic, c in stats["topics"].items():
+            for key in ("sent", "received", "dropped", "decode_errors"):
+                if c[key]:
+                    counters[f"{key}:{topic}"] = c[key]
+        return Diagnostics(stamp_ns=self.clock.now_ns(), node=self.name, counters=counters)
+
+    # -- internals ---------------------------------------------------------------------------
+    def _wake_exec(self) -> None:
+        with self._exec_cond:
+            self._exec_cond.notify()
+
+    def _on_remote_subscribe(self, prefix: bytes) -> None:
+        with self._lock:
+            latched = [p for p in self._publishers if p.qos.latched]
+        for pub in latched:
+            pub._resend_latched(prefix)
+
+    def _on_ack(self, ack: CmdAck) -> None:
+        if ack.src != self.src:
+            return
+        pub = self._ack_targets.get(ack.topic)
+        if pub is not None:
+            pub._ack(ack.seq)
+
+    def _decode_error(self, topic_frame: bytes, exc: Exception) -> None:
+        topic = topic_frame.rstrip(b"\0").decode(errors="replace")
+        self._topic(topic)["decode_errors"] += 1
+        log.debug("%s: dropped a message on %r: %s", self.name, topic, exc)
+
+    def _rx_loop(self) -> None:
+        transport = self.transport
+        next_service = 0.0
+        while not self._stopping:
+            now = time.monotonic()
+            if now >= next_service:
+                transport.service(0.0)
+                next_service = now + _RX_SLICE_S
+            frames = transport.recv(timeout=_RX_SLICE_S)
+            if frames is None or self._stopping:
+                continue
+            subs = self._subs.get(frames[0])
+            if not subs:
+                continue
+            try:
+                header = decode_header(frames[1])
+            except CodecError as exc:
+                self._decode_error(frames[0], exc)
+                continue
+            self._dispatch(subs, frames, header)
+
+    def _dispatch(self, subs: list[Subscription[Any]], frames: list[bytes], header: Header) -> None:
+        decoded: Message | None = None
+        topic = subs[0].topic
+        payload = frames[2]
+        for sub in subs:
+            counters = sub._counters
+            if header.type != sub.msg_type.TYPE:
+                self._decode_error(
+                    frames[0],
+                    CodecError(f"type {header.type!r} on a {sub.msg_type.TYPE} subscription"),
+                )
+                continue
+            if decoded is None:
+                try:
+                    decoded = decode_payload(header.type, header.v, payload)
+                except CodecError as exc:
+                    self._decode_error(frames[0], exc)
+                    return
+            if sub.qos.reliable:
+                self._send_ack(topic, header)
+            if sub._is_duplicate(header):
+                counters["duplicates"] += 1
+                continue
+            counters["received"] += 1
+            envelope = Envelope(topic, header, decoded, payload)
+            with self._exec_cond:
+                if len(sub.queue) >= sub.qos.depth and not sub.qos.reliable:
+                    sub.queue.popleft()
+                    counters["dropped"] += 1
+                sub.queue.append(envelope)
+                self._ready.append(sub)
+                self._exec_cond.notify()
+
+    def _send_ack(self, topic: str, header: Header) -> None:
+        pub = self._ack_pubs.get(topic)
+        if pub is not None:
+            pub.publish(
+                CmdAck(
+                    stamp_ns=self.clock.now_ns(),
+                    topic=topic,
+                    src=header.src,
+                    seq=header.seq,
+                    node=self.name,
+                )
+            )
+
+    def _exec_loop(self) -> None:
+        next_diag = time.monotonic() + self.diagnostics_period_s
+        while True:
+            with self._exec_cond:
+                if self._stopping:
+                    return
+                work: Subscription[Any] | None = self._ready.popleft() if self._ready else None
+                envelope = work.queue.popleft() if work is not None and work.queue else None
+            if envelope is not None and work is not None:
+                self._run_callback(work, envelope)
+                continue
+            if work is not None:
+                continue
+            wait = self._service_timers_and_retries()
+            if self.diagnostics_period_s > 0:
+                now = time.monotonic()
+                if now >= next_diag:
+                    self._publish_diagnostics()
+                    next_diag = now + self.diagnostics_period_s
+                wait = min(wait, max(0.0, next_diag - time.monotonic()))
+            with self._exec_cond:
+                if not self._ready and not self._stopping and wait > 0:
+                    self._exec_cond.wait(wait)
+
+    def _run_callback(self, sub: Subscription[Any], envelope: Envelope) -> None:
+        try:
+            sub.callback(envelope if sub.envelope else envelope.msg)
+        except Exception:
+            sub._counters["callback_errors"] += 1
+            log.exception("%s: callback on %r raised", self.name, sub.topic)
+
+    def _service_timers_and_retries(self) -> float:
+        """Fire due timers and retransmissions; return wall seconds until the next one."""
+        wait = 1.0
+        with self._lock:
+            timers = [t for t in self._timers if not t.cancelled]
+            self._timers = timers
+            reliable = [p for p in self._publishers if p.qos.reliable]
+        now_ns = self.clock.now_ns()
+        for timer in timers:
+            if now_ns >= timer.next_ns:
+                missed = (now_ns - timer.next_ns) // timer.period_ns
+                timer.overruns += missed
+                timer.next_ns += (missed + 1) * timer.period_ns
+                timer.fired += 1
+                try:
+                    timer.callback()
+                except Exception:
+                    self._topic("/timers")["callback_errors"] += 1
+                    log.exception("%s: timer callback raised", self.name)
+                now_ns = self.clock.now_ns()
+            until = self.clock.wall_seconds_until(timer.next_ns)
+            if until is not None:
+                wait = min(wait, until)
+        now = time.monotonic()
+        for pub in reliable:
+            due = pub._retransmit(now)
+            if due is not None:
+                wait = min(wait, max(0.0, due - now))
+        return wait
+
+    def _publish_diagnostics(self) -> None:
+        if self._diag_pub is not None:
+            self._diag_pub.publish(self._diagnostics())
+
+    def __repr__(self) -> str:
+        return f"Node({self.name!r}, bus={self.bus!r})"

@@ -1,0 +1,174 @@
+"""Transport conformance: one suite, run against every backend (``mem`` and ``zmq``)."""
+
+from __future__ import annotations
+
+import pytest
+
+from hil_bridge.codec import decode, encode
+from hil_bridge.errors import TransportClosed
+from hil_bridge.messages import Clock, GliderState
+from hil_bridge.proxy import Proxy, proxy_for
+from hil_bridge.transport import BACKENDS, open_transport
+from hil_bridge.transport.zmq import parse_zmq_url
+
+
+def _clock(topic: str, seq: int) -> list[bytes]:
+    return encode(topic, Clock(stamp_ns=seq * 10), seq=seq, pub_ns=seq)
+
+
+def test_delivers_in_order_after_wait_for_subscriber(bus_url: str) -> None:
+    with open_transport(bus_url) as pub, open_transport(bus_url) as sub:
+        sub.subscribe(b"/clock\0")
+        assert pub.wait_for_subscriber("/clock", timeout=10.0)
+        for i in range(200):
+            pub.publish(_clock("/clock", i))
+        got = [sub.recv(timeout=10.0) for _ in range(200)]
+        assert [decode(f).header.seq for f in got if f is not None] == list(range(200))
+        assert pub.stats()["sent"] == 200 and sub.stats()["received"] == 200
+
+
+def test_prefix_filter_respects_the_nul_terminator(bus_url: str) -> None:
+    with open_transport(bus_url) as pub, open_transport(bus_url) as sub:
+        sub.subscribe(b"/glider/1/state\0")
+        assert pub.wait_for_subscriber("/glider/1/state", timeout=10.0)
+        assert not pub.has_subscriber("/glider/1/state_raw")
+        pub.publish(_clock("/glider/1/state_raw", 0))
+        pub.publish(_clock("/glider/1/state", 1))
+        frames = sub.recv(timeout=10.0)
+        assert frames is not None and frames[0] == b"/glider/1/state\0"
+        assert sub.recv(timeout=0.05) is None
+
+
+def test_publisher_receives_its_own_messages_when_subscribed(bus_url: str) -> None:
+    with open_transport(bus_url) as t:
+        t.subscribe("/a\0")
+        assert t.wait_for_subscriber("/a", timeout=10.0)
+        t.publish(_clock("/a", 0))
+        frames = t.recv(timeout=10.0)
+        assert frames is not None and decode(frames).topic == "/a"
+
+
+def test_recv_times_out_and_wakeup_returns_none(bus_url: str) -> None:
+    with open_transport(bus_url) as t:
+        t.subscribe(b"")
+        assert t.recv(timeout=0.01) is None
+        t.wakeup()
+        assert t.recv(timeout=10.0) is None
+
+
+def test_unsubscribe_stops_delivery(bus_url: str) -> None:
+    with open_transport(bus_url) as pub, open_transport(bus_url) as sub:
+        sub.subscribe(b"/b\0")
+        sub.subscribe(b"/a\0")
+        assert pub.wait_for_subscriber("/a", timeout=10.0)
+        assert pub.wait_for_subscriber("/b", timeout=10.0)
+        sub.unsubscribe(b"/a\0")
+        with pytest.raises(ValueError, match="not subscribed"):
+            sub.unsubscribe(b"/a\0")
+        pub.publish(_clock("/a", 0))
+        pub.publish(_clock("/b", 0))
+        frames = sub.recv(timeout=10.0)
+        assert frames is not None and frames[0] == b"/b\0"
+
+
+def test_slow_subscriber_never_blocks_the_publisher(bus_url: str) -> None:
+    with open_transport(bus_url) as pub, open_transport(bus_url) as sub:
+        sub.subscribe(b"/s\0")
+        assert pub.wait_for_subscriber("/s", timeout=10.0)
+        state = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=0.0, bank=0.0,
+                            airspeed=0.0, vz=0.0)
+        n = 20_000  # far beyond every queue bound (mem depth 1000, zmq hwm 1000 per socket)
+        for i in range(n):
+            pub.publish(encode("/s", state, seq=i, pub_ns=0))
+        assert pub.stats()["sent"] == n
+        seqs = []
+        while (frames := sub.recv(timeout=0.5)) is not None:
+            seqs.append(decode(frames).header.seq)
+        assert 0 < len(seqs) < n
+        assert seqs == sorted(seqs)
+        lost = n - len(seqs)
+        # counted where the loss is visible: the mem queue counts it, zmq shows seq gaps
+        gaps = sum(b - a - 1 for a, b in zip([-1, *seqs], [*seqs, n], strict=True))
+        assert gaps == lost
+        if "dropped" in sub.stats():
+            assert sub.stats()["dropped"] == lost
+
+
+def test_latecomer_learns_existing_subscriptions_and_on_subscribe_fires(bus_url: str) -> None:
+    with open_transport(bus_url) as sub:
+        sub.subscribe(b"/x\0")
+        with open_transport(bus_url) as pub:
+            assert pub.wait_for_subscriber("/x", timeout=10.0)
+            seen: list[bytes] = []
+            pub.on_subscribe = seen.append
+            sub.subscribe(b"/y\0")
+            assert pub.wait_for_subscriber("/y", timeout=10.0)
+            assert b"/y\0" in seen
+
+
+def test_close_is_idempotent_and_later_use_raises(bus_url: str) -> None:
+    t = open_transport(bus_url)
+    t.close()
+    t.close()
+    assert t.closed
+    with pytest.raises(TransportClosed):
+        t.publish(_clock("/a", 0))
+    with pytest.raises(TransportClosed):
+        t.recv(timeout=0)
+    with pytest.raises(TransportClosed):
+        t.subscribe(b"/a\0")
+    with open_transport(bus_url) as other, pytest.raises(ValueError, match="3 frames"):
+        other.publish([b"/a\0"])
+
+
+def test_iteration_yields_messages(bus_url: str) -> None:
+    with open_transport(bus_url) as pub, open_transport(bus_url) as sub:
+        sub.subscribe(b"")
+        assert pub.wait_for_subscriber("/i", timeout=10.0)
+        pub.publish(_clock("/i", 0))
+        for frames in sub:
+            assert frames[0] == b"/i\0"
+            break
+
+
+def test_unknown_scheme_lists_known_ones() -> None:
+    with pytest.raises(ValueError, match=r"unknown bus URL scheme 'udp'.*'mem'.*'tcp'"):
+        open_transport("udp://1.2.3.4:5")
+    assert set(BACKENDS) >= {"mem", "tcp", "ipc"}
+
+
+@pytest.mark.parametrize(
+    ("url", "pub", "sub"),
+    [
+        ("tcp://127.0.0.1:7400", "tcp://127.0.0.1:7400", "tcp://127.0.0.1:7401"),
+        ("tcp://h:1?sub=tcp://g:9", "tcp://h:1", "tcp://g:9"),
+        ("ipc:///tmp/bus", "ipc:///tmp/bus", "ipc:///tmp/bus.sub"),
+    ],
+)
+def test_one_url_names_both_proxy_endpoints(url: str, pub: str, sub: str) -> None:
+    ends = parse_zmq_url(url)
+    assert (ends.pub, ends.sub) == (pub, sub)
+
+
+@pytest.mark.parametrize(
+    "url",
+    ["tcp://h:1?hwm=0", "tcp://h:1?bogus=1", "tcp://h", "tcp://h:1?curve_server=x", "mem://"],
+)
+def test_bad_urls_name_the_problem(url: str) -> None:
+    with pytest.raises(ValueError):
+        open_transport(url)
+
+
+def test_ipc_bus_and_proxy_for(tmp_path: object) -> None:
+    assert proxy_for("mem://x") is None
+    url = f"ipc://{tmp_path}/bus"
+    proxy = proxy_for(url)
+    assert isinstance(proxy, Proxy)
+    with proxy, open_transport(url) as pub, open_transport(url) as sub:
+        sub.subscribe(b"/p\0")
+        assert pub.wait_for_subscriber("/p", timeout=10.0)
+        pub.publish(_clock("/p", 3))
+        frames = sub.recv(timeout=10.0)
+        assert frames is not None and decode(frames).header.seq == 3
+    proxy.stop()
+    assert not proxy.running
