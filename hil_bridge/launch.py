@@ -369,7 +369,7 @@ def run(
     want_live = spec.live if live is None else live
 
     flag = _StopFlag()
-    previous: dict[int, Any] = {}
+    previous: dict[signal.Signals, Any] = {}
     if handle_signals and threading.current_thread() is threading.main_thread():
 
         def _on_signal(signum: int, _frame: FrameType | None) -> None:

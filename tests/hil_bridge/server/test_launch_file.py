@@ -64,7 +64,7 @@ def test_param_overrides_reach_node_params(tmp_path: Path) -> None:
     assert spec.node("server").params["echo_queue"] == 2
     with pytest.raises(ConfigError, match=r"unknown node\(s\) \['sonar_head'\]"):
         load(path, params_overrides=parse_param_overrides(["sonar_head.port=/dev/null"]))
-    with pytest.raises(ConfigError, match="expected NODE.KEY=VALUE"):
+    with pytest.raises(ConfigError, match=r"expected NODE\.KEY=VALUE"):
         parse_param_overrides(["server=3"])
 
 
