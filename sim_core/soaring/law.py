@@ -243,7 +243,18 @@ class Law:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None) -> Law:
         """Validate a mapping of seed parameter names (missing keys take the defaults)."""
-        return from_dict(cls, dict(data or {}))
+        d = dict(data or {})
+        for key, item_cls in (("thermals", PinnedThermal), ("agents", PinnedAgent)):
+            items = d.get(key)
+            if items is None:
+                continue
+            if not isinstance(items, list | tuple):
+                raise ConfigError(f"{key}: expected a list of mappings, got {items!r}")
+            d[key] = tuple(
+                it if isinstance(it, item_cls) else from_dict(item_cls, it, path=f"{key}[{i}]")
+                for i, it in enumerate(items)
+            )
+        return from_dict(cls, d)
 
     @classmethod
     def from_yaml(
