@@ -216,7 +216,8 @@ class CanLink:
                 self._open_backoff = min(2 * self._open_backoff, self.policy.max_backoff_s)
                 return False
             self._bus = bus
-            self._state = "up"
+            if self._state != "bus_off":
+                self._state = "up"
             self._open_backoff = self.policy.reopen_backoff_s
             self._rx_fail = self._tx_fail = 0
             if not first:
@@ -335,8 +336,17 @@ class CanLink:
     # -- receive ------------------------------------------------------------------------------
     def recv(self, timeout: float) -> can.Message | None:
         """The next data frame, or None after ``timeout`` s (contract 3). Never raises."""
-        if self._closed:
-            return None
+        deadline = time.monotonic() + timeout
+        while not self._closed:
+            left = deadline - time.monotonic()
+            if left < 0:
+                return None
+            msg = self._recv_once(left)
+            if msg is not None:
+                return msg
+        return None
+
+    def _recv_once(self, timeout: float) -> can.Message | None:
         bus = self._ensure_open()
         if bus is None:
             self._stop.wait(min(timeout, max(0.0, self._next_open - time.monotonic())))
@@ -352,7 +362,8 @@ class CanLink:
                 self._reopen()
             else:
                 self._stop.wait(
-                    min(self.policy.max_backoff_s, self.policy.send_backoff_s * 2**self._rx_fail)
+                    min(timeout, self.policy.max_backoff_s,
+                        self.policy.send_backoff_s * 2**self._rx_fail)
                 )
             return None
         self._rx_fail = 0

@@ -131,9 +131,11 @@ class FaultInjectingBus(BusABC):
             self._enter_bus_off(self.config.bus_off_s if duration_s is None else duration_s)
 
     def inject_enobufs(self, count: int) -> None:
-        """Make the next ``count`` sends fail with ENOBUFS."""
+        """Make exactly the next ``count`` sends fail with ENOBUFS (0 clears a pending burst)."""
+        if count < 0:
+            raise ValueError(f"count must be >= 0, got {count}")
         with self._lock:
-            self._enobufs_left = max(self._enobufs_left, int(count))
+            self._enobufs_left = int(count)
 
     def _enter_bus_off(self, duration_s: float) -> None:
         self._bus_off_until = time.monotonic() + duration_s
@@ -148,6 +150,8 @@ class FaultInjectingBus(BusABC):
         if time.monotonic() >= self._bus_off_until:
             self._bus_off_until = None
             self._restart_pending = True
+            while self.inner.recv(0.0) is not None:
+                self.injected["lost_bus_off"] += 1
             return False
         return True
 
@@ -209,7 +213,7 @@ class FaultInjectingBus(BusABC):
                     self.injected["recv_errors"] += 1
                     raise can.CanOperationError("Error receiving: I/O error", error_code=errno.EIO)
         if wait is not None:
-            # Bus-off: the controller hears nothing; drain and discard what the inner bus has.
+            # Bus-off: the controller hears nothing; discard what the inner bus receives.
             self._discard_inner(min(wait, timeout) if timeout is not None else wait)
             return None, False
         if self._held:
@@ -226,6 +230,7 @@ class FaultInjectingBus(BusABC):
             left = deadline - time.monotonic()
             if left <= 0 or self.inner.recv(left) is None:
                 return
+            self.injected["lost_bus_off"] += 1
 
     def _mangle(self, msg: can.Message) -> can.Message | None:
         cfg = self.config

@@ -1,0 +1,204 @@
+"""The glider CAN profile: DBC rules, every signal at its limits, saturation, node offsets."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import can
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.can.codec import ANGLE_SIGNALS, DBC_PATH, GliderCanCodec, load_database
+from hil_bridge.errors import CodecError
+
+CODEC = GliderCanCodec()
+ALL_SIGNALS = [(m, s) for m in CODEC.message_names for s in CODEC.signals(m)]
+IDS = [f"{m}.{s.name}" for m, s in ALL_SIGNALS]
+
+#: spec/protocols.md §3: binding names and the minimum resolution / range each must cover.
+REQUIRED = {
+    "GLIDER_STATE_POS": {
+        "x_m": (0.01, -20000.0, 20000.0),
+        "y_m": (0.01, -20000.0, 20000.0),
+        "z_m": (0.01, 0.0, 5000.0),
+    },
+    "GLIDER_STATE_MOTION": {
+        "heading_rad": (1e-4, -math.pi, math.pi),
+        "bank_rad": (1e-4, -math.pi / 2, math.pi / 2),
+        "airspeed_mps": (0.01, 0.0, 100.0),
+        "vz_mps": (0.01, -50.0, 50.0),
+    },
+    "AUTOPILOT_CMD": {
+        "bank_cmd_rad": (1e-4, -math.pi / 2, math.pi / 2),
+        "airspeed_cmd_mps": (0.01, 0.0, 100.0),
+    },
+}
+
+
+def _midpoints(message: str) -> dict[str, float]:
+    return {s.name: 0.5 * (s.minimum + s.maximum) for s in CODEC.signals(message)}
+
+
+def _tol(sig_scale: float) -> float:
+    return 0.5 * sig_scale + 1e-9
+
+
+def test_dbc_follows_profile_rules() -> None:
+    db = load_database(DBC_PATH)
+    assert len(db.messages) == 7
+    for msg in db.messages:
+        assert not msg.is_extended_frame
+        assert msg.frame_id % 0x10 == 0 and msg.frame_id + 15 <= 0x7FF
+        assert msg.length == 8
+        assert sum(s.length for s in msg.signals) <= 64
+        for sig in msg.signals:
+            assert sig.byte_order == "little_endian", sig.name
+    bases = sorted(m.frame_id for m in db.messages)
+    assert all(b - a >= 0x10 for a, b in itertools.pairwise(bases))
+
+
+@pytest.mark.parametrize("message", sorted(REQUIRED))
+def test_binding_signals_have_required_resolution_and_range(message: str) -> None:
+    specs = {s.name: s for s in CODEC.signals(message)}
+    for name, (resolution, lo, hi) in REQUIRED[message].items():
+        sig = specs[name]
+        assert sig.scale <= resolution, name
+        assert sig.minimum <= lo + 1e-4 and sig.maximum >= hi - 1e-4, name
+        # the raw field can hold every code of the range (no wrap inside the range)
+        raw_max = (1 << (sig.bits - 1)) - 1 if sig.signed else (1 << sig.bits) - 1
+        raw_min = -(1 << (sig.bits - 1)) if sig.signed else 0
+        assert round(sig.maximum / sig.scale) <= raw_max
+        assert round(sig.minimum / sig.scale) >= raw_min
+
+
+@pytest.mark.parametrize(("message", "sig"), ALL_SIGNALS, ids=IDS)
+def test_every_signal_at_its_limits(message: str, sig) -> None:  # type: ignore[no-untyped-def]
+    codec = GliderCanCodec()
+    for value in (sig.minimum, sig.maximum):
+        values = _midpoints(message) | {sig.name: value}
+        out = codec.decode(codec.encode(message, 0, values)).signals
+        err = out[sig.name] - value
+        if sig.name in ANGLE_SIGNALS:  # equal as angles (normalised to [-pi, pi))
+            err = (err + math.pi) % (2 * math.pi) - math.pi
+        assert abs(err) <= _tol(sig.scale), (value, out[sig.name])
+    assert codec.saturation_counts() == {"tx": {}, "rx": {}}
+    if sig.name in ANGLE_SIGNALS:
+        return  # angles normalise instead of saturating: see test_angles_normalise
+    step = sig.scale  # one code outside the range: just outside
+    for value, limit in ((sig.minimum - step, sig.minimum), (sig.maximum + step, sig.maximum)):
+        values = _midpoints(message) | {sig.name: value}
+        out = codec.decode(codec.encode(message, 0, values)).signals
+        assert abs(out[sig.name] - limit) <= _tol(sig.scale)
+    assert codec.saturation_counts()["tx"] == {sig.name: 2}
+
+
+def test_angles_normalise() -> None:
+    codec = GliderCanCodec()
+    base = _midpoints("GLIDER_STATE_MOTION")
+    for angle in (7.0, -7.0, 3 * math.pi, 100.0):
+        out = codec.decode(codec.encode("GLIDER_STATE_MOTION", 0, base | {"heading_rad": angle}))
+        diff = (out.signals["heading_rad"] - angle + math.pi) % (2 * math.pi) - math.pi
+        assert abs(diff) <= 0.5e-4 + 1e-9
+    assert codec.saturated_total == 0
+
+
+@pytest.mark.parametrize("node", [0, 1, 7, 15])
+def test_frame_id_is_base_plus_node(node: int) -> None:
+    for name in CODEC.message_names:
+        msg = CODEC.encode(name, node, _midpoints(name))
+        assert msg.arbitration_id == CODEC.base_id(name) + node
+        assert not msg.is_extended_id and msg.dlc == 8
+        decoded = CODEC.decode(msg)
+        assert (decoded.name, decoded.node_id) == (name, node)
+
+
+@pytest.mark.parametrize("node", [-1, 16, 1.5, True])
+def test_bad_node_id_is_refused(node: object) -> None:
+    with pytest.raises(ValueError, match="node_id"):
+        CODEC.frame_id("AUTOPILOT_CMD", node)  # type: ignore[arg-type]
+
+
+def test_hand_computed_vector() -> None:
+    # x = 1.00 m -> raw 100 at bits 0..21; y = -0.01 m -> raw -1 (22 ones) at bits 22..43;
+    # z = 0.02 m -> raw 2 at bits 44..62. Little-endian: value = 100 | (2^22-1) << 22 | 2 << 44.
+    msg = CODEC.encode("GLIDER_STATE_POS", 3, {"x_m": 1.0, "y_m": -0.01, "z_m": 0.02})
+    expected = (100 | (((1 << 22) - 1) << 22) | (2 << 44)).to_bytes(8, "little")
+    assert msg.arbitration_id == 0x123
+    assert bytes(msg.data) == expected
+
+
+def test_bad_values_and_signals_are_refused() -> None:
+    with pytest.raises(ValueError, match="NaN"):
+        CODEC.encode_payload("AUTOPILOT_CMD", {"bank_cmd_rad": math.nan, "airspeed_cmd_mps": 1,
+                                               "cmd_counter": 0})
+    with pytest.raises(ValueError, match="missing"):
+        CODEC.encode_payload("AUTOPILOT_CMD", {"bank_cmd_rad": 0.0})
+    with pytest.raises(ValueError, match="unknown signal"):
+        CODEC.encode_payload("AUTOPILOT_CMD", {"bank_cmd_rad": 0.0, "airspeed_cmd_mps": 1,
+                                               "cmd_counter": 0, "typo": 1})
+    with pytest.raises(ValueError, match="unknown CAN message"):
+        CODEC.encode_payload("NOPE", {})
+
+
+def test_infinities_saturate() -> None:
+    codec = GliderCanCodec()
+    values = {"x_m": math.inf, "y_m": -math.inf, "z_m": 0.0}
+    out = codec.decode(codec.encode("GLIDER_STATE_POS", 0, values)).signals
+    assert out["x_m"] == pytest.approx(20000.0) and out["y_m"] == pytest.approx(-20000.0)
+    assert codec.saturation_counts()["tx"] == {"x_m": 1, "y_m": 1}
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        can.Message(arbitration_id=0x120, data=bytes(7), is_extended_id=False),
+        can.Message(arbitration_id=0x7F0, data=bytes(8), is_extended_id=False),
+        can.Message(arbitration_id=0x120, data=bytes(8), is_extended_id=True),
+        can.Message(arbitration_id=0x120, is_remote_frame=True, dlc=8, is_extended_id=False),
+        can.Message(arbitration_id=0x40, is_error_frame=True, data=bytes(8)),
+        can.Message(arbitration_id=0x120, data=bytes(12), is_fd=True, is_extended_id=False),
+    ],
+    ids=["short", "unknown-id", "extended", "remote", "error", "fd"],
+)
+def test_frames_outside_the_profile_raise_codec_error(msg: can.Message) -> None:
+    with pytest.raises(CodecError):
+        CODEC.decode(msg)
+
+
+def test_received_out_of_range_raw_saturates_and_counts() -> None:
+    codec = GliderCanCodec()
+    # z_m raw field of 19 bits can hold 5242.87 m; the range stops at 5000 m.
+    raw = ((1 << 19) - 1) << 44
+    out = codec.decode_payload(0x120, raw.to_bytes(8, "little"))
+    assert out.signals["z_m"] == 5000.0
+    assert codec.saturation_counts()["rx"] == {"z_m": 1}
+
+
+finite = st.floats(allow_nan=False, allow_infinity=True, width=64)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from([(m, s) for m, s in ALL_SIGNALS if s.name not in ANGLE_SIGNALS]), finite)
+def test_saturation_never_wraps(pair, value: float) -> None:  # type: ignore[no-untyped-def]
+    message, sig = pair
+    codec = GliderCanCodec()
+    out = codec.decode(codec.encode(message, 5, _midpoints(message) | {sig.name: value}))
+    got = out.signals[sig.name]
+    clamped = min(max(value, sig.minimum), sig.maximum)
+    assert sig.minimum <= got <= sig.maximum
+    assert abs(got - clamped) <= _tol(sig.scale)
+    outside = value < sig.minimum or value > sig.maximum
+    assert codec.saturation_counts()["tx"].get(sig.name, 0) == int(outside)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 0x7FF), st.binary(min_size=0, max_size=8))
+def test_random_frames_decode_or_raise_codec_error(frame_id: int, data: bytes) -> None:
+    try:
+        out = CODEC.decode_payload(frame_id, data)
+    except CodecError:
+        return
+    for sig in CODEC.signals(out.name):
+        assert sig.minimum <= out.signals[sig.name] <= sig.maximum
