@@ -1,0 +1,251 @@
+"""Fast fidelities: Chebyshev-in-frequency expansion + type-1 NUFFT (``fast``), and ``realtime``.
+
+Method (``fast``). The echo spectrum is X_k = w_k sum_i W_i(f_k) exp(-j 2 pi f_k tau_i) with a
+per-leaf weight W_i(f) = A_i(f) exp(-j psi_i(f)) that is smooth across the band (it depends on f
+only through c = k a, which varies by f_hi/f_lo = 4/3). So W_i is replaced by its polynomial
+interpolant at P Chebyshev nodes of the band, W_i(f) ~ sum_p W_i(f_p) l_p(f) (Lagrange basis),
+and with x_i = 2 pi (fs/N) tau_i and f_k = (m0 + k) fs/N
+
+    X_k = w_k sum_p l_p(f_k) sum_i [W_i(f_p) e^{-j (m0 + K0) x_i}] e^{-j (k - K0) x_i}
+
+where the inner sums, one per node p, are P type-1 NUFFTs of the delays (finufft, one batched
+call, K0 = B // 2 centres the modes). Cost O(P M + P B log B) instead of O(M B) for B band bins.
+The weights at the nodes are evaluated in float32 (SIMD transcendentals, error ~1e-6) and the
+NUFFT runs in single precision for eps >= 1e-6; the large phase (m0 + K0) x_i is reduced
+modulo 2 pi in float64 first. The window w_k, like every leaf-independent factor, multiplies
+after the sum. Geometry, guards and selection are shared with ``reference`` (model.prepare).
+``realtime`` runs ``fast`` on at most the number of leaves its time budget allows, keeping the
+leaves with the largest waterdrop metric S1/r (i.e. it raises the selection threshold G).
+"""
+
+from __future__ import annotations
+
+import math
+
+import finufft
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.sonar.model import Scene, leaf_weights
+from sim_core.sonar.params import EchoParams
+from sim_core.sonar.reference import Band, Fidelity, direct_sum
+
+__all__ = ["Fast", "Realtime", "chebyshev_nodes", "lagrange_basis"]
+
+#: leaves sampled (evenly) for the per-echo truncation estimate
+TAIL_SAMPLE = 2048
+#: up to this many kinked leaves per echo are summed directly (exactly)
+DIRECT_KINKED = 8
+#: relative error bound of a kinked leaf interpolated at ``kink_order`` = 16 nodes (worst case
+#: measured over the kink range of a = 1 mm .. 0.4 m: 0.34)
+KINK_ERROR = 0.5
+
+
+def chebyshev_nodes(count: int) -> NDArray[np.float64]:
+    """Chebyshev points of the first kind on [-1, 1], shape (count,)."""
+    p = np.arange(count)
+    return np.cos(np.pi * (2 * p + 1) / (2 * count))
+
+
+def lagrange_basis(nodes: NDArray[np.float64], t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Lagrange basis l_p(t) for ``nodes`` (P,), evaluated at ``t`` (K,) -> (K, P)."""
+    P = nodes.shape[0]
+    out = np.ones((t.shape[0], P))
+    for p in range(P):
+        for q in range(P):
+            if q != p:
+                out[:, p] *= (t - nodes[q]) / (nodes[p] - nodes[q])
+    return out
+
+
+class Fast(Fidelity):
+    """Chebyshev expansion of order ``order`` (nodes) + finufft type-1 at tolerance ``eps``.
+
+    ``error_bound`` reported per echo: 10 x (the interpolant's last Chebyshev coefficient
+    relative to the first, amplitude-weighted over leaves) + 10 x eps; measured errors against
+    ``reference`` are in docs/sonar.md and BENCHMARKS.md.
+    """
+
+    name = "fast"
+
+    def __init__(self, order: int = 3, eps: float = 1e-4, kink_order: int = 16) -> None:
+        for name, value in (("order", order), ("kink_order", kink_order)):
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
+                raise ValueError(f"Fast.{name} must be an integer in [1, 64], got {value!r}")
+        self.kink_order = kink_order
+        if not 1e-14 <= eps < 1e-1:
+            raise ValueError(f"Fast.eps must be in [1e-14, 0.1), got {eps!r}")
+        self.order = order
+        self.eps = eps
+
+    def supports(self, params: EchoParams) -> str | None:
+        if params.doppler and params.moving:
+            return "Doppler frequency scaling is implemented by fidelity 'reference' only"
+        return None
+
+    def run(self, scene: Scene, params: EchoParams) -> Band:
+        g = params.grid
+        B = g.count
+        C = scene.beta.shape[0]
+        if scene.count == 0:
+            return Band(np.zeros((C, B), dtype=np.complex128), g.m0, 0.0)
+        out = np.empty((C, B), dtype=np.complex128)
+        bound = 0.0
+        centre_f = 0.5 * (g.m0 + g.m1) * g.df
+        for ch in range(C):
+            kinked = _kinked(scene, ch, params)
+            spec, tail, weight = self._group(scene, ch, params, self.order, ~kinked)
+            err = tail * weight
+            n_kinked = int(np.count_nonzero(kinked))
+            if n_kinked:
+                sub = scene.select(np.flatnonzero(kinked))
+                if n_kinked <= DIRECT_KINKED:
+                    spec += direct_sum(sub, ch, params)
+                    weight += _chebyshev_tail(leaf_weights(sub, ch, [centre_f], params))[1]
+                else:
+                    spec_k, _, weight_k = self._group(sub, ch, params, self.kink_order, None)
+                    spec += spec_k
+                    err += KINK_ERROR * weight_k
+                    weight += weight_k
+            out[ch] = spec
+            bound = max(bound, err / weight if weight > 0 else 0.0)
+        out *= g.window
+        return Band(out, g.m0, 3.0 * bound + 2.0 * self.eps)
+
+    def _group(
+        self,
+        scene: Scene,
+        ch: int,
+        params: EchoParams,
+        P: int,
+        mask: NDArray[np.bool_] | None,
+    ) -> tuple[NDArray[np.complex128], float, float]:
+        """Interpolated sum of one group of leaves: (spectrum (B,), tail, amplitude weight)."""
+        g = params.grid
+        B = g.count
+        f_lo, f_hi = g.m0 * g.df, g.m1 * g.df
+        centre, half = 0.5 * (f_lo + f_hi), 0.5 * (f_hi - f_lo)
+        nodes = chebyshev_nodes(P)
+        basis = lagrange_basis(nodes, (g.freqs - centre) / half)
+        single = self.eps >= 1e-6
+        K0 = B // 2
+        w = leaf_weights(scene, ch, centre + half * nodes, params, single=single)
+        cycles = g.df * scene.tau[ch]
+        shift = (np.mod((g.m0 + K0) * cycles, 1.0) * (2.0 * np.pi)).astype(w.real.dtype)
+        rot = np.empty(scene.count, dtype=w.dtype)
+        rot.real = np.cos(shift)
+        rot.imag = -np.sin(shift)
+        if mask is not None:
+            rot *= mask
+        strengths = np.multiply(w.T, rot, out=np.empty((P, scene.count), dtype=w.dtype))
+        x = (np.mod(cycles + 0.5, 1.0) - 0.5) * (2.0 * np.pi)
+        x = x.astype(np.float32 if single else np.float64)
+        modes = finufft.nufft1d1(x, strengths, B, eps=self.eps, isign=-1, nthreads=1)
+        tail, weight = _chebyshev_tail(w if mask is None else w[mask])
+        return np.einsum("kp,pk->k", basis, modes), tail, weight
+
+
+def _kinked(scene: Scene, ch: int, params: EchoParams) -> NDArray[np.bool_]:
+    """Leaves whose weight has a kink inside the band, shape (M,) bool.
+
+    L = max(0, P1 cos(P2 beta)) is clipped where P2(c) beta crosses pi/2 (P2 falls with f), and
+    the near-field cap min(g0 L / k, r/2) switches on where g0 P1 / k can reach r/2.
+    """
+    g = params.grid
+    k_lo = 2.0 * np.pi * g.m0 * g.df / scene.speed
+    k_hi = 2.0 * np.pi * g.m1 * g.df / scene.speed
+    ap = 0.3999 * scene.a**-0.9065
+    beta = scene.beta[ch]
+    x_lo = (ap * k_lo**-0.9065 + 0.9979) * beta
+    x_hi = (ap * k_hi**-0.9065 + 0.9979) * beta
+    out: NDArray[np.bool_] = (x_lo > 0.5 * np.pi) & (x_hi < 0.5 * np.pi)
+    if params.near_field_cap:
+        c_hi = k_hi * scene.a
+        out |= params.g0 * (0.5003 * c_hi * c_hi + 0.6867) / k_lo >= scene.cap[ch]
+    return out
+
+
+def _chebyshev_tail(w: NDArray[np.complexfloating]) -> tuple[float, float]:
+    """Truncation estimate of the interpolant of node values ``w`` (M, P) and its weight.
+
+    Returns (e, s): s = sum_i |a_i0| (amplitude weight, rescaled to all M leaves) and
+    e = (sum |a_i,P-1|)^2 / (sum |a_i,P-2|) / s, the next Chebyshev coefficient extrapolated
+    from the geometric decay of the last two, evaluated on an even sample of at most
+    TAIL_SAMPLE leaves.
+    """
+    M, P = w.shape
+    if M == 0:
+        return 0.0, 0.0
+    ws = w[:: max(1, M // TAIL_SAMPLE)]
+    p = np.arange(P)
+    den = float(np.abs(ws.sum(axis=1)).sum()) / P
+    scale = M / ws.shape[0]
+    if P < 3 or den == 0.0:
+        return (1.0 if den > 0.0 else 0.0), den * scale
+    t_last = np.cos((P - 1) * np.pi * (2 * p + 1) / (2 * P)).astype(ws.real.dtype)
+    t_prev = np.cos((P - 2) * np.pi * (2 * p + 1) / (2 * P)).astype(ws.real.dtype)
+    last = float(np.abs(ws @ t_last).sum()) * 2.0 / P
+    prev = float(np.abs(ws @ t_prev).sum()) * 2.0 / P
+    est = last * last / prev if prev > 0.0 else last
+    return est / den, den * scale
+
+
+class Realtime(Fidelity):
+    """``fast`` within a per-echo time budget (``EchoParams.budget_s``).
+
+    The affordable leaf count is (budget_s - overhead_s) / per_leaf_s (a fixed, deterministic
+    cost model measured on the reference machine; same inputs -> same echo). If more leaves are
+    in the beam, only that many with the largest S1/r are synthesised: the selection threshold
+    G is raised until they fit. The reported ``error_bound`` adds to the ``fast`` bound a
+    rigorous triangle-inequality bound on the dropped leaves, ||X_drop|| <= ||w|| sum_i
+    max_f |W_i(f)|, relative to the synthesised spectrum.
+    """
+
+    name = "realtime"
+
+    def __init__(
+        self,
+        order: int = 3,
+        eps: float = 1e-3,
+        overhead_s: float = 4e-4,
+        per_leaf_s: float = 1.2e-7,
+    ) -> None:
+        self.fast = Fast(order=order, eps=eps)
+        if not (overhead_s >= 0 and per_leaf_s > 0):
+            raise ValueError(
+                f"Realtime cost model needs overhead_s >= 0 and per_leaf_s > 0, got "
+                f"{overhead_s!r}, {per_leaf_s!r}"
+            )
+        self.overhead_s = overhead_s
+        self.per_leaf_s = per_leaf_s
+
+    def supports(self, params: EchoParams) -> str | None:
+        return self.fast.supports(params)
+
+    def capacity(self, params: EchoParams) -> int:
+        """Leaves affordable per channel within ``params.budget_s``."""
+        C = params.channels
+        return max(1, int((params.budget_s / C - self.overhead_s) / self.per_leaf_s))
+
+    def run(self, scene: Scene, params: EchoParams) -> Band:
+        cap = self.capacity(params)
+        if scene.count <= cap:
+            band = self.fast.run(scene, params)
+            return Band(band.spectra, band.lo_bin, band.error_bound)
+        order = np.argpartition(-scene.q, cap - 1)
+        kept, dropped = scene.select(np.sort(order[:cap])), scene.select(order[cap:])
+        band = self.fast.run(kept, params)
+        g = params.grid
+        kk_lo = 2.0 * np.pi * g.m0 * g.df / scene.speed
+        c_hi = 2.0 * np.pi * g.m1 * g.df / scene.speed * dropped.a
+        p1 = 0.5003 * c_hi * c_hi + 0.6867
+        bound = 0.0
+        w_norm = float(np.linalg.norm(g.window))
+        for ch in range(scene.beta.shape[0]):
+            amax = params.g0 * p1 / kk_lo * dropped.beam[ch] * dropped.rest[ch]
+            if params.beam_model == "incident_freq":
+                amax = params.g0 * p1 / kk_lo * params.peak_amplitude**2 * dropped.rest[ch]
+            kept_norm = float(np.linalg.norm(band.spectra[ch]))
+            drop_norm = w_norm * float(amax.sum())
+            bound = max(bound, drop_norm / kept_norm if kept_norm > 0 else math.inf)
+        return Band(band.spectra, band.lo_bin, (band.error_bound or 0.0) + bound)
