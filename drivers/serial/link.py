@@ -145,6 +145,7 @@ class Link:
         self._ser: Any = None
         self._stop = threading.Event()
         self._connected = threading.Event()
+        self._state_cv = threading.Condition()
         self._tx_cv = threading.Condition()
         self._tx_queue: collections.deque[bytes] = collections.deque()
         self._tx_queued = 0
@@ -216,6 +217,15 @@ class Link:
     def wait_connected(self, timeout: float) -> bool:
         """Block until the port is open (True) or ``timeout`` seconds pass (False)."""
         return self._connected.wait(timeout)
+
+    def wait_for(self, predicate: Callable[[Link], bool], timeout: float) -> bool:
+        """Block until ``predicate(link)`` holds after an open/close (or now); False on timeout."""
+        with self._state_cv:
+            return self._state_cv.wait_for(lambda: predicate(self), timeout)
+
+    def _notify_state(self) -> None:
+        with self._state_cv:
+            self._state_cv.notify_all()
 
     def stats(self) -> dict[str, int | bool]:
         return {
@@ -294,6 +304,7 @@ class Link:
         if self.capture is not None:
             self.capture.event("open")
         self._connected.set()
+        self._notify_state()
         if self.opens > 1:
             log.info("%s: %s re-opened (reconnect %d)", self.name, self.url, self.reconnects)
         self._call(self._on_connect)
@@ -314,6 +325,7 @@ class Link:
                 log.debug("%s: close failed", self.name, exc_info=True)
             if self.capture is not None:
                 self.capture.event("close")
+        self._notify_state()
         if was_connected:
             self._call(self._on_disconnect)
 
