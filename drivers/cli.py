@@ -20,6 +20,7 @@ __all__ = ["SUBCOMMANDS", "main", "sonar_head"]
 #: device -> ("module:function", one-line summary)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "sonar-head": ("drivers.cli:sonar_head", "mock sonar head on a pty or serial URL (spec §2)"),
+    "autopilot": ("drivers.mocks.autopilot_cli:main", "mock glider autopilot on a CAN bus (§3)"),
 }
 
 
