@@ -1,0 +1,179 @@
+"""CAD-template dressing of a GMT3 skeleton (seed 000 §2A.3), with trimesh for OBJ/STL.
+
+The L-system gives the first-level branch positions on the trunk; a user-supplied template (a
+leaf cluster, optionally a branch mesh) is placed on every non-vertical skeleton branch of level
+``on_level``:
+
+* template frame: +x along the branch (outwards), up = ``up_axis`` (Blender OBJ: ``"y"``), the
+  branch root at the template origin;
+* rotation about z to the branch azimuth plus a random twist ``U(0, twist_max_deg)`` (the seed's
+  ``rand_a``);
+* scale by level: the template's x-extent is scaled to the branch length, which shrinks by the
+  L-system ratios level by level (the seed's ``1/(tmp_i·ns + 1)`` plays the same role);
+* leaves: each template face (``leaf_from="faces"``) becomes a leaf with centre = face centroid,
+  normal = face normal rotated with the template (the seed forgets to rotate it; we do not),
+  radius = equivalent disc sqrt(area/π); or each vertex (``"vertices"``) with its vertex normal
+  and a radius drawn from the species' leaf-radius distribution.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.world.geometry import rotz
+from sim_core.world.trees import GMT3Tree, TreeGeometry, _leaf_radii
+
+__all__ = ["CadTree", "Template", "load_template"]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Template:
+    """A loaded template in its own frame converted to z up (arrays read-only by convention).
+
+    Attributes:
+        points: (K, 3) leaf centres (face centroids or vertices).
+        normals: (K, 3) unit normals.
+        areas: (K,) face areas (zeros for vertex leaves).
+        edges: (E, 2, 3) branch-mesh edges (empty without a branch template).
+        length: x-extent of the template (the branch length it represents).
+    """
+
+    points: F64
+    normals: F64
+    areas: F64
+    edges: F64
+    length: float
+
+
+def _load_mesh(path: str) -> Any:
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"template {path}: cannot read (no such file)")
+    try:
+        mesh = trimesh.load(str(p), force="mesh")
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise ValueError(f"template {path}: cannot load as OBJ/STL mesh ({exc})") from None
+    if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+        raise ValueError(f"template {path}: no faces found (not a readable OBJ/STL mesh)")
+    return mesh
+
+
+def _to_z_up(v: F64, up_axis: str) -> F64:
+    if up_axis == "z":
+        return v
+    return np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1)  # y up -> z up
+
+
+@functools.lru_cache(maxsize=32)
+def load_template(
+    leaf: str,
+    branch: str | None = None,
+    *,
+    leaf_from: Literal["faces", "vertices"] = "faces",
+    up_axis: Literal["y", "z"] = "y",
+) -> Template:
+    """Load leaf (and branch) meshes; unreadable files raise ``ValueError`` naming the path."""
+    mesh = _load_mesh(leaf)
+    if leaf_from == "faces":
+        pts = np.asarray(mesh.triangles_center, dtype=np.float64)
+        nrm = np.asarray(mesh.face_normals, dtype=np.float64)
+        areas = np.asarray(mesh.area_faces, dtype=np.float64)
+    else:
+        pts = np.asarray(mesh.vertices, dtype=np.float64)
+        nrm = np.asarray(mesh.vertex_normals, dtype=np.float64)
+        areas = np.zeros(pts.shape[0])
+    good = np.all(np.isfinite(nrm), axis=1) & (np.linalg.norm(nrm, axis=1) > 0.5)
+    pts, nrm, areas = _to_z_up(pts[good], up_axis), _to_z_up(nrm[good], up_axis), areas[good]
+    if pts.shape[0] == 0:
+        raise ValueError(f"template {leaf}: no usable leaf faces/vertices")
+    edges = np.zeros((0, 2, 3))
+    all_x = [pts[:, 0]]
+    if branch is not None:
+        bm = _load_mesh(branch)
+        verts = _to_z_up(np.asarray(bm.vertices, dtype=np.float64), up_axis)
+        edges = verts[np.asarray(bm.edges_unique)]
+        all_x.append(verts[:, 0])
+    xs = np.concatenate(all_x)
+    length = float(xs.max() - min(xs.min(), 0.0))
+    if not length > 0:
+        raise ValueError(f"template {leaf}: needs a positive extent along +x (the branch axis)")
+    return Template(pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), areas, edges, length)
+
+
+@dataclass(frozen=True)
+class CadTree:
+    """A GMT3 skeleton dressed with CAD templates (see module docstring)."""
+
+    skeleton: GMT3Tree
+    leaf: str
+    branch: str | None = None
+    leaf_from: Literal["faces", "vertices"] = "faces"
+    up_axis: Literal["y", "z"] = "y"
+    on_level: int = 1
+    twist_max_deg: float = 15.0
+
+    def __post_init__(self) -> None:
+        if self.on_level < 1:
+            raise ValueError(f"on_level must be >= 1, got {self.on_level}")
+
+    @property
+    def unit_m(self) -> float:
+        return self.skeleton.unit_m
+
+    def with_growth_level(self, level: int) -> CadTree:
+        return dataclasses.replace(self, skeleton=self.skeleton.with_growth_level(level))
+
+    def template(self) -> Template:
+        return load_template(self.leaf, self.branch, leaf_from=self.leaf_from, up_axis=self.up_axis)
+
+    def grow(self, rng: np.random.Generator, *, branches: bool = False) -> TreeGeometry:
+        tpl = self.template()
+        skel, scale = self.skeleton.skeleton(rng)
+        use = (skel.level == self.on_level) & ~skel.main_axis
+        use &= np.hypot(skel.vec[:, 0], skel.vec[:, 1]) > 1e-9
+        start, vec = skel.start[use] * scale, skel.vec[use] * scale
+        b = start.shape[0]
+        az = np.arctan2(vec[:, 1], vec[:, 0]) + np.radians(
+            rng.uniform(0.0, self.twist_max_deg, size=b)
+        )
+        s = np.linalg.norm(vec, axis=1) / tpl.length  # (B,)
+        R = rotz(az)  # (B, 3, 3)
+        k = tpl.points.shape[0]
+        centers = (start[:, None, :] + s[:, None, None] * np.einsum("bij,kj->bki", R, tpl.points))
+        normals = np.einsum("bij,kj->bki", R, tpl.normals)
+        if self.leaf_from == "faces":
+            radii = np.sqrt(tpl.areas[None, :] * s[:, None] ** 2 / np.pi)
+            radii = np.maximum(radii, 1e-3).reshape(-1)
+        else:
+            sk = self.skeleton
+            radii = _leaf_radii(rng, sk.leaf_radius_mean_m, sk.leaf_radius_sd_m, b * k)
+        geo = TreeGeometry(centers.reshape(-1, 3), normals.reshape(-1, 3), radii)
+        if branches:
+            seg_s = [skel.start * scale]
+            seg_e = [skel.end * scale]
+            seg_r = [skel.radius * scale]
+            if tpl.edges.shape[0]:
+                e = start[:, None, None, :] + s[:, None, None, None] * np.einsum(
+                    "bij,epj->bepi", R, tpl.edges
+                )
+                seg_s.append(e[:, :, 0].reshape(-1, 3))
+                seg_e.append(e[:, :, 1].reshape(-1, 3))
+                seg_r.append(np.full(e.shape[0] * e.shape[1], float(skel.radius.min() * scale)))
+            geo = dataclasses.replace(
+                geo,
+                seg_start=np.concatenate(seg_s),
+                seg_end=np.concatenate(seg_e),
+                seg_radius=np.concatenate(seg_r),
+            )
+        return geo

@@ -1,0 +1,431 @@
+"""Seed 001 stochastic L++ grammars: parser, rewriting and a vectorised turtle (spec §2B).
+
+File format (``*.l++``, FG ``lsystem.cpp``): ``#`` starts a comment line (a ``#`` after a header
+number starts an inline comment); then three numbers — iterations, default angle (degrees),
+thickness percentage; then the axiom; then rules ``S=replacement`` (several rules for one symbol
+are a random choice); ``@`` ends the file. A command takes a parameter when ``(`` follows it
+immediately; a parameter of exactly 1 (or none) means "the default angle" for the angle and
+thickness commands.
+
+Semantics (spec §2B.3-2B.5), all randomness from the ``rng`` argument:
+
+* one alternative is drawn per symbol per iteration and replaces every occurrence of that symbol;
+  symbols are rewritten one after the other in sorted order on the string as it stands
+  (sequential, not parallel, rewriting);
+* growth level: iterations − 1 / + 1 with probabilities 0.33 / 0.33, once per tree;
+* ``&``, ``^``, ``\\``, ``/`` angles are N(a, 0.1 a) clipped at ±2σ;
+* ``*`` is a leaf kept with probability 0.5; ``|`` turns by 180° (the seed's 3.14° is a units bug);
+* the turtle frame (position, heading, right vector) starts fresh for every tree.
+
+The turtle is evaluated without a Python loop over commands: every command is a rigid transform
+in the turtle's local frame, so each bracket level is a segmented prefix product (a log-step scan)
+and nesting is resolved level by level.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["Grammar", "GrammarError", "TurtleResult", "expand", "interpret", "parse_grammar"]
+
+F64 = NDArray[np.float64]
+
+#: turtle commands understood by :func:`interpret` (all other characters are no-ops)
+COMMANDS = frozenset("+-&^<>\\/%=|*FfGg[]")
+
+#: upper bound on the number of symbols of an expanded string (guards runaway grammars)
+MAX_SYMBOLS = 4_000_000
+
+
+class GrammarError(ValueError):
+    """A malformed L++ grammar; the message names the file, the line and what was expected."""
+
+
+@dataclass(frozen=True)
+class Grammar:
+    """A parsed L++ grammar.
+
+    Attributes:
+        iterations: nominal growth level (rewriting iterations).
+        default_angle_deg: angle used by commands without a parameter (or with parameter 1).
+        thickness_pct: initial branch thickness in percent of the segment length.
+        axiom: token tuple ``((char, param | None), ...)``.
+        rules: symbol -> tuple of alternatives (each a token tuple); the symbols sorted.
+        source: file name (or ``"<string>"``) for messages.
+    """
+
+    iterations: int
+    default_angle_deg: float
+    thickness_pct: float
+    axiom: tuple[tuple[str, float | None], ...]
+    rules: dict[str, tuple[tuple[tuple[str, float | None], ...], ...]]
+    source: str = "<string>"
+
+
+def _tokenize(text: str, where: str) -> list[tuple[str, float | None]]:
+    """Split ``text`` into (command, parameter) with the seed's rule: ``X(p)`` binds p to X."""
+    out: list[tuple[str, float | None]] = []
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if i + 1 < n and text[i + 1] == "(":
+            close = text.find(")", i + 2)
+            if close < 0:
+                raise GrammarError(f"{where}: expected ')' to close the parameter of {c!r}")
+            raw = text[i + 2 : close]
+            try:
+                value = float(raw)
+            except ValueError:
+                raise GrammarError(
+                    f"{where}: expected a number in the parameter of {c!r}, got {raw!r}"
+                ) from None
+            if not math.isfinite(value):
+                raise GrammarError(f"{where}: parameter of {c!r} must be finite, got {raw!r}")
+            out.append((c, value))
+            i = close + 1
+        else:
+            out.append((c, None))
+            i += 1
+    depth = 0
+    for c, _ in out:
+        depth += (c == "[") - (c == "]")
+        if depth < 0:
+            raise GrammarError(f"{where}: unbalanced ']' (no matching '[')")
+    if depth:
+        raise GrammarError(f"{where}: unbalanced '[' ({depth} not closed)")
+    return out
+
+
+def parse_grammar(text: str, source: str = "<string>") -> Grammar:
+    """Parse the text of an ``.l++`` file; raise :class:`GrammarError` naming ``source:line``."""
+    numbers: list[float] = []
+    names = ("iteration count", "default angle in degrees", "thickness percentage")
+    axiom: tuple[tuple[str, float | None], ...] | None = None
+    rules: dict[str, list[tuple[tuple[str, float | None], ...]]] = {}
+    rule_lines: dict[str, int] = {}
+    for lineno, raw_line in enumerate(text.splitlines(), start=1):
+        where = f"{source}:{lineno}"
+        line = raw_line.lstrip()
+        if not line.strip() or line.startswith("#"):
+            continue
+        if line.startswith("@"):
+            break
+        if len(numbers) < 3:
+            for word in line.split("#", 1)[0].split():
+                if len(numbers) == 3:
+                    raise GrammarError(f"{where}: expected at most 3 header numbers, got {word!r}")
+                try:
+                    value = float(word)
+                except ValueError:
+                    raise GrammarError(
+                        f"{where}: expected a number ({names[len(numbers)]}), got {word!r}"
+                    ) from None
+                if not math.isfinite(value):
+                    raise GrammarError(f"{where}: {names[len(numbers)]} must be finite")
+                numbers.append(value)
+            continue
+        body = line.rstrip("\r\n")
+        if "=" not in body:
+            if axiom is not None:
+                raise GrammarError(
+                    f"{where}: expected a rule 'SYMBOL=replacement' (the axiom is already "
+                    f"given), got {body.strip()!r}"
+                )
+            axiom = tuple(_tokenize(body.strip(), where))
+            if not axiom:
+                raise GrammarError(f"{where}: expected a non-empty axiom")
+            continue
+        key, _, repl = body.partition("=")
+        key = key.strip()
+        if len(key) != 1 or key in COMMANDS or key in "()":
+            raise GrammarError(
+                f"{where}: expected a one-character rule symbol that is not a turtle command, "
+                f"got {key!r}"
+            )
+        if repl.startswith("("):
+            raise GrammarError(f"{where}: replacement of {key!r} must not start with '('")
+        rules.setdefault(key, []).append(tuple(_tokenize(repl, f"{where} (rule {key!r})")))
+        rule_lines.setdefault(key, lineno)
+    if len(numbers) < 3:
+        raise GrammarError(
+            f"{source}: expected 3 header numbers (iterations, default angle, thickness %), "
+            f"found {len(numbers)}"
+        )
+    if axiom is None:
+        raise GrammarError(f"{source}: expected an axiom line after the 3 header numbers")
+    iterations = numbers[0]
+    if iterations != int(iterations) or iterations < 0:
+        raise GrammarError(f"{source}: iteration count must be an integer >= 0, got {iterations}")
+    for key, alts in rules.items():
+        for alt in alts:
+            for c, p in alt:
+                if c in rules and p is not None:
+                    raise GrammarError(
+                        f"{source}:{rule_lines[key]}: rule symbol {c!r} cannot take a parameter"
+                    )
+    for c, p in axiom:
+        if c in rules and p is not None:
+            raise GrammarError(f"{source}: rule symbol {c!r} in the axiom cannot take a parameter")
+    return Grammar(
+        iterations=int(iterations),
+        default_angle_deg=numbers[1],
+        thickness_pct=numbers[2],
+        axiom=axiom,
+        rules={k: tuple(rules[k]) for k in sorted(rules)},
+        source=source,
+    )
+
+
+def load_grammar(path: str | Path) -> Grammar:
+    """Read and parse an ``.l++`` file (an unreadable file raises ``GrammarError``)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise GrammarError(f"{p}: cannot read L++ grammar ({reason})") from None
+    return parse_grammar(text, source=str(p))
+
+
+# --- rewriting -------------------------------------------------------------------------------
+
+
+class _Table:
+    """Interns (char, param) tokens to int ids so strings become int arrays."""
+
+    def __init__(self) -> None:
+        self.ids: dict[tuple[str, float | None], int] = {}
+        self.tokens: list[tuple[str, float | None]] = []
+
+    def encode(self, seq: tuple[tuple[str, float | None], ...]) -> NDArray[np.int32]:
+        out = np.empty(len(seq), dtype=np.int32)
+        for i, tok in enumerate(seq):
+            j = self.ids.get(tok)
+            if j is None:
+                j = len(self.tokens)
+                self.ids[tok] = j
+                self.tokens.append(tok)
+            out[i] = j
+        return out
+
+
+def _replace(seq: NDArray[np.int32], key: int, alt: NDArray[np.int32]) -> NDArray[np.int32]:
+    mask = seq == key
+    if not mask.any():
+        return seq
+    if alt.size == 0:
+        return seq[~mask]
+    counts = np.where(mask, alt.size, 1)
+    total = int(counts.sum())
+    if total > MAX_SYMBOLS:
+        raise ValueError(
+            f"L++ expansion exceeds {MAX_SYMBOLS} symbols; lower the growth level"
+        )
+    starts = np.cumsum(counts) - counts
+    out = np.repeat(seq, counts)
+    hit = starts[mask]
+    out[(hit[:, None] + np.arange(alt.size)[None, :]).ravel()] = np.tile(alt, hit.size)
+    return out
+
+
+def growth_level(nominal: int, rng: np.random.Generator, *, jitter: bool = True) -> int:
+    """The seed's discrete growth level: nominal − 1 (p 0.33), + 1 (p 0.33), else nominal."""
+    if not jitter:
+        return nominal
+    r = rng.random()
+    if r <= 0.33:
+        return max(nominal - 1, 0)
+    if r >= 0.67:
+        return nominal + 1
+    return nominal
+
+
+def expand(
+    grammar: Grammar, iterations: int, rng: np.random.Generator
+) -> tuple[NDArray[np.int32], list[tuple[str, float | None]]]:
+    """Rewrite the axiom ``iterations`` times; return (token ids, id -> (char, param) table)."""
+    if iterations < 0:
+        raise ValueError(f"iterations must be >= 0, got {iterations}")
+    table = _Table()
+    seq = table.encode(grammar.axiom)
+    compiled = {
+        table.encode(((k, None),))[0]: [table.encode(a) for a in alts]
+        for k, alts in grammar.rules.items()
+    }
+    for _ in range(iterations):
+        for key_id, alts in compiled.items():
+            choice = int(rng.integers(len(alts))) if len(alts) > 1 else 0
+            seq = _replace(seq, int(key_id), alts[choice])
+    return seq, table.tokens
+
+
+# --- turtle ----------------------------------------------------------------------------------
+
+_OPEN, _CLOSE, _ROT, _MOVE, _LEAF = 1, 2, 3, 4, 5
+
+
+@dataclass(frozen=True)
+class TurtleResult:
+    """Turtle output in grammar units, L++ frame (y up).
+
+    Attributes:
+        leaf_pos: (K, 3) positions of the executed ``*`` commands (before the keep draw).
+        leaf_dir: (K, 3) unit turtle headings at those commands.
+        seg_start, seg_end: (S, 3) start/end of the drawn ``F``/``f`` segments.
+    """
+
+    leaf_pos: F64
+    leaf_dir: F64
+    seg_start: F64
+    seg_end: F64
+
+
+def _qmul(a: F64, b: F64) -> F64:
+    """Hamilton products of quaternions stored as rows ``(4, N)`` = (w, x, y, z)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
+
+
+def _qrot(q: F64, v: F64) -> F64:
+    """Rotate vectors ``v (3, N)`` by unit quaternions ``q (4, N)``."""
+    w, x, y, z = q
+    vx, vy, vz = v
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return np.stack(
+        [
+            vx + w * tx + (y * tz - z * ty),
+            vy + w * ty + (z * tx - x * tz),
+            vz + w * tz + (x * ty - y * tx),
+        ]
+    )
+
+
+def interpret(
+    seq: NDArray[np.int32],
+    table: list[tuple[str, float | None]],
+    default_angle_deg: float,
+    rng: np.random.Generator,
+    *,
+    angle_noise: float = 0.1,
+) -> TurtleResult:
+    """Run the turtle over the token ids ``seq`` (frame reset: heading +y, right +x, at 0)."""
+    # per table entry: kind, local rotation axis, nominal value
+    kinds = np.zeros(len(table), dtype=np.int8)
+    axes = np.zeros(len(table), dtype=np.int8)
+    values = np.zeros(len(table))
+    noisy = np.zeros(len(table), dtype=bool)
+    for j, (c, p) in enumerate(table):
+        num = default_angle_deg if p is None or p == 1 else p
+        if c == "[":
+            kinds[j] = _OPEN
+        elif c == "]":
+            kinds[j] = _CLOSE
+        elif c in "+-&^\\/|":
+            kinds[j] = _ROT
+            axes[j] = {"+": 2, "-": 2, "|": 2, "&": 0, "^": 0, "\\": 1, "/": 1}[c]
+            sign = 1.0 if c in "+^/" else -1.0
+            values[j] = math.pi if c == "|" else sign * math.radians(num)
+            noisy[j] = c in "&^\\/"
+        elif c in "FfGg":
+            kinds[j] = _MOVE
+            values[j] = 1.0 if p is None else p
+        elif c == "*":
+            kinds[j] = _LEAF
+    tok_kind = kinds[seq]
+    keep = tok_kind > 0
+    ids = seq[keep]
+    kind = tok_kind[keep]
+    n = ids.size
+    is_open = kind == _OPEN
+    is_close = kind == _CLOSE
+    step = is_open.astype(np.int64) - is_close
+    level = np.cumsum(step) - step  # bracket depth before each token
+    draws = np.asarray([c in "Ff" for c, _ in table], dtype=bool)
+    is_draw = draws[ids]
+
+    # local transforms: unit quaternion q (4, n) and translation t (3, n) in the turtle frame
+    # (columns right, heading, right × heading); every command right-multiplies the frame
+    q = np.zeros((4, n))
+    q[0] = 1.0
+    t = np.zeros((3, n))
+    rot = kind == _ROT
+    ang = values[ids[rot]]
+    jitter = noisy[ids[rot]]
+    if jitter.any():
+        z = np.clip(rng.standard_normal(int(jitter.sum())), -2.0, 2.0)
+        ang = ang.copy()
+        ang[jitter] *= 1.0 + angle_noise * z
+    ridx = np.nonzero(rot)[0]
+    q[0, ridx] = np.cos(ang / 2.0)
+    q[1 + axes[ids[rot]], ridx] = np.sin(ang / 2.0)
+    mv = kind == _MOVE
+    t[1, mv] = values[ids[mv]]
+
+    # segment (enclosing '[') of every token that is not ']'; tokens grouped by bracket level
+    pos = np.arange(n)
+    seg = np.full(n, -1, dtype=np.int64)
+    body = ~is_close
+    by_level = pos[body][np.argsort(level[body], kind="stable")]
+    bounds = np.searchsorted(level[by_level], np.arange(int(level.max()) + 2 if n else 1))
+    groups = [by_level[bounds[d] : bounds[d + 1]] for d in range(bounds.size - 1)]
+    for d in range(1, len(groups)):
+        at = groups[d]
+        parents = groups[d - 1]
+        opens = parents[is_open[parents]]
+        if at.size:
+            seg[at] = opens[np.searchsorted(opens, at, side="right") - 1]
+
+    # segmented inclusive scan (log-step) of the local transforms inside every bracket level
+    members = pos[body]
+    order = members[np.argsort(seg[members], kind="stable")]
+    qs, ts = q[:, order], t[:, order]
+    sseg = seg[order]
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = sseg[1:] != sseg[:-1]
+    rank = np.arange(order.size) - np.maximum.accumulate(np.where(first, np.arange(order.size), 0))
+    k = 1
+    while order.size and k <= int(rank.max()):
+        i = np.nonzero(rank >= k)[0]
+        prev_q, prev_t = qs[:, i - k], ts[:, i - k]
+        ts[:, i] = prev_t + _qrot(prev_q, ts[:, i])
+        qs[:, i] = _qmul(prev_q, qs[:, i])
+        k *= 2
+    Wq = np.empty_like(q)
+    Wt = np.empty_like(t)
+    Wq[:, order], Wt[:, order] = qs, ts
+
+    # resolve nesting: world = world('[' that opens the level) ∘ prefix inside the level
+    for at in groups[1:]:
+        parent = seg[at]
+        pq = Wq[:, parent]
+        Wt[:, at] = Wt[:, parent] + _qrot(pq, Wt[:, at])
+        Wq[:, at] = _qmul(pq, Wq[:, at])
+
+    yhat = np.array([[0.0], [1.0], [0.0]])
+    leaf = kind == _LEAF
+    leaf_dir = _qrot(Wq[:, leaf], np.broadcast_to(yhat, (3, int(leaf.sum())))).T
+    draw = is_draw & mv
+    heading = _qrot(Wq[:, draw], np.broadcast_to(yhat, (3, int(draw.sum())))).T
+    seg_end = Wt[:, draw].T
+    seg_start = seg_end - heading * t[1, draw][:, None]
+    return TurtleResult(
+        leaf_pos=Wt[:, leaf].T.copy(),
+        leaf_dir=leaf_dir / np.linalg.norm(leaf_dir, axis=1, keepdims=True),
+        seg_start=seg_start,
+        seg_end=seg_end,
+    )

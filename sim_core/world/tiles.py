@@ -1,0 +1,191 @@
+"""A tiled, unbounded forest: tiles are built on demand around a query point and cached.
+
+A tile ``(i, j)`` of side ``tile_size_m`` owns the trees whose *base* lies in
+``[i·s, (i+1)·s) × [j·s, (j+1)·s)``; it holds their leaves, which may spill into neighbouring
+tiles. ``leaves_near(point, r)`` therefore visits every tile within ``r`` plus the maximum crown
+reach of ``point``. Tile content is a pure function of (spec, seed, tile) — candidates are drawn
+per cell from their own streams and the minimum-distance merge is resolved locally and exactly —
+so building a region tile by tile gives the same trees and leaves as a one-shot build of it.
+Built tiles sit in an LRU cache bounded in bytes (leaf arrays + their k-d trees).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sim_core.world.forest import Forest, ForestEngine, ForestSpec
+from sim_core.world.ipp import Box
+from sim_core.world.leaves import Leaves
+
+__all__ = ["TiledForest"]
+
+
+@dataclass(frozen=True)
+class _Tile:
+    leaves: Leaves
+    tree_xy: NDArray[np.float64]
+    tree_species: NDArray[np.str_]
+
+
+class TiledForest:
+    """On-demand forest tiles around a query point, deterministic per (seed, tile).
+
+    Args:
+        spec: the forest; ``domain`` may be ``None`` (unbounded) or a box (tiles outside empty).
+        seed: the forest seed (the same trees as ``build_forest(spec, seed=seed)``).
+        tile_size_m: tile side, metres.
+        max_cache_bytes: LRU bound on the bytes of cached tiles (a single query may still touch
+            more; the tiles it needs are built, used and then evicted oldest-first).
+    """
+
+    def __init__(
+        self,
+        spec: ForestSpec,
+        *,
+        seed: int,
+        tile_size_m: float = 50.0,
+        max_cache_bytes: int = 256 * 1024 * 1024,
+    ) -> None:
+        if not (math.isfinite(tile_size_m) and tile_size_m > 0):
+            raise ValueError(f"tile_size_m must be > 0, got {tile_size_m}")
+        if max_cache_bytes < 0:
+            raise ValueError(f"max_cache_bytes must be >= 0, got {max_cache_bytes}")
+        self.engine = ForestEngine(spec, seed=seed)
+        self.tile_size_m = float(tile_size_m)
+        self.max_cache_bytes = int(max_cache_bytes)
+        self.reach_m = self.engine.crown_bound()
+        self._cache: OrderedDict[tuple[int, int], _Tile] = OrderedDict()
+        self._bytes: dict[tuple[int, int], int] = {}
+        self.tiles_built = 0
+        self.cache_hits = 0
+        self.evictions = 0
+
+    # --- tiles --------------------------------------------------------------------------------
+    def tile_of(self, x: float, y: float) -> tuple[int, int]:
+        s = self.tile_size_m
+        return (math.floor(x / s), math.floor(y / s))
+
+    def tile_box(self, tile: tuple[int, int]) -> Box:
+        s = self.tile_size_m
+        i, j = tile
+        return (i * s, j * s, (i + 1) * s, (j + 1) * s)
+
+    def _build(self, tile: tuple[int, int]) -> _Tile:
+        cands = self.engine.kept_in(self.tile_box(tile))
+        forest = self.engine.assemble(cands)
+        for k in range(forest.n_trees):
+            reach = 0.0
+            sel = forest.leaves.tree_id == k
+            if sel.any():
+                d = forest.leaves.centers[sel, :2] - forest.tree_xy[k]
+                reach = float(np.hypot(d[:, 0], d[:, 1]).max())
+            if reach > self.reach_m:
+                raise ValueError(
+                    f"tree of species {forest.tree_species[k]!r} at {forest.tree_xy[k].tolist()} "
+                    f"reaches {reach:.2f} m > max_crown_radius_m = {self.reach_m:.2f} m; "
+                    "raise forest.max_crown_radius_m"
+                )
+        self.tiles_built += 1
+        return _Tile(forest.leaves, forest.tree_xy, forest.tree_species)
+
+    def tile(self, tile: tuple[int, int]) -> Leaves:
+        """Leaves of the trees owned by ``tile`` (tree ids local to the tile), cached."""
+        return self._get(tile).leaves
+
+    def _get(self, tile: tuple[int, int]) -> _Tile:
+        hit = self._cache.get(tile)
+        if hit is not None:
+            self._cache.move_to_end(tile)
+            self.cache_hits += 1
+            return hit
+        built = self._build(tile)
+        self._cache[tile] = built
+        self._bytes[tile] = built.leaves.nbytes
+        self._evict()
+        return built
+
+    def _evict(self) -> None:
+        while self._cache and self.cache_bytes > self.max_cache_bytes:
+            old, _ = self._cache.popitem(last=False)
+            del self._bytes[old]
+            self.evictions += 1
+
+    @property
+    def cache_bytes(self) -> int:
+        """Bytes held by the cached tiles (leaf arrays and built k-d trees)."""
+        return sum(self._bytes.values())
+
+    @property
+    def cached_tiles(self) -> list[tuple[int, int]]:
+        return list(self._cache)
+
+    # --- queries ------------------------------------------------------------------------------
+    def tiles_near(self, point: ArrayLike, radius_m: float) -> list[tuple[int, int]]:
+        """Tiles that may hold leaves within ``radius_m`` of ``point`` (crown reach included)."""
+        p = np.asarray(point, dtype=np.float64)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"point must be a finite (3,) array, got {p.tolist()}")
+        if not (math.isfinite(radius_m) and radius_m >= 0):
+            raise ValueError(f"radius_m must be a finite distance >= 0, got {radius_m!r}")
+        reach = radius_m + self.reach_m
+        i0, j0 = self.tile_of(p[0] - reach, p[1] - reach)
+        i1, j1 = self.tile_of(p[0] + reach, p[1] + reach)
+        out = []
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                x0, y0, x1, y1 = self.tile_box((i, j))
+                dx = max(x0 - p[0], 0.0, p[0] - x1)
+                dy = max(y0 - p[1], 0.0, p[1] - y1)
+                if math.hypot(dx, dy) <= reach:
+                    out.append((i, j))
+        return out
+
+    def leaves_near(self, point: ArrayLike, radius_m: float) -> Leaves:
+        """Leaves whose centre is within ``radius_m`` of ``point (3,)`` (metres, world frame).
+
+        Tree ids in the result are renumbered to be unique within it (tile by tile).
+        """
+        p = np.asarray(point, dtype=np.float64)
+        parts: list[Leaves] = []
+        offset = 0
+        for t in self.tiles_near(p, radius_m):
+            tile = self._get(t)
+            idx = tile.leaves.query_ball(p, radius_m)
+            self._bytes[t] = tile.leaves.nbytes
+            if idx.size:
+                sub = tile.leaves.select(idx)
+                parts.append(Leaves(sub.centers, sub.normals, sub.radii, sub.tree_id + offset))
+            offset += tile.tree_xy.shape[0]
+        self._evict()
+        return Leaves.concat(parts)
+
+    def build_area(self, box: Box) -> Forest:
+        """All trees with base in ``box`` built at once (no tiles), in merge-priority order."""
+        return self.engine.assemble(self.engine.kept_in(box))
+
+    def trees_in_tiles(self, tiles: list[tuple[int, int]]) -> Forest:
+        """The trees owned by ``tiles`` assembled tile by tile (through the cache)."""
+        xy, sp, parts = [], [], []
+        offset = 0
+        for t in tiles:
+            tile = self._get(t)
+            parts.append(
+                Leaves(tile.leaves.centers, tile.leaves.normals, tile.leaves.radii,
+                       tile.leaves.tree_id + offset)
+            )
+            xy.append(tile.tree_xy)
+            sp.append(tile.tree_species)
+            offset += tile.tree_xy.shape[0]
+        leaves = Leaves.concat(parts)
+        tree_xy = np.concatenate(xy) if xy else np.zeros((0, 2))
+        species = np.concatenate(sp) if sp else np.zeros(0, dtype=np.str_)
+        heights = np.zeros(tree_xy.shape[0])
+        for k in range(tree_xy.shape[0]):
+            sel = leaves.tree_id == k
+            heights[k] = float(leaves.centers[sel, 2].max()) if sel.any() else 0.0
+        return Forest(leaves, tree_xy, species, heights, tuple(self.engine.names))

@@ -1,0 +1,323 @@
+"""Tree models in metres: seed 000 GMT3 skeletons and seed 001 L++ grammars, plus named presets.
+
+A tree model is a frozen dataclass with ``grow(rng, *, branches=False) -> TreeGeometry``; all
+randomness of one tree comes from the one ``rng`` it is given (the forest derives a separate
+stream per tree). Geometry is in metres, z up, the tree's base at the origin.
+
+Acoustic leaf radius (both families): N(mean, sd²) truncated to [max(1 mm, mean − 2 sd),
+mean + 2 sd]; the default N(2.5 cm, 0.5 cm). This draw is the leaf-size noise of the seeds.
+
+L++ trees (seed 001): the grammar's segment length 1 is ``unit_m`` metres (the seed fixes no
+unit); the leaf polygon's length follows from the acoustic radius through the template's
+equivalent-disc ratio (radius = 0.3206 × length), so leaf centres sit at the centroid of a
+realistically sized 8-gon. Leaf normal = the minimal rotation +Y → heading applied to +Z
+(the seed's ``drawLeaf``); the L++ frame (y up) maps to ENU as (x, y, z) -> (x, −z, y).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.world.geometry import clipped_normal, rotate, truncated_normal
+from sim_core.world.gmt3 import Skeleton, grow_skeleton, skeleton_leaves
+from sim_core.world.lpp import Grammar, expand, growth_level, interpret, load_grammar
+
+__all__ = [
+    "LEAF_DISC_RATIO",
+    "TREE_MODELS",
+    "GMT3Tree",
+    "LppTree",
+    "TreeGeometry",
+    "TreeModel",
+    "get_tree_model",
+    "packaged_grammar",
+]
+
+F64 = NDArray[np.float64]
+
+#: equivalent-disc radius of the seed 001 leaf polygon per unit leaf length (spec §2B.5)
+LEAF_DISC_RATIO = 0.3206
+
+
+@dataclass(frozen=True)
+class TreeGeometry:
+    """One tree in metres (z up, base at the origin).
+
+    Attributes:
+        centers, normals: (M, 3) leaf centres and unit normals.
+        radii: (M,) acoustic leaf radii, metres.
+        seg_start, seg_end: (S, 3) branch segments (empty unless grown with ``branches=True``).
+        seg_radius: (S,) branch radii, metres.
+    """
+
+    centers: F64
+    normals: F64
+    radii: F64
+    seg_start: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    seg_end: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    seg_radius: F64 = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def height(self) -> float:
+        """Highest leaf or branch point, metres."""
+        zs = [a[:, 2].max() for a in (self.centers, self.seg_end) if a.shape[0]]
+        return float(max(zs)) if zs else 0.0
+
+    @property
+    def crown_radius(self) -> float:
+        """Largest horizontal distance of a leaf (or branch end) from the base, metres."""
+        rs = [np.hypot(a[:, 0], a[:, 1]).max() for a in (self.centers, self.seg_end) if a.shape[0]]
+        return float(max(rs)) if rs else 0.0
+
+
+def _leaf_radii(rng: np.random.Generator, mean: float, sd: float, n: int) -> F64:
+    low = max(1e-3, mean - 2.0 * sd)
+    return truncated_normal(rng, mean, sd, low, max(low, mean + 2.0 * sd), n)
+
+
+def _check_leaf_radius(mean: float, sd: float) -> None:
+    if not (mean >= 1e-3):
+        raise ValueError(f"leaf_radius_mean_m must be >= 0.001 m, got {mean}")
+    if not (sd >= 0):
+        raise ValueError(f"leaf_radius_sd_m must be >= 0, got {sd}")
+
+
+@dataclass(frozen=True)
+class GMT3Tree:
+    """Seed 000 GMT3 skeleton with leaves along branches and at tips (see :mod:`.gmt3`).
+
+    ``unit_m`` metres per model unit; each tree is further scaled by a clipped normal
+    N(1, ``scale_sd``) (the seed's random scale).
+    """
+
+    variant: Literal["forest", "single"] = "forest"
+    levels: int = 6
+    trunk: float = 2.0
+    angle_deg: float = 50.0
+    ratio_side: float = 0.62
+    ratio_centre: float = 0.826
+    divergence_deg: float = -43.75
+    radius0: float = 0.04
+    radius_ratio: float = 0.7
+    sprout: tuple[float, float] = (0.2, 0.7)
+    twist_max_deg: float = 15.0
+    nodes: int = 4
+    leaves_per_node: int = 4
+    tip_leaves: int = 4
+    node_jitter: float = 0.1
+    tip_jitter: float = 0.05
+    unit_m: float = 1.0
+    scale_sd: float = 0.1
+    leaf_radius_mean_m: float = 0.025
+    leaf_radius_sd_m: float = 0.005
+
+    def __post_init__(self) -> None:
+        if self.levels < 0:
+            raise ValueError(f"levels must be >= 0, got {self.levels}")
+        if not (self.unit_m > 0 and self.trunk > 0):
+            raise ValueError(f"unit_m and trunk must be > 0, got {self.unit_m}, {self.trunk}")
+        if not (0 <= self.sprout[0] <= self.sprout[1]):
+            raise ValueError(f"sprout must be (low, high) with 0 <= low <= high, got {self.sprout}")
+        if self.nodes < 0 or self.leaves_per_node < 0 or self.tip_leaves < 0:
+            raise ValueError("nodes, leaves_per_node and tip_leaves must be >= 0")
+        if not (0 <= self.scale_sd < 0.5):
+            raise ValueError(f"scale_sd must be in [0, 0.5), got {self.scale_sd}")
+        _check_leaf_radius(self.leaf_radius_mean_m, self.leaf_radius_sd_m)
+
+    def with_growth_level(self, level: int) -> GMT3Tree:
+        return dataclasses.replace(self, levels=level)
+
+    def skeleton(self, rng: np.random.Generator) -> tuple[Skeleton, float]:
+        """The skeleton (model units) and this tree's metres-per-unit scale."""
+        skel = grow_skeleton(
+            rng,
+            variant=self.variant,
+            levels=self.levels,
+            trunk=self.trunk,
+            angle_deg=self.angle_deg,
+            ratio_side=self.ratio_side,
+            ratio_centre=self.ratio_centre,
+            divergence_deg=self.divergence_deg,
+            radius0=self.radius0,
+            radius_ratio=self.radius_ratio,
+            sprout=self.sprout,
+            twist_max_deg=self.twist_max_deg,
+        )
+        return skel, self.unit_m * float(clipped_normal(rng, 1.0, self.scale_sd))
+
+    def grow(self, rng: np.random.Generator, *, branches: bool = False) -> TreeGeometry:
+        skel, scale = self.skeleton(rng)
+        centers, normals = skeleton_leaves(
+            skel,
+            rng,
+            nodes=self.nodes,
+            leaves_per_node=self.leaves_per_node,
+            tip_leaves=self.tip_leaves,
+            node_jitter=self.node_jitter,
+            tip_jitter=self.tip_jitter,
+            min_level=1 if self.levels > 0 or self.variant == "single" else 0,
+        )
+        radii = _leaf_radii(rng, self.leaf_radius_mean_m, self.leaf_radius_sd_m, len(centers))
+        geo = TreeGeometry(centers * scale, normals, radii)
+        if branches:
+            geo = dataclasses.replace(
+                geo,
+                seg_start=skel.start * scale,
+                seg_end=skel.end * scale,
+                seg_radius=skel.radius * scale,
+            )
+        return geo
+
+
+def packaged_grammar(name: str) -> Path:
+    """Path of a grammar shipped in ``sim_core/world/data/lplusplus`` (e.g. ``"tree4"``)."""
+    base = resources.files("sim_core.world") / "data" / "lplusplus" / f"{name}.l++"
+    return Path(str(base))
+
+
+@functools.lru_cache(maxsize=64)
+def _grammar(path: str) -> Grammar:
+    return load_grammar(path)
+
+
+@dataclass(frozen=True)
+class LppTree:
+    """A seed 001 L++ tree: ``grammar`` is a packaged name (``"tree4"``) or a file path.
+
+    Attributes:
+        leaf_size: the seed's leaf size (grammar units); kept for reference, the acoustic size
+            comes from ``leaf_radius_*``.
+        unit_m: metres per grammar unit (segment length 1).
+        iterations: growth level override (``None``: the grammar's header).
+        growth_jitter: apply the seed's ±1 growth-level draw.
+        keep_prob: probability that a ``*`` command makes a leaf (seed: 0.5).
+        angle_noise: relative sd of the ``& ^ \\ /`` angles (seed: 0.1).
+    """
+
+    grammar: str
+    leaf_size: float = 1.4
+    unit_m: float = 0.4
+    iterations: int | None = None
+    growth_jitter: bool = True
+    keep_prob: float = 0.5
+    angle_noise: float = 0.1
+    leaf_radius_mean_m: float = 0.025
+    leaf_radius_sd_m: float = 0.005
+
+    def __post_init__(self) -> None:
+        if not self.unit_m > 0:
+            raise ValueError(f"unit_m must be > 0, got {self.unit_m}")
+        if self.iterations is not None and self.iterations < 0:
+            raise ValueError(f"iterations must be >= 0, got {self.iterations}")
+        if not (0.0 <= self.keep_prob <= 1.0):
+            raise ValueError(f"keep_prob must be in [0, 1], got {self.keep_prob}")
+        if not (0.0 <= self.angle_noise < 1.0):
+            raise ValueError(f"angle_noise must be in [0, 1), got {self.angle_noise}")
+        _check_leaf_radius(self.leaf_radius_mean_m, self.leaf_radius_sd_m)
+
+    @property
+    def path(self) -> Path:
+        p = Path(self.grammar)
+        if p.suffix == ".l++" or p.parent != Path("."):
+            return p
+        return packaged_grammar(self.grammar)
+
+    def load(self) -> Grammar:
+        """The parsed grammar (cached per path; a malformed file raises ``GrammarError``)."""
+        return _grammar(str(self.path))
+
+    def with_growth_level(self, level: int) -> LppTree:
+        return dataclasses.replace(self, iterations=level, growth_jitter=False)
+
+    def grow(self, rng: np.random.Generator, *, branches: bool = False) -> TreeGeometry:
+        g = self.load()
+        nominal = g.iterations if self.iterations is None else self.iterations
+        level = growth_level(nominal, rng, jitter=self.growth_jitter)
+        seq, table = expand(g, level, rng)
+        tr = interpret(seq, table, g.default_angle_deg, rng, angle_noise=self.angle_noise)
+        keep = rng.random(tr.leaf_pos.shape[0]) < self.keep_prob
+        pos, d = tr.leaf_pos[keep], tr.leaf_dir[keep]
+        n = pos.shape[0]
+        radii = _leaf_radii(rng, self.leaf_radius_mean_m, self.leaf_radius_sd_m, n)
+        bend = d[:, 1] / 4.0
+        flat = d[:, 1] == 0.0
+        if flat.any():
+            bend[flat] = (rng.integers(0, 20, size=int(flat.sum())) - 10) / 100.0
+        # minimal rotation +Y -> heading (skipped when nearly parallel, as in the seed)
+        axis = np.stack([d[:, 2], np.zeros(n), -d[:, 0]], axis=1)
+        s = np.linalg.norm(axis, axis=1)
+        turn = s >= 1e-3
+        khat = np.zeros_like(axis)
+        khat[turn] = axis[turn] / s[turn, None]
+        angle = np.where(turn, np.arctan2(s, d[:, 1]), 0.0)
+        normal = rotate(np.tile([0.0, 0.0, 1.0], (n, 1)), khat, angle)
+        centroid = np.stack([np.zeros(n), (3.01 - bend) / 8.0, bend / 4.0], axis=1)
+        offset = rotate(centroid, khat, angle) * (radii / LEAF_DISC_RATIO)[:, None]
+        centre = pos * self.unit_m + offset
+        geo = TreeGeometry(_to_enu(centre), _to_enu(normal), radii)
+        if branches:
+            geo = dataclasses.replace(
+                geo,
+                seg_start=_to_enu(tr.seg_start * self.unit_m),
+                seg_end=_to_enu(tr.seg_end * self.unit_m),
+                seg_radius=np.full(tr.seg_start.shape[0], 0.02),
+            )
+        return geo
+
+
+def _to_enu(v: F64) -> F64:
+    """L++ frame (x, y up, z) -> ENU (x, −z, y)."""
+    return np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1)
+
+
+TreeModel = GMT3Tree | LppTree
+
+# Leaf radii of the L++ species keep the seed's leafSize ratios around 2.5 cm (mean leafSize 1.4).
+_R = 0.025 / 1.4
+
+#: named tree models (species presets)
+TREE_MODELS: dict[str, TreeModel] = {
+    # seed 000 "maple" branching: 6-level forest variant, ~10-13 m tall
+    "maple": GMT3Tree(),
+    # seed 000 single-tree variant (Fig 5a/b first-level branches), 1 unit = 2 m
+    "maple-single": GMT3Tree(variant="single", unit_m=2.0, nodes=8, leaves_per_node=6),
+    # stand-in for the missing hazelnut CAD (spec §2A.4): a low, wide GMT3 shrub, ~3-4 m
+    "hazelnut-bush": GMT3Tree(
+        levels=5,
+        trunk=0.8,
+        angle_deg=65.0,
+        ratio_side=0.8,
+        ratio_centre=0.72,
+        sprout=(0.05, 0.25),
+        radius0=0.03,
+        unit_m=1.0,
+        leaf_radius_mean_m=0.03,
+        leaf_radius_sd_m=0.006,
+    ),
+    # seed 001 species (spec §2B.2); unit_m chosen so heights fall in 5-25 m
+    "tree4": LppTree("tree4", leaf_size=1.5, unit_m=0.4, leaf_radius_mean_m=1.5 * _R,
+                     leaf_radius_sd_m=0.2 * 1.5 * _R),
+    "tree5": LppTree("tree5", leaf_size=1.6, unit_m=0.5, leaf_radius_mean_m=1.6 * _R,
+                     leaf_radius_sd_m=0.2 * 1.6 * _R),
+    "tree6": LppTree("tree6", leaf_size=1.1, unit_m=0.45, leaf_radius_mean_m=1.1 * _R,
+                     leaf_radius_sd_m=0.2 * 1.1 * _R),
+    "tree7": LppTree("tree7", leaf_size=1.4, unit_m=0.35, leaf_radius_mean_m=1.4 * _R,
+                     leaf_radius_sd_m=0.2 * 1.4 * _R),
+}
+
+
+def get_tree_model(name: str) -> TreeModel:
+    """The named tree model; unknown names raise ``ValueError`` listing the known ones."""
+    try:
+        return TREE_MODELS[name]
+    except KeyError:
+        known = sorted(TREE_MODELS)
+        raise ValueError(f"unknown tree model {name!r}; expected one of {known}") from None
