@@ -39,6 +39,7 @@ next sends). Stamps are integer sim nanoseconds and never decrease.
 
 from __future__ import annotations
 
+import logging
 import math
 import queue
 import threading
@@ -65,6 +66,8 @@ from sim_core.config import ConfigError, from_dict
 from sim_core.scene import ClockSpec, Scene, load_scene
 
 __all__ = ["ServerParams", "SimServer", "percentiles"]
+
+log = logging.getLogger(__name__)
 
 
 def percentiles(values: Sequence[float]) -> dict[str, float]:
@@ -149,6 +152,7 @@ class SimServer:
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._echo_compute_ms: deque[float] = deque(maxlen=10000)
         self._sim_ns = 0
+        self._last_echo_error = ""
         # glider index (swarm) by id; path vehicles by id
         self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
         self._vehicle_ids = set(self.scene.vehicle_ids)
@@ -251,6 +255,7 @@ class SimServer:
             out["sim_time_s"] = self._sim_ns / 1e9
             out["registered"] = sorted(self._registered)
             out["freewheeling"] = sorted(self._freewheel)
+            out["last_echo_error"] = self._last_echo_error
             ping_echo = list(self._ping_echo_ms)
             compute = list(self._echo_compute_ms)
         out["clock_mode"] = self.clock_spec.mode
@@ -348,13 +353,15 @@ class SimServer:
                 beam = Beam.from_az_el(
                     position, heading + float(ping.az), float(ping.el), float(ping.beamwidth)
                 )
-                leaves = self.scene.leaves_near(position)
+                leaves = self.scene.leaves_near(position, self.scene.query_radius_m(sonar_id))
                 echo = synthesize(
                     leaves, beam, self.scene.echo_params(sonar_id), fidelity=sonar.fidelity
                 )
-            except ValueError:
+            except ValueError as exc:
                 with self._lock:
                     self._c["echo_errors"] += 1
+                    self._last_echo_error = f"ping {ping.ping_seq} of sonar {sonar_id}: {exc}"
+                log.warning("%s: %s", self.name, self._last_echo_error)
                 continue
             t1 = time.monotonic()
             samples = np.asarray(echo.samples, dtype=np.float32)

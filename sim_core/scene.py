@@ -570,6 +570,19 @@ class Scene:
         self.built.add("forest")
         return build_forest(forest_spec, seed=f.seed).leaves
 
+    def echo_range_m(self, sonar_id: int) -> float:
+        """Farthest range sonar ``sonar_id``'s echo window holds: ``samples / fs * c / 2`` m."""
+        p = self._echo_params[sonar_id]
+        return float(p.samples / p.fs * p.sound_speed / 2.0)
+
+    def query_radius_m(self, sonar_id: int) -> float:
+        """Radius of the leaves gathered for an echo of ``sonar_id``: ``forest.query_radius_m``,
+        capped just inside the echo window (the synthesiser rejects leaves beyond it)."""
+        f = self.spec.forest
+        if f is None:
+            raise ValueError("scene has no forest")
+        return min(f.query_radius_m, 0.999 * self.echo_range_m(sonar_id))
+
     def leaves_near(self, point: FloatArray, radius_m: float | None = None) -> Any:
         """Leaves within ``radius_m`` (default ``forest.query_radius_m``) of ``point`` (3,) m."""
         src = self.forest_source

@@ -1,0 +1,118 @@
+"""SimServer echoes: answered at the ping's pose and beam; the state stream keeps ticking."""
+
+from __future__ import annotations
+
+import queue
+import threading
+from typing import Any
+
+import numpy as np
+import pytest
+
+from hil_bridge.messages import GliderState, SonarEcho, SonarPing
+from hil_bridge.node import Node
+from hil_bridge.server import SimServer
+from sim_core.scene import load_scene
+from sim_core.sonar import Beam, synthesize
+
+ECHO = {"samples": 8000}  # 20 ms at 400 kHz: leaves up to 3.4 m, keeps the test quick
+
+
+def _scene(mode: str) -> dict[str, Any]:
+    return {
+        "forest": {"preset": "seed000-fig5d", "query_radius_m": 4.0},
+        "sonars": [{"id": 3, "mount": 100, "echo": ECHO}],
+        "vehicles": [{"id": 100, "path": {"kind": "points",
+                                          "points": [[2.0, 5.0, 2.0], [18.0, 5.0, 2.0]]}}],
+        "state_rate_hz": 20,
+        "clock": {"mode": mode},
+    }
+
+
+def test_echo_is_computed_at_the_pose_and_beam_of_the_ping() -> None:
+    bus = "mem://server_echo"
+    srv = SimServer("server", bus=bus, scene=_scene("fast"), stop_after_s=0.05)
+    head = Node("head", bus=bus)
+    ping_pub = head.create_publisher(SonarPing, "/sonar/3/ping")
+    echoes: queue.Queue[SonarEcho] = queue.Queue()
+    head.create_subscription(SonarEcho, "/sonar/3/echo", echoes.put)
+    head.start()
+    srv.start()
+    try:
+        assert srv.wait_done(timeout=30)  # the vehicle now rests at its t = 0.05 s pose
+        ping_pub.publish(SonarPing(stamp_ns=0, ping_seq=7, az=0.3, el=0.1, beamwidth=0.6))
+        echo = echoes.get(timeout=20)
+    finally:
+        srv.stop()
+        head.stop()
+    pose = srv.scene.trajectories[100].sample(0.05)
+    position = np.array([pose["x"], pose["y"], pose["z"]], dtype=float)
+    assert position[0] == pytest.approx(2.25)
+    beam = Beam.from_az_el(position, float(pose["heading"]) + 0.3, 0.1, 0.6)
+    scene = load_scene(_scene("fast"))
+    leaves = scene.leaves_near(position, scene.query_radius_m(3))
+    direct = synthesize(leaves, beam, scene.echo_params(3), fidelity="fast")
+    assert echo.ping_seq == 7 and echo.sonar_id == 3
+    assert echo.leaves_in_beam == direct.leaves_in_beam > 0
+    assert echo.fs == direct.fs
+    np.testing.assert_array_equal(echo.samples, direct.samples.astype(np.float32))
+    assert srv.stats()["built"] == ["forest_tiles", "trajectories"]
+
+
+def test_state_stream_keeps_ticking_while_an_echo_computes() -> None:
+    bus = "mem://server_rate"
+    srv = SimServer("server", bus=bus, scene=_scene("fast"), stop_after_s=600.0)
+    head = Node("head", bus=bus)
+    ping_pub = head.create_publisher(SonarPing, "/sonar/3/ping")
+    echoes: queue.Queue[SonarEcho] = queue.Queue()
+    first_state: queue.Queue[GliderState] = queue.Queue()
+    sent = threading.Event()
+
+    def on_state(msg: GliderState) -> None:
+        if not sent.is_set():
+            sent.set()
+            first_state.put(msg)
+            ping_pub.publish(SonarPing(stamp_ns=msg.stamp_ns, ping_seq=1, az=0.0, el=0.0,
+                                       beamwidth=0.8))
+
+    head.create_subscription(GliderState, "/glider/100/state", on_state)
+    head.create_subscription(SonarEcho, "/sonar/3/echo", echoes.put)
+    head.start()
+    srv.start()
+    try:
+        echo = echoes.get(timeout=20)
+        state = first_state.get(timeout=1)
+    finally:
+        srv.stop()
+        head.stop()
+    st = srv.stats()
+    ticks_during_echo = (echo.stamp_ns - state.stamp_ns) / srv.tick_ns
+    # The tick loop never waited for the echo: many ticks passed while it was computed, and
+    # every tick published every vehicle's state.
+    assert ticks_during_echo >= 10
+    assert st["states_published"] == st["ticks"]
+    assert st["echoes_published"] == 1
+
+
+def test_scene_builds_only_what_it_needs() -> None:
+    no_sonar = load_scene({
+        "forest": {"preset": "seed000-fig5d"},
+        "vehicles": [{"id": 1, "path": {"kind": "points", "points": [[0, 0, 1], [1, 0, 1]]}}],
+    })
+    assert no_sonar.forest_source is None
+    assert no_sonar.swarm is None
+    assert no_sonar.built == set()
+    with_sonar = load_scene(_scene("fast"))
+    assert with_sonar.built == set()  # validated, nothing heavy built yet
+    with_sonar.leaves_near(np.array([5.0, 5.0, 2.0]))
+    assert with_sonar.built == {"forest_tiles"}
+    srv = SimServer("server", bus="mem://server_lazy", scene={
+        "swarm": {"overrides": {"numAgents": 2}}, "clock": {"mode": "fast"}}, stop_after_s=1.0)
+    srv.start()
+    try:
+        assert srv.wait_done(timeout=30)
+    finally:
+        srv.stop()
+    st = srv.stats()
+    assert st["built"] == ["swarm"]
+    assert st["neighbors_published"] == 0  # no autopilot asked
