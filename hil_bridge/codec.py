@@ -42,6 +42,7 @@ __all__ = [
     "encode",
     "encode_header",
     "encode_payload",
+    "pack_header",
     "payload_to_jsonable",
     "topic_frame",
     "topic_from_frame",
@@ -204,16 +205,25 @@ def encode_header(
     msg: Message, *, seq: int, pub_ns: int, frame_id: str = "", src: str = ""
 ) -> bytes:
     """Frame 2 for ``msg`` (``stamp_ns`` is the message's own)."""
-    header = {
-        "type": msg.TYPE,
-        "v": msg.VERSION,
-        "seq": seq,
-        "stamp_ns": int(msg.stamp_ns),  # type: ignore[attr-defined]
-        "pub_ns": pub_ns,
-        "frame_id": frame_id,
-        "src": src,
-    }
-    return msgpack.packb(header, use_bin_type=True)
+    return pack_header(
+        Header(msg.TYPE, msg.VERSION, seq, int(msg.stamp_ns), pub_ns, frame_id, src)  # type: ignore[attr-defined]
+    )
+
+
+def pack_header(header: Header) -> bytes:
+    """Frame 2 from a :class:`Header` (keys in wire order); used to re-send recorded messages."""
+    return msgpack.packb(
+        {
+            "type": header.type,
+            "v": header.v,
+            "seq": header.seq,
+            "stamp_ns": header.stamp_ns,
+            "pub_ns": header.pub_ns,
+            "frame_id": header.frame_id,
+            "src": header.src,
+        },
+        use_bin_type=True,
+    )
 
 
 def encode(

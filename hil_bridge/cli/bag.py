@@ -1,0 +1,156 @@
+"""``echoloop bag record|play|info|export``: MCAP recordings of the bus.
+
+    echoloop bag record out.mcap [--topics /glider/0/state /clock] [--duration 30]
+    echoloop bag play out.mcap [--rate 2] [--loop] [--start-offset 5] [--topics ...] [--clock]
+    echoloop bag info out.mcap [--json]
+    echoloop bag export out.mcap --json out_json.mcap      # JSON + JSON Schema, for Foxglove
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import threading
+import time
+from types import FrameType
+
+from hil_bridge.bag import Player, Recorder, bag_info, export_json
+from hil_bridge.transport import DEFAULT_BUS
+
+
+def _rate(text: str) -> float:
+    value = float(text)
+    if value == 0:
+        return math.inf
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"rate must be > 0 (0: as fast as possible), got {text}")
+    return value
+
+
+def _stop_on_signals() -> threading.Event:
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    return stop
+
+
+def _fmt(x: float | None, unit: str) -> str:
+    return "-" if x is None else f"{x:.1f} {unit}"
+
+
+def _record(args: argparse.Namespace) -> int:
+    stop = _stop_on_signals()
+    recorder = Recorder(args.file, args.topics, bus=args.bus, chunk_size=args.chunk_size,
+                        flush_period_s=args.flush_period, compression=args.compression)
+    recorder.start()
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+    try:
+        print(f"recording {'all topics' if args.topics is None else args.topics} from "
+              f"{args.bus} into {args.file} (Ctrl-C stops)", flush=True)
+        while not stop.is_set():
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                break
+            stop.wait(0.5 if left is None else min(0.5, left))
+            if recorder.error is not None:
+                raise OSError(f"recorder failed: {recorder.error}")
+    finally:
+        recorder.stop()
+    s = recorder.stats()
+    print(f"recorded {s['messages']} messages ({s['bytes']} payload bytes) into {args.file}")
+    return 0
+
+
+def _play(args: argparse.Namespace) -> int:
+    stop = _stop_on_signals()
+    player = Player(args.file, bus=args.bus, rate=args.rate, loop=args.loop,
+                    start_offset_s=args.start_offset, topics=args.topics, clock=args.clock,
+                    clock_hz=args.clock_hz, wait_for_subscribers_s=args.wait_subscribers)
+    player.start()
+    try:
+        while not player.wait(0.2):
+            if stop.is_set():
+                break
+    finally:
+        player.stop()
+    if player.error is not None:
+        raise OSError(f"player failed: {player.error}")
+    s = player.stats()
+    note = " (bag truncated: played up to its last complete chunk)" if s["truncated"] else ""
+    print(f"published {s['published']} messages in {s['passes']} pass(es){note}")
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    info = bag_info(args.file)
+    if args.json:
+        print(json.dumps(info.as_dict(), indent=2))
+        return 0
+    print(f"path:      {info.path}")
+    print(f"messages:  {info.messages} on {len(info.topics)} topics, {info.channels} channels")
+    print(f"duration:  {info.duration_s:.3f} s")
+    if info.truncated:
+        print(f"truncated: yes, read up to the last complete chunk ({info.error})")
+    width = max((len(t) for t in info.topics), default=5)
+    print(f"{'topic':<{width}}  {'count':>7}  {'rate':>10}  {'gaps':>5}  {'lost':>6}  type")
+    for topic, st in sorted(info.topics.items()):
+        print(f"{topic:<{width}}  {st.count:>7}  {_fmt(st.rate_hz, 'Hz'):>10}  {st.gaps:>5}  "
+              f"{st.lost:>6}  {','.join(sorted(st.types))}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    counts = export_json(args.file, args.json_out, topics=args.topics)
+    print(f"wrote {counts['messages']} JSON messages to {args.json_out}"
+          + (f" (skipped {counts['skipped']} undecodable)" if counts["skipped"] else ""))
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="echoloop bag", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="cmd", required=True)
+
+    rec = sub.add_parser("record", help="record topics into an MCAP file")
+    rec.add_argument("file")
+    rec.add_argument("--bus", default=DEFAULT_BUS)
+    rec.add_argument("--topics", nargs="+", default=None, help="default: every topic")
+    rec.add_argument("--duration", type=float, default=None, help="seconds (default: Ctrl-C)")
+    rec.add_argument("--chunk-size", type=int, default=64 * 1024, help="bytes per MCAP chunk")
+    rec.add_argument("--flush-period", type=float, default=1.0,
+                     help="seconds between forced chunk flushes (data at risk on a crash)")
+    rec.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
+    rec.set_defaults(run=_record)
+
+    play = sub.add_parser("play", help="publish a recording on the bus")
+    play.add_argument("file")
+    play.add_argument("--bus", default=DEFAULT_BUS)
+    play.add_argument("--rate", type=_rate, default=1.0, help="speed factor (0: no pacing)")
+    play.add_argument("--loop", action="store_true")
+    play.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds")
+    play.add_argument("--topics", nargs="+", default=None)
+    play.add_argument("--clock", action="store_true", help="publish /clock from the stamps")
+    play.add_argument("--clock-hz", type=float, default=100.0)
+    play.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+                      help="first wait up to S seconds for a subscriber on every topic")
+    play.set_defaults(run=_play)
+
+    info = sub.add_parser("info", help="topics, counts, rates, seq gaps of a recording")
+    info.add_argument("file")
+    info.add_argument("--json", action="store_true")
+    info.set_defaults(run=_info)
+
+    exp = sub.add_parser("export", help="write a JSON-encoded MCAP that Foxglove opens")
+    exp.add_argument("file")
+    exp.add_argument("--json", dest="json_out", required=True, metavar="OUT.mcap")
+    exp.add_argument("--topics", nargs="+", default=None)
+    exp.set_defaults(run=_export)
+
+    args = parser.parse_args(argv)
+    return int(args.run(args))

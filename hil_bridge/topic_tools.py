@@ -1,0 +1,174 @@
+"""Topic introspection shared by ``echoloop topic`` and ``echoloop bag info``.
+
+:class:`TopicStats` folds the headers seen on one topic into counts, rates and gaps:
+
+- ``gaps`` / ``lost``: publisher ``seq`` jumps (per publisher ``src``): a jump from 7 to 10 is one
+  gap of 2 lost messages; repeats (latched re-sends, retransmissions) count as ``duplicates``;
+- ``rate_hz``: messages per second of the publishers' sim time (from ``stamp_ns``), and
+  ``recv_rate_hz`` per second of receive time; ``bandwidth_bps`` payload+header bytes per
+  receive second.
+
+:class:`TopicMonitor` subscribes a raw transport to a prefix and feeds a ``TopicStats`` per topic.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from hil_bridge.codec import Header, decode_header, topic_from_frame
+from hil_bridge.errors import CodecError
+from hil_bridge.transport import Frames, open_transport
+
+__all__ = ["TopicMonitor", "TopicStats"]
+
+
+@dataclass
+class TopicStats:
+    """Running statistics of one topic (see the module docstring)."""
+
+    topic: str
+    types: set[str] = field(default_factory=set)
+    count: int = 0
+    bytes: int = 0
+    duplicates: int = 0
+    gaps: int = 0
+    lost: int = 0
+    publishers: set[str] = field(default_factory=set)
+    frame_ids: set[str] = field(default_factory=set)
+    first_stamp_ns: int | None = None
+    last_stamp_ns: int | None = None
+    first_recv_ns: int | None = None
+    last_recv_ns: int | None = None
+    _last_seq: dict[str, int] = field(default_factory=dict)
+    _intervals_ns: list[int] = field(default_factory=list)
+
+    def add(self, header: Header, nbytes: int, recv_ns: int) -> None:
+        """Fold in one message: its header, its size in bytes, its receive time (ns)."""
+        self.types.add(header.type)
+        self.publishers.add(header.src)
+        self.frame_ids.add(header.frame_id)
+        last = self._last_seq.get(header.src)
+        if last is not None and header.seq <= last:
+            self.duplicates += 1
+            return
+        if last is not None and header.seq > last + 1:
+            self.gaps += 1
+            self.lost += header.seq - last - 1
+        self._last_seq[header.src] = header.seq
+        self.count += 1
+        self.bytes += nbytes
+        if self.last_stamp_ns is not None and len(self.publishers) == 1:
+            self._intervals_ns.append(header.stamp_ns - self.last_stamp_ns)
+            if len(self._intervals_ns) > 10_000:
+                del self._intervals_ns[:5_000]
+        if self.first_stamp_ns is None:
+            self.first_stamp_ns = header.stamp_ns
+            self.first_recv_ns = recv_ns
+        self.last_stamp_ns = header.stamp_ns
+        self.last_recv_ns = recv_ns
+
+    @property
+    def rate_hz(self) -> float | None:
+        """Messages per second of sim time (None until two messages with distinct stamps)."""
+        if self.first_stamp_ns is None or self.last_stamp_ns is None or self.count < 2:
+            return None
+        span = self.last_stamp_ns - self.first_stamp_ns
+        return (self.count - 1) / (span / 1e9) if span > 0 else None
+
+    @property
+    def recv_rate_hz(self) -> float | None:
+        if self.first_recv_ns is None or self.last_recv_ns is None or self.count < 2:
+            return None
+        span = self.last_recv_ns - self.first_recv_ns
+        return (self.count - 1) / (span / 1e9) if span > 0 else None
+
+    @property
+    def bandwidth_bps(self) -> float | None:
+        if self.first_recv_ns is None or self.last_recv_ns is None or self.count < 2:
+            return None
+        span = self.last_recv_ns - self.first_recv_ns
+        return self.bytes / (span / 1e9) if span > 0 else None
+
+    def interval_summary(self) -> dict[str, float] | None:
+        """min/mean/max/std of stamp intervals in seconds (single-publisher topics)."""
+        if not self._intervals_ns:
+            return None
+        xs = [x / 1e9 for x in self._intervals_ns]
+        return {
+            "min_s": min(xs),
+            "mean_s": statistics.fmean(xs),
+            "max_s": max(xs),
+            "std_s": statistics.pstdev(xs),
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "topic": self.topic,
+            "types": sorted(self.types),
+            "count": self.count,
+            "bytes": self.bytes,
+            "duplicates": self.duplicates,
+            "gaps": self.gaps,
+            "lost": self.lost,
+            "publishers": sorted(self.publishers),
+            "frame_ids": sorted(self.frame_ids),
+            "rate_hz": self.rate_hz,
+            "recv_rate_hz": self.recv_rate_hz,
+            "bandwidth_bps": self.bandwidth_bps,
+            "first_stamp_ns": self.first_stamp_ns,
+            "last_stamp_ns": self.last_stamp_ns,
+            "intervals": self.interval_summary(),
+        }
+
+
+class TopicMonitor:
+    """Receive raw frames under ``prefix`` on ``bus``; keep a :class:`TopicStats` per topic.
+
+    ``run(duration_s, on_message=None, max_messages=None)`` blocks; frames that do not decode are
+    counted in ``decode_errors``.
+    """
+
+    def __init__(self, bus: str, prefix: str = "") -> None:
+        self.bus = bus
+        self.prefix = prefix
+        self.topics: dict[str, TopicStats] = {}
+        self.decode_errors = 0
+
+    def run(
+        self,
+        duration_s: float | None,
+        on_message: Callable[[str, Header, Frames, TopicStats], None] | None = None,
+        max_messages: int | None = None,
+        stop: Callable[[], bool] | None = None,
+    ) -> dict[str, TopicStats]:
+        deadline = None if duration_s is None else time.monotonic() + duration_s
+        seen = 0
+        with open_transport(self.bus) as transport:
+            transport.subscribe(self.prefix.encode())
+            while deadline is None or time.monotonic() < deadline:
+                if stop is not None and stop():
+                    break
+                wait = 0.1 if deadline is None else min(0.1, max(0.0, deadline - time.monotonic()))
+                frames = transport.recv(timeout=wait)
+                if frames is None:
+                    continue
+                try:
+                    topic = topic_from_frame(frames[0])
+                    header = decode_header(frames[1])
+                except CodecError:
+                    self.decode_errors += 1
+                    continue
+                stats = self.topics.get(topic)
+                if stats is None:
+                    stats = self.topics[topic] = TopicStats(topic)
+                stats.add(header, len(frames[1]) + len(frames[2]), time.monotonic_ns())
+                if on_message is not None:
+                    on_message(topic, header, frames, stats)
+                seen += 1
+                if max_messages is not None and seen >= max_messages:
+                    break
+        return self.topics
