@@ -182,9 +182,10 @@ class CanLink:
         with self._count_lock:
             self.counters[name] += n
 
-    def stats(self) -> dict[str, int | float | str]:
+    def stats(self) -> dict[str, Any]:
+        """Counters (ints) plus ``state`` (str)."""
         with self._count_lock:
-            out: dict[str, int | float | str] = dict(self.counters)
+            out: dict[str, Any] = dict(self.counters)
         out["state"] = self._state
         return out
 

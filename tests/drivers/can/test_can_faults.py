@@ -181,8 +181,8 @@ def test_corrupt_and_error_frames_are_counted_and_dropped(
             for i in range(100)]
     decoded, rejected = 0, 0
     with _link(channel, faults) as link:
-        for msg in sent:
-            peer.send(msg)
+        for frame in sent:
+            peer.send(frame)
         while (msg := link.recv(0.05)) is not None:
             try:
                 codec.decode(msg)
