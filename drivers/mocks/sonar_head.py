@@ -6,7 +6,8 @@
 1. owns a device port: a new pty (``pty=True``, optionally symlinked to ``link``), an existing
    serial URL (``port=...``, e.g. one end of a null-modem cable or ``socket://``), or an
    in-process pipe (the ``sonarsim://`` pyserial URL handler);
-2. sends CONFIG and HEARTBEAT once a second and a PING at ``rate_hz`` with a fixed beamwidth or
+2. sends CONFIG and HEARTBEAT once a second (CONFIG also as soon as a host (re)appears, i.e.
+   its first frame after a second of silence) and a PING at ``rate_hz`` with a fixed beamwidth or
    one drawn uniformly from [30°, 65°] per ping (seed 000's scenario II) from its seeded rng;
 3. throttles both directions to ``baudrate`` (10 bits per byte, 8N1) — ptys and pipes move
    bytes instantly, a UART does not — so latencies are those of the real link;
@@ -259,6 +260,9 @@ class MockSonarHead:
         self.encoding = Encoding.parse(self.cfg.encoding)
         self._rng = make_rng(self.cfg.seed)
         self._stop = threading.Event()
+        self._tx_wake = threading.Event()
+        self._config_due = True
+        self._host_seen_at: float | None = None
         self._threads: list[threading.Thread] = []
         self._lock = threading.Lock()
         self._decoder = FrameDecoder()
@@ -309,6 +313,7 @@ class MockSonarHead:
             return
         self._stopped = True
         self._stop.set()
+        self._tx_wake.set()
         if self._device is not None:
             self._device.wake()
         for t in self._threads:
@@ -387,10 +392,13 @@ class MockSonarHead:
         next_beat = next_ping
         while not self._stop.is_set():
             now = time.monotonic()
-            if now >= next_beat:
+            if self._config_due:
+                self._config_due = False
                 self._send(MsgType.CONFIG, config.pack())
+            if now >= next_beat:
                 self._send(MsgType.HEARTBEAT, HeartbeatPayload(self._uptime_ms()).pack())
                 next_beat += 1.0
+                self._config_due = True
                 self._expire(now)
             if now >= next_ping:
                 self._ping(now)
@@ -398,7 +406,8 @@ class MockSonarHead:
                 if next_ping < now:  # fell behind (tiny period or a stall): skip, do not burst
                     self._counts["pings_skipped"] += 1
                     next_ping = now + period
-            self._stop.wait(max(0.0, min(next_ping, next_beat) - time.monotonic()))
+            self._tx_wake.wait(max(0.0, min(next_ping, next_beat) - time.monotonic()))
+            self._tx_wake.clear()
 
     def _ping(self, t_fire: float) -> None:
         seq = self._ping_seq
@@ -435,6 +444,13 @@ class MockSonarHead:
             with self._lock:
                 self._counts["bytes_rx"] += len(data)
                 frames = self._decoder.feed(data)
+            if frames:
+                now = time.monotonic()
+                if self._host_seen_at is None or now - self._host_seen_at > 1.0:
+                    # a host (re)appeared: tell it our configuration now, not at the next beat
+                    self._config_due = True
+                    self._tx_wake.set()
+                self._host_seen_at = now
             for f in frames:
                 self._handle(f.msg_type, f.payload)
 

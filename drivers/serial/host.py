@@ -42,6 +42,7 @@ from drivers.serial.protocol import (
     echo_wire_bytes,
     encode_samples,
 )
+from sim_core.sonar import to_baseband
 
 __all__ = ["LinkBudget", "SonarHeadHost", "baseband", "link_budget"]
 
@@ -117,13 +118,8 @@ def link_budget(
 def baseband(
     samples: NDArray[np.floating[Any]], fs: float, f_center_hz: float, decimation: int
 ) -> tuple[NDArray[np.complexfloating[Any, Any]], float]:
-    """Complex baseband of real echo samples, via ``sim_core.sonar.to_baseband``."""
-    from sim_core import sonar
-
-    to_baseband = getattr(sonar, "to_baseband", None)
-    if to_baseband is None:
-        raise ValueError("IQ16 encoding needs sim_core.sonar.to_baseband, which is missing")
-    iq, fs_out = to_baseband(samples, fs, f_center_hz, decimation)
+    """Complex baseband of real echo samples (..., N) via ``sim_core.sonar.to_baseband``."""
+    iq, fs_out = to_baseband(samples, fs, f_center_hz, int(decimation))
     return np.asarray(iq), float(fs_out)
 
 

@@ -10,7 +10,8 @@ above never knows which.
 1. ``start()`` returns at once; the reader thread opens the port and keeps it open. When the
    port fails (unplugged device, closed pty, reset socket) the link closes it and re-opens it
    with exponential back-off (``backoff_initial_s`` doubling to ``backoff_max_s``); each
-   successful re-open counts in ``reconnects``.
+   successful re-open counts in ``reconnects``. A ``ValueError`` on open (bad URL option or
+   baud rate) is a configuration error: the link sets ``failed`` and stops trying.
 2. ``send(data)`` never blocks: it queues the bytes for the writer thread (bounded by
    ``tx_queue_bytes``; overflow and bytes sent while disconnected are dropped and counted).
 3. Received bytes go to ``on_bytes(data)`` on the reader thread; an exception raised by the
@@ -153,6 +154,8 @@ class Link:
         self._started = False
         self._stopped = False
         self.last_error: BaseException | None = None
+        #: True after a configuration error (ValueError) on open: the link gave up
+        self.failed = False
         self.bytes_rx = 0
         self.bytes_tx = 0
         self.opens = 0
@@ -208,6 +211,11 @@ class Link:
     @property
     def connected(self) -> bool:
         return self._connected.is_set()
+
+    @property
+    def port(self) -> Any:
+        """The open pyserial port object (None while disconnected)."""
+        return self._ser
 
     @property
     def reconnects(self) -> int:
@@ -295,9 +303,16 @@ class Link:
         try:
             ser = serial.serial_for_url(self.url, baudrate=self.baudrate,
                                         timeout=self._read_timeout, write_timeout=2.0)
-        except (OSError, ValueError) as exc:
+        except OSError as exc:  # SerialException: absent or busy device, refused socket
             self.open_failures += 1
             self.last_error = exc
+            return False
+        except ValueError as exc:  # a bad URL option or baud rate: retrying cannot help
+            self.open_failures += 1
+            self.last_error = exc
+            self.failed = True
+            log.error("%s: cannot open %s: %s", self.name, self.url, exc)
+            self._notify_state()
             return False
         self._ser = ser
         self.opens += 1
@@ -341,7 +356,7 @@ class Link:
     def _read_loop(self) -> None:
         delay = self._backoff[0]
         warned = False
-        while not self._stop.is_set():
+        while not self._stop.is_set() and not self.failed:
             if self._ser is None:
                 if self._open_port():
                     delay = self._backoff[0]
@@ -387,7 +402,7 @@ def open_link(url: str, *, connect_timeout_s: float = 5.0, **kwargs: Any) -> Lin
     :class:`Link`.
     """
     link = Link(url, **kwargs).start()
-    if link.wait_connected(connect_timeout_s):
+    if link.wait_for(lambda lk: lk.connected or lk.failed, connect_timeout_s) and link.connected:
         return link
     link.stop()
     err = link.last_error

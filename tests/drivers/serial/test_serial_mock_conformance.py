@@ -1,0 +1,190 @@
+"""The host session against the mock head on a pty and through sonarsim://; mock behaviour."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers import cli
+from drivers.mocks.sonar_head import BEAMWIDTH_RANGE_DEG, MockSonarHead, first_return_range
+from drivers.serial.framing import Frame, FrameDecoder, MsgType
+from drivers.serial.host import SonarHeadHost
+from drivers.serial.link import open_link
+from drivers.serial.protocol import Encoding, PingPayload
+
+FS = 400000.0
+IMPULSE_AT = 2000  # samples -> t = 5 ms -> range 340 * 0.005 / 2 = 0.85 m
+
+
+def impulse_echo(n: int = 4000) -> np.ndarray:
+    x = np.zeros(n, np.float32)
+    x[min(IMPULSE_AT, n - 1)] = 1.0
+    return x
+
+
+def tone_burst_echo(n: int = 4000) -> np.ndarray:
+    t = np.arange(n) / FS
+    env = np.exp(-0.5 * ((t - IMPULSE_AT / FS) / 2e-4) ** 2)
+    return (env * np.cos(2 * np.pi * 70e3 * t)).astype(np.float32)
+
+
+class Pings:
+    """Host ``on_ping`` that answers every ping with ``echo`` and records the pings."""
+
+    def __init__(self, echo: np.ndarray) -> None:
+        self.echo = echo
+        self.host: SonarHeadHost | None = None
+        self.pings: list[PingPayload] = []
+        self.cv = threading.Condition()
+
+    def __call__(self, ping: PingPayload, frame: Frame) -> None:
+        with self.cv:
+            self.pings.append(ping)
+            self.cv.notify_all()
+        if self.host is not None:
+            self.host.send_echo(ping.ping_seq, self.echo, FS)
+
+    def wait(self, n: int, timeout: float = 5.0) -> bool:
+        with self.cv:
+            return self.cv.wait_for(lambda: len(self.pings) >= n, timeout)
+
+
+@pytest.fixture(params=["pty", "sonarsim"])
+def head(request: pytest.FixtureRequest) -> Iterator[tuple[str, str]]:
+    """(kind, port) with the mock running as the device."""
+    yield request.param, ""
+
+
+def run_session(kind: str, encoding: str, echo: np.ndarray, n: int = 3, **mock_params: object
+                ) -> tuple[dict[str, object], SonarHeadHost, Pings]:
+    params = {"rate_hz": 20, "encoding": encoding, "beamwidth": 40, **mock_params}
+    answer = Pings(echo)
+    mock: MockSonarHead | None = None
+    if kind == "pty":
+        mock = MockSonarHead("mock", pty=True, **params)  # type: ignore[arg-type]
+        mock.start()
+        port = mock.path
+    else:
+        port = "sonarsim://?" + "&".join(f"{k}={v}" for k, v in params.items())
+    host = SonarHeadHost(port, on_ping=answer)
+    answer.host = host
+    try:
+        host.start()
+        assert host.link.wait_connected(5.0)
+        if mock is None:
+            mock = host.link.port.mock
+        assert mock is not None
+        assert mock.wait_echoes(n, 10.0), mock.stats()
+        stats = mock.stats()
+    finally:
+        host.stop()
+        if kind == "pty" and mock is not None:
+            mock.stop()
+    return stats, host, answer
+
+
+@pytest.mark.parametrize("encoding", ["int16", "iq16", "float32"])
+def test_echoes_arrive_complete_in_the_requested_encoding(
+    head: tuple[str, str], encoding: str
+) -> None:
+    kind, _ = head
+    echo = tone_burst_echo() if encoding == "iq16" else impulse_echo()
+    stats, host, answer = run_session(kind, encoding, echo)
+    assert stats["echoes_complete"] >= 3
+    assert stats.get("encoding_mismatch", 0) == 0
+    assert stats["crc_errors"] == 0 and stats["frames_dropped"] == 0
+    assert all(p.encoding == Encoding.parse(encoding) for p in answer.pings)
+    assert all(math.isclose(p.beamwidth, math.radians(40), rel_tol=1e-6) for p in answer.pings)
+    lat = stats["latency_p50_ms"]
+    assert isinstance(lat, float) and lat > 0
+    rng = stats["last_range_m"]
+    assert isinstance(rng, float)
+    if encoding == "iq16":
+        # |iq| is the burst envelope / 2: it crosses 10 % of its peak sqrt(2 ln 10) sigma early;
+        # allow 1.5 baseband samples (20 kHz -> 8.5 mm each)
+        t_cross = IMPULSE_AT / FS - 2e-4 * math.sqrt(2 * math.log(10))
+        assert abs(rng - 340 * t_cross / 2) < 1.5 * 340 / 20000 / 2
+    else:
+        assert rng == pytest.approx(340 * IMPULSE_AT / FS / 2)
+    assert host.decoder.dropped == 0 and host.counts["configs_in"] >= 1
+    if encoding == "iq16":
+        assert host.f_center_hz == 70000 and host.decimation == 20
+
+
+def test_head_status_reaches_the_mock() -> None:
+    _, host, _ = run_session("pty", "int16", impulse_echo())
+    assert host.counts["frames_out"] > 0
+
+
+def test_random_beamwidth_is_seeded_and_in_range() -> None:
+    def beams(seed: int) -> list[float]:
+        _, _, answer = run_session("sonarsim", "float32", impulse_echo(100), n=6, seed=seed,
+                                   rate_hz=100, beamwidth="random")
+        return [p.beamwidth for p in answer.pings[:6]]
+
+    a, b, c = beams(3), beams(3), beams(4)
+    lo, hi = (math.radians(d) for d in BEAMWIDTH_RANGE_DEG)
+    assert all(lo <= x <= hi for x in a + c)
+    assert a == b and a != c
+
+
+def test_first_return_range_closed_form() -> None:
+    x = np.zeros((2, 1000))
+    x[1, 400] = 0.5
+    x[0, 500] = 1.0
+    assert first_return_range(x, 400000.0) == pytest.approx(340 * 400 / 400000 / 2)
+    assert first_return_range(x, 400000.0, threshold=0.8) == pytest.approx(340 * 500 / 4e5 / 2)
+    assert first_return_range(np.zeros(10), 1.0) is None
+
+
+@pytest.mark.parametrize(("params", "match"), [
+    ({"pty": True, "beamwidth": "wide"}, "beamwidth"),
+    ({"pty": True, "rate_hz": 0}, "rate_hz"),
+    ({"pty": True, "encoding": "mp3"}, "encoding"),
+    ({"pty": True, "colour": 1}, "colour"),
+    ({"pty": True, "port": "loop://"}, "exactly one"),
+    ({}, "exactly one"),
+])
+def test_mock_rejects_bad_config(params: dict[str, object], match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        MockSonarHead("m", **params)  # type: ignore[arg-type]
+
+
+def test_sonarsim_rejects_unknown_options() -> None:
+    with pytest.raises(ValueError, match="colour"):
+        open_link("sonarsim://?colour=red", connect_timeout_s=2.0)
+
+
+def test_cli_runs_the_mock_on_a_pty(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    link = tmp_path / "sonar0"
+    assert cli.main(["sonar-head", "--pty", "--link", str(link), "--rate", "50",
+                     "--duration", "0.2", "--every", "0"]) == 0
+    out = capsys.readouterr().out
+    assert f"open it with sonar_head.port={link}" in out and "pings_sent=" in out
+    assert not link.exists()  # the mock removes its symlink when it stops
+    assert cli.main([]) == 2
+    assert cli.main(["toaster"]) == 2
+
+
+def test_capture_decodes_to_the_counted_frames(tmp_path: Path) -> None:
+    mock = MockSonarHead("mock", pty=True, rate_hz=50, encoding="int16", beamwidth=40)
+    mock.start()
+    answer = Pings(impulse_echo(500))
+    host = SonarHeadHost(mock.path, on_ping=answer, capture=tmp_path / "head")
+    answer.host = host
+    try:
+        host.start()
+        assert mock.wait_echoes(5, 10.0)
+    finally:
+        host.stop()
+        mock.stop()
+    rx = FrameDecoder().feed((tmp_path / "head.rx.bin").read_bytes())
+    tx = FrameDecoder().feed((tmp_path / "head.tx.bin").read_bytes())
+    assert len(rx) == host.decoder.frames_ok
+    assert len(tx) == host.counts["frames_out"]
+    assert sum(f.msg_type == MsgType.PING for f in rx) == host.counts["pings_in"]
