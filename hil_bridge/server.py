@@ -156,6 +156,10 @@ class SimServer:
         # glider index (swarm) by id; path vehicles by id
         self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
         self._vehicle_ids = set(self.scene.vehicle_ids)
+        self._vehicle_specs = {v.id: v for v in spec.vehicles}
+        #: vehicles under autopilot command: id -> [x, y, z, heading, bank, speed]
+        self._flown: dict[int, list[float]] = {}
+        self._vstates: dict[int, dict[str, float]] = {}
         self._poses: dict[int, tuple[float, float, float, float]] = {}
         self._registered: set[int] = {int(a) for a in self.params.autopilots}
         unknown = sorted(self._registered - set(self._glider_index) - self._vehicle_ids)
@@ -222,6 +226,7 @@ class SimServer:
         swarm = self.scene.swarm
         if self._vehicle_ids:
             _ = self.scene.trajectories
+        self._step_vehicles(0, 0.0)
         self._update_poses(None if swarm is None else swarm.state)
         self._threads = [
             threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),
@@ -287,7 +292,8 @@ class SimServer:
     def _on_cmd(self, gid: int, msg: GliderCmd) -> None:
         with self._cmd_cond:
             self._c["cmd_received"] += 1
-            if gid in self._vehicle_ids:
+            vehicle = self._vehicle_specs.get(gid)
+            if vehicle is not None and not vehicle.commanded:
                 self._c["cmd_ignored"] += 1
                 return
             self._registered.add(gid)
@@ -295,7 +301,7 @@ class SimServer:
                 self._freewheel.discard(gid)
                 self._consecutive_stalls[gid] = 0
             self._cmd_arrivals[gid] = self._cmd_arrivals.get(gid, 0) + 1
-            checked = self._check_cmd(msg.bank_cmd, msg.airspeed_cmd)
+            checked = self._check_cmd(gid, msg.bank_cmd, msg.airspeed_cmd)
             if checked is None:
                 self._c["cmd_rejected"] += 1
             else:
@@ -305,15 +311,23 @@ class SimServer:
                 self._c["cmd_clipped"] += int(clipped)
             self._cmd_cond.notify_all()
 
-    def _check_cmd(self, bank: float, speed: float) -> tuple[float, float, bool] | None:
-        law = self.scene.law
+    def _check_cmd(self, gid: int, bank: float, speed: float) -> tuple[float, float, bool] | None:
+        """Reject (None) or clip a command to glider/vehicle ``gid``'s envelope."""
+        vehicle = self._vehicle_specs.get(gid)
+        if vehicle is None:
+            law = self.scene.law
+            bank_lo, bank_hi = float(law.bankMin), float(law.bankMax)
+            v_lo, v_hi = float(law.forwardSpeedMin), float(law.forwardSpeedMax)
+        else:
+            bank_lo, bank_hi = -vehicle.bank_max_rad, vehicle.bank_max_rad
+            v_lo, v_hi = vehicle.speed_min_mps, vehicle.speed_max_mps
         b, v = float(bank), float(speed)
         if not (math.isfinite(b) and math.isfinite(v)):
             return None
-        if abs(b) >= _REJECT_BANK or not 0 < v <= 3 * float(law.forwardSpeedMax):
+        if abs(b) >= _REJECT_BANK or not 0 < v <= 3 * v_hi:
             return None
-        bc = min(max(b, float(law.bankMin)), float(law.bankMax))
-        vc = min(max(v, float(law.forwardSpeedMin)), float(law.forwardSpeedMax))
+        bc = min(max(b, bank_lo), bank_hi)
+        vc = min(max(v, v_lo), v_hi)
         return bc, vc, (bc != b or vc != v)
 
     def _on_ping(self, sonar_id: int, msg: SonarPing) -> None:
@@ -400,13 +414,43 @@ class SimServer:
                     float(st.x[0, i]), float(st.y[0, i]), float(st.z[0, i]),
                     float(st.heading[0, i]),
                 )
-        if self._vehicle_ids:
-            t_s = self._sim_ns / 1e9
-            for vid, traj in self.scene.trajectories.items():
-                s = traj.sample(t_s)
-                poses[vid] = (float(s["x"]), float(s["y"]), float(s["z"]), float(s["heading"]))
+        for vid, vs in self._vstates.items():
+            poses[vid] = (vs["x"], vs["y"], vs["z"], vs["heading"])
         with self._lock:
             self._poses = poses
+
+    def _step_vehicles(self, t_ns: int, dt_s: float) -> None:
+        """Vehicle states at ``t_ns``: path samples, or unicycle flight on the held command."""
+        from sim_core.scene import unicycle_step
+
+        states: dict[int, dict[str, float]] = {}
+        if not self._vehicle_ids:
+            return
+        t_s = t_ns / 1e9
+        with self._lock:
+            cmds = {v: self._good_cmd[v] for v in self._vehicle_ids if v in self._good_cmd}
+        for vid, traj in self.scene.trajectories.items():
+            flown = self._flown.get(vid)
+            if flown is None and vid in cmds:
+                s = traj.sample(t_s)
+                flown = [float(s[k]) for k in ("x", "y", "z", "heading", "bank", "airspeed")]
+                self._flown[vid] = flown
+                dt_s = 0.0
+            if flown is None:
+                s = traj.sample(t_s)
+                states[vid] = {k: float(v) for k, v in s.items()}
+                continue
+            bank, speed = cmds[vid]
+            if dt_s > 0:
+                nx, ny, nh = unicycle_step(
+                    np.array([flown[0]]), np.array([flown[1]]), np.array([flown[3]]),
+                    np.array([flown[4]]), np.array([flown[5]]), dt=dt_s,
+                )
+                flown[0], flown[1], flown[3] = float(nx[0]), float(ny[0]), float(nh[0])
+            flown[4], flown[5] = bank, speed
+            states[vid] = {"x": flown[0], "y": flown[1], "z": flown[2], "heading": flown[3],
+                           "bank": bank, "airspeed": speed, "vz": 0.0}
+        self._vstates = states
 
     def _commands_for_step(self) -> Any:
         """The held good commands as :class:`sim_core.soaring.Commands`, or None if none."""
@@ -467,18 +511,14 @@ class SimServer:
                 n_states += 1
             if physics_stepped:
                 self._publish_neighbors(t_ns, st, step)
-        if self._vehicle_ids:
-            t_s = t_ns / 1e9
-            tick = int(self._c["ticks"])
-            for vid, traj in self.scene.trajectories.items():
-                s = traj.sample(t_s)
-                pubs[f"/glider/{vid}/state"].publish(GliderState(
-                    stamp_ns=t_ns, x=float(s["x"]), y=float(s["y"]), z=float(s["z"]),
-                    heading=float(s["heading"]), bank=float(s["bank"]),
-                    airspeed=float(s["airspeed"]), vz=float(s["vz"]), alive=True,
-                    glider_id=vid, step=tick,
-                ))
-                n_states += 1
+        tick = int(self._c["ticks"])
+        for vid, vs in self._vstates.items():
+            pubs[f"/glider/{vid}/state"].publish(GliderState(
+                stamp_ns=t_ns, x=vs["x"], y=vs["y"], z=vs["z"], heading=vs["heading"],
+                bank=vs["bank"], airspeed=vs["airspeed"], vz=vs["vz"], alive=True,
+                glider_id=vid, step=tick,
+            ))
+            n_states += 1
         with self._lock:
             self._c["clock_published"] += 1
             self._c["states_published"] += n_states
@@ -567,6 +607,7 @@ class SimServer:
                 self._sim_ns = max(self._sim_ns, t_ns)
             if t_ns > self.clock.now_ns():
                 self.clock.set_ns(t_ns)
+            self._step_vehicles(t_ns, self.tick_ns / 1e9 if tick > 0 else 0.0)
             self._update_poses(st)
             self._publish_tick(t_ns, st, stepped)
             if stepped:

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -63,6 +64,7 @@ __all__ = [
     "VehicleSpec",
     "load_scene",
     "load_trajectory",
+    "unicycle_step",
 ]
 
 #: Columns a trajectory CSV/NPZ must have (``id``, ``vz``, ``alive`` are optional).
@@ -371,16 +373,56 @@ class PathSpec:
 
 @dataclass(frozen=True, slots=True)
 class VehicleSpec:
-    """A vehicle following a kinematic path; its state is published as ``/glider/<id>/state``."""
+    """A vehicle following a kinematic path; its state is published as ``/glider/<id>/state``.
+
+    ``commanded: true``: once an autopilot's first valid ``/glider/<id>/cmd`` arrives the vehicle
+    leaves its path and flies :func:`unicycle_step` (constant altitude, coordinated turns) on the
+    held command, clipped to ``|bank| <= bank_max_rad`` and ``speed_min_mps..speed_max_mps``.
+    """
 
     id: int
     path: PathSpec
     z_m: float | None = None
     time_offset_s: float = 0.0
+    commanded: bool = False
+    bank_max_rad: float = 0.5236
+    speed_min_mps: float = 1.0
+    speed_max_mps: float = 20.0
 
     def __post_init__(self) -> None:
         if self.id < 0:
             raise ValueError(f"id: expected >= 0, got {self.id}")
+        if not 0 < self.bank_max_rad < math.pi / 2:
+            raise ValueError(f"bank_max_rad: expected 0 < value < pi/2, got {self.bank_max_rad}")
+        if not 0 < self.speed_min_mps <= self.speed_max_mps:
+            raise ValueError(
+                "speed_min_mps, speed_max_mps: expected 0 < min <= max, got "
+                f"{self.speed_min_mps}, {self.speed_max_mps}"
+            )
+
+
+def unicycle_step(
+    x: FloatArray,
+    y: FloatArray,
+    heading: FloatArray,
+    bank: FloatArray,
+    speed: FloatArray,
+    *,
+    dt: float,
+    g: float = 9.81,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """One explicit-Euler step of a constant-altitude vehicle in coordinated turns.
+
+    Arrays shape (N,): position x, y (m), heading (rad from +x), bank (rad), airspeed (m/s > 0).
+    Turn rate ``g tan(bank) / speed``; position moves along the *old* heading (as the seed's
+    glider). Returns the new ``(x, y, heading)``, heading wrapped to [-pi, pi).
+    """
+    h = np.asarray(heading, dtype=np.float64)
+    v = np.asarray(speed, dtype=np.float64)
+    omega = g * np.tan(np.asarray(bank, dtype=np.float64)) / v
+    nx = np.asarray(x, dtype=np.float64) + v * np.cos(h) * dt
+    ny = np.asarray(y, dtype=np.float64) + v * np.sin(h) * dt
+    return nx, ny, _wrap_pi(h + omega * dt)
 
 
 @dataclass(frozen=True, slots=True)

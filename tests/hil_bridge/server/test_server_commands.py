@@ -98,3 +98,41 @@ def test_unknown_autopilot_id_and_bad_params_fail_at_construction() -> None:
         SimServer("server", bus="mem://bad", scene=_scene("fast"), colour="red")
     with pytest.raises(ConfigError, match="echo_queue"):
         SimServer("server", bus="mem://bad", scene=_scene("fast"), echo_queue=0)
+
+
+def test_commanded_vehicle_leaves_its_path_and_turns_at_the_coordinated_rate() -> None:
+    bus = "mem://vehicle_cmd"
+    path = {"kind": "points", "points": [[0.0, 0.0, 3.0], [100.0, 0.0, 3.0]]}
+    scene = {
+        "vehicles": [{"id": 100, "path": path, "commanded": True},
+                     {"id": 101, "path": path}],
+        "state_rate_hz": 20, "clock": {"mode": "realtime", "rate": 4.0},
+    }
+    srv = SimServer("server", bus=bus, scene=scene, stop_after_s=3.0)
+    ap = Node("autopilot", bus=bus)
+    pub100 = ap.create_publisher(GliderCmd, "/glider/100/cmd", COMMAND)
+    pub101 = ap.create_publisher(GliderCmd, "/glider/101/cmd", COMMAND)
+    states: list[GliderState] = []
+    ap.create_subscription(GliderState, "/glider/100/state", states.append)
+    ap.start()
+    srv.start()
+    try:
+        pub100.publish(GliderCmd(stamp_ns=0, bank_cmd=0.3, airspeed_cmd=4.0))
+        pub101.publish(GliderCmd(stamp_ns=0, bank_cmd=0.3, airspeed_cmd=4.0))
+        assert srv.wait_done(timeout=30)
+    finally:
+        srv.stop()
+        ap.stop()
+    flown = [m for m in states if m.bank == 0.3]
+    assert len(flown) > 10
+    rate = 9.81 * math.tan(0.3) / 4.0 / 20  # rad per tick
+    for a, b in zip(flown, flown[1:], strict=False):
+        if b.step == a.step + 1:
+            dh = (b.heading - a.heading + math.pi) % (2 * math.pi) - math.pi
+            assert dh == pytest.approx(rate, rel=1e-9)
+            step = math.hypot(b.x - a.x, b.y - a.y)
+            assert step == pytest.approx(4.0 / 20, rel=1e-9)
+            assert b.z == 3.0
+    st = srv.stats()
+    assert st["cmd_ignored"] == 1  # vehicle 101 follows its path and ignores commands
+    assert 100 in st["registered"]
