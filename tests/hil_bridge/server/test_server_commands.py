@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import threading
 from typing import Any
@@ -126,7 +127,7 @@ def test_commanded_vehicle_leaves_its_path_and_turns_at_the_coordinated_rate() -
     flown = [m for m in states if m.bank == 0.3]
     assert len(flown) > 10
     rate = 9.81 * math.tan(0.3) / 4.0 / 20  # rad per tick
-    for a, b in zip(flown, flown[1:], strict=False):
+    for a, b in itertools.pairwise(flown):
         if b.step == a.step + 1:
             dh = (b.heading - a.heading + math.pi) % (2 * math.pi) - math.pi
             assert dh == pytest.approx(rate, rel=1e-9)
