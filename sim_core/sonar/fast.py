@@ -11,7 +11,7 @@ and with x_i = 2 pi (fs/N) tau_i and f_k = (m0 + k) fs/N
 where the inner sums, one per node p, are P type-1 NUFFTs of the delays (finufft, one batched
 call, K0 = B // 2 centres the modes). Cost O(P M + P B log B) instead of O(M B) for B band bins.
 The weights at the nodes are evaluated in float32 (SIMD transcendentals, error ~1e-6) and the
-NUFFT runs in single precision for eps >= 1e-6; the large phase (m0 + K0) x_i is reduced
+NUFFT runs in single precision for eps >= 1e-5; the large phase (m0 + K0) x_i is reduced
 modulo 2 pi in float64 first. The window w_k, like every leaf-independent factor, multiplies
 after the sum. Geometry, guards and selection are shared with ``reference`` (model.prepare).
 ``realtime`` runs ``fast`` on at most the number of leaves its time budget allows, keeping the
@@ -32,8 +32,13 @@ from sim_core.sonar.reference import Band, Fidelity, direct_sum
 
 __all__ = ["Fast", "Realtime", "chebyshev_nodes", "lagrange_basis"]
 
-#: leaves sampled (evenly) for the per-echo truncation estimate
-TAIL_SAMPLE = 2048
+#: leaves sampled (evenly) for the per-echo a-posteriori interpolation error
+CHECK_SAMPLE = 256
+#: minimum Chebyshev nodes with the frequency-dependent (incident_freq) beamwidth
+INCIDENT_FREQ_ORDER = 12
+#: NUFFT tolerances at or above this run in single precision (float32 delays: the phase of mode
+#: k is off by at most |k| pi 2^-24, i.e. <= 7.2e-5 at the band edges for the default band)
+SINGLE_EPS = 1e-5
 #: up to this many kinked leaves per echo are summed directly (exactly)
 DIRECT_KINKED = 8
 #: relative error bound of a kinked leaf interpolated at ``kink_order`` = 16 nodes (worst case
@@ -68,7 +73,7 @@ class Fast(Fidelity):
 
     name = "fast"
 
-    def __init__(self, order: int = 3, eps: float = 1e-4, kink_order: int = 16) -> None:
+    def __init__(self, order: int = 4, eps: float = 1e-4, kink_order: int = 16) -> None:
         for name, value in (("order", order), ("kink_order", kink_order)):
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
                 raise ValueError(f"Fast.{name} must be an integer in [1, 64], got {value!r}")
@@ -94,14 +99,14 @@ class Fast(Fidelity):
         centre_f = 0.5 * (g.m0 + g.m1) * g.df
         for ch in range(C):
             kinked = _kinked(scene, ch, params)
-            spec, tail, weight = self._group(scene, ch, params, self.order, ~kinked)
+            spec, tail, weight = self._group(scene, ch, params, self.order_for(params), ~kinked)
             err = tail * weight
             n_kinked = int(np.count_nonzero(kinked))
             if n_kinked:
                 sub = scene.select(np.flatnonzero(kinked))
                 if n_kinked <= DIRECT_KINKED:
                     spec += direct_sum(sub, ch, params)
-                    weight += _chebyshev_tail(leaf_weights(sub, ch, [centre_f], params))[1]
+                    weight += float(np.abs(leaf_weights(sub, ch, [centre_f], params)).sum())
                 else:
                     spec_k, _, weight_k = self._group(sub, ch, params, self.kink_order, None)
                     spec += spec_k
@@ -110,7 +115,8 @@ class Fast(Fidelity):
             out[ch] = spec
             bound = max(bound, err / weight if weight > 0 else 0.0)
         out *= g.window
-        return Band(out, g.m0, 3.0 * bound + 2.0 * self.eps)
+        floor = (B // 2) * math.pi * 2.0**-24 + 1e-6 if self.eps >= SINGLE_EPS else 0.0
+        return Band(out, g.m0, bound + 2.0 * self.eps + floor)
 
     def _group(
         self,
@@ -127,7 +133,7 @@ class Fast(Fidelity):
         centre, half = 0.5 * (f_lo + f_hi), 0.5 * (f_hi - f_lo)
         nodes = chebyshev_nodes(P)
         basis = lagrange_basis(nodes, (g.freqs - centre) / half)
-        single = self.eps >= 1e-6
+        single = self.eps >= SINGLE_EPS
         K0 = B // 2
         w = leaf_weights(scene, ch, centre + half * nodes, params, single=single)
         cycles = g.df * scene.tau[ch]
@@ -141,8 +147,14 @@ class Fast(Fidelity):
         x = (np.mod(cycles + 0.5, 1.0) - 0.5) * (2.0 * np.pi)
         x = x.astype(np.float32 if single else np.float64)
         modes = finufft.nufft1d1(x, strengths, B, eps=self.eps, isign=-1, nthreads=1)
-        tail, weight = _chebyshev_tail(w if mask is None else w[mask])
+        tail, weight = _interpolation_error(scene, ch, params, w, nodes, mask)
         return np.einsum("kp,pk->k", basis, modes), tail, weight
+
+    def order_for(self, params: EchoParams) -> int:
+        """Nodes used for ``params``: at least INCIDENT_FREQ_ORDER with the BW(f) beam."""
+        if params.beam_model == "incident_freq":
+            return max(self.order, INCIDENT_FREQ_ORDER)
+        return self.order
 
 
 def _kinked(scene: Scene, ch: int, params: EchoParams) -> NDArray[np.bool_]:
@@ -165,29 +177,39 @@ def _kinked(scene: Scene, ch: int, params: EchoParams) -> NDArray[np.bool_]:
     return out
 
 
-def _chebyshev_tail(w: NDArray[np.complexfloating]) -> tuple[float, float]:
-    """Truncation estimate of the interpolant of node values ``w`` (M, P) and its weight.
+def _interpolation_error(
+    scene: Scene,
+    ch: int,
+    params: EchoParams,
+    w: NDArray[np.complexfloating],
+    nodes: NDArray[np.float64],
+    mask: NDArray[np.bool_] | None,
+) -> tuple[float, float]:
+    """A-posteriori interpolation error of a group: (relative error, amplitude weight).
 
-    Returns (e, s): s = sum_i |a_i0| (amplitude weight, rescaled to all M leaves) and
-    e = (sum |a_i,P-1|)^2 / (sum |a_i,P-2|) / s, the next Chebyshev coefficient extrapolated
-    from the geometric decay of the last two, evaluated on an even sample of at most
-    TAIL_SAMPLE leaves.
+    On an even sample of at most CHECK_SAMPLE leaves the interpolant is compared with the exact
+    weights at 2P + 1 check frequencies (Chebyshev points interleaved with the nodes):
+    error = sum_i max_f |interp - exact| / sum_i max_f |exact|. The weight is sum_i |W_i| at
+    the nodes' mean, rescaled to all leaves of the group.
     """
-    M, P = w.shape
-    if M == 0:
+    index = np.flatnonzero(mask) if mask is not None else np.arange(scene.count)
+    if index.shape[0] == 0:
         return 0.0, 0.0
-    ws = w[:: max(1, M // TAIL_SAMPLE)]
-    p = np.arange(P)
-    den = float(np.abs(ws.sum(axis=1)).sum()) / P
-    scale = M / ws.shape[0]
-    if P < 3 or den == 0.0:
-        return (1.0 if den > 0.0 else 0.0), den * scale
-    t_last = np.cos((P - 1) * np.pi * (2 * p + 1) / (2 * P)).astype(ws.real.dtype)
-    t_prev = np.cos((P - 2) * np.pi * (2 * p + 1) / (2 * P)).astype(ws.real.dtype)
-    last = float(np.abs(ws @ t_last).sum()) * 2.0 / P
-    prev = float(np.abs(ws @ t_prev).sum()) * 2.0 / P
-    est = last * last / prev if prev > 0.0 else last
-    return est / den, den * scale
+    step = max(1, index.shape[0] // CHECK_SAMPLE)
+    pick = index[::step]
+    g = params.grid
+    f_lo, f_hi = g.m0 * g.df, g.m1 * g.df
+    check = chebyshev_nodes(2 * nodes.shape[0] + 1)
+    exact = leaf_weights(
+        scene.select(pick), ch, 0.5 * (f_lo + f_hi) + 0.5 * (f_hi - f_lo) * check, params
+    )
+    approx = w[pick] @ lagrange_basis(nodes, check).T.astype(w.real.dtype)
+    amp = np.abs(exact).max(axis=1)
+    total = float(amp.sum())
+    if total == 0.0:
+        return 0.0, 0.0
+    err = float(np.abs(approx - exact).max(axis=1).sum())
+    return err / total, total * index.shape[0] / pick.shape[0]
 
 
 class Realtime(Fidelity):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erf
@@ -45,8 +47,20 @@ def envelope(h: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.abs(np.fft.ifft(spec * gain))
 
 
-def single_leaf_peak(r: float, a: float, beta: float, spreading: bool = True) -> float:
-    """Closed-form envelope peak of one on-axis leaf at t = 2r/v (spec formulas, default band)."""
+def single_leaf_peak(
+    r: float,
+    a: float,
+    beta: float,
+    spreading: bool = True,
+    factor: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
+    gain: float = 1.0,
+    cap: float | None = None,
+) -> float:
+    """Closed-form envelope peak of one leaf at t = 2r/v (spec formulas, default band).
+
+    ``factor(f)`` multiplies the amplitude per frequency, ``gain`` is the two-way beam gain S,
+    ``cap`` replaces g0 L / k by min(g0 L / k, cap).
+    """
     df = FS / N
     k = np.arange(1201)
     f = (3600 + k) * df
@@ -57,5 +71,10 @@ def single_leaf_peak(r: float, a: float, beta: float, spreading: bool = True) ->
     p2 = 0.3999 * c**-0.9065 + 0.9979
     lb = np.maximum(0.0, p1 * np.cos(p2 * beta))
     psi = erf((0.9824 * c**0.3523 - 0.9459) * (1.57 - beta)) - 2.6343
-    amp = 0.2 * lb / kk / (r * r if spreading else 1.0)
+    amp = 0.2 * lb / kk
+    if cap is not None:
+        amp = np.minimum(amp, cap)
+    amp = gain * amp / (r * r if spreading else 1.0)
+    if factor is not None:
+        amp = amp * factor(f)
     return float(4.0 / N * abs(np.sum(w * amp * np.exp(-1j * psi))))

@@ -1,0 +1,91 @@
+"""Fast fidelities against the reference: documented bounds, realtime budget, determinism."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim_core.sonar import FIDELITIES, Beam, EchoParams, Fast, Realtime, synthesize
+from tests.sim_core.sonar._scenes import cone_cloud, rel_l2
+
+BEAM = Beam([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], math.radians(30.0))
+
+
+def test_table_has_the_three_fidelities_with_one_signature() -> None:
+    assert {"reference", "fast", "realtime"} <= set(FIDELITIES)
+    for name, impl in FIDELITIES.items():
+        assert impl.name == name and callable(impl.run)
+    with pytest.raises(ValueError, match="unknown fidelity 'exact'"):
+        synthesize(cone_cloud(5), BEAM, fidelity="exact")
+
+
+@pytest.mark.parametrize("bw_deg", [10.0, 30.0, 60.0])
+def test_fast_error_within_1e3_and_within_its_reported_bound(bw_deg: float) -> None:
+    beam = Beam([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], math.radians(bw_deg))
+    leaves = cone_cloud(1500, seed=int(bw_deg), half_angle_deg=bw_deg / 2)
+    ref = synthesize(leaves, beam, fidelity="reference")
+    fast = synthesize(leaves, beam, fidelity="fast")
+    err = rel_l2(fast.samples, ref.samples)
+    assert fast.leaves_in_beam == ref.leaves_in_beam > 500
+    assert fast.error_bound is not None
+    assert err <= 1e-3
+    assert err <= fast.error_bound
+
+
+@pytest.mark.parametrize(("order", "eps"), [(3, 1e-3), (4, 1e-6), (6, 1e-9)])
+def test_fast_options_stay_within_their_bound(order: int, eps: float) -> None:
+    leaves = cone_cloud(800, seed=order)
+    ref = synthesize(leaves, BEAM, fidelity="reference")
+    fast = synthesize(leaves, BEAM, fidelity=Fast(order=order, eps=eps))
+    assert fast.error_bound is not None
+    assert rel_l2(fast.samples, ref.samples) <= fast.error_bound
+
+
+def test_realtime_under_budget_equals_fast_quality_and_over_budget_bounds_its_error() -> None:
+    leaves = cone_cloud(3000, seed=11)
+    ref = synthesize(leaves, BEAM, fidelity="reference")
+    roomy = synthesize(leaves, BEAM, EchoParams(budget_s=1.0), fidelity="realtime")
+    assert roomy.leaves_in_beam == ref.leaves_in_beam
+    assert rel_l2(roomy.samples, ref.samples) <= roomy.error_bound  # type: ignore[operator]
+    tight = Realtime(overhead_s=0.0, per_leaf_s=1e-6)
+    params = EchoParams(budget_s=1e-3)  # room for 1000 leaves
+    echo = synthesize(leaves, BEAM, params, fidelity=tight)
+    assert tight.capacity(params) == 1000
+    assert echo.error_bound is not None and echo.error_bound > 0.0
+    err = rel_l2(echo.samples, ref.samples)
+    assert 0.0 < err <= echo.error_bound
+    # fewer leaves -> larger bound
+    tighter = synthesize(leaves, BEAM, EchoParams(budget_s=2e-4), fidelity=tight)
+    assert tighter.error_bound > echo.error_bound  # type: ignore[operator]
+
+
+def test_fast_is_deterministic() -> None:
+    leaves = cone_cloud(2000, seed=2)
+    a = synthesize(leaves, BEAM).samples
+    b = synthesize(leaves, BEAM).samples
+    np.testing.assert_array_equal(a, b)
+
+
+def test_fast_handles_a_million_leaves_once() -> None:
+    c, n, a = cone_cloud(1_000_000, seed=9, half_angle_deg=60.0, r_lo=0.05, r_hi=30.0)
+    c[:10] = np.nan
+    echo = synthesize((c, n, a), BEAM, fidelity="fast")
+    assert echo.dropped >= 10
+    assert 0 < echo.leaves_in_beam < 1_000_000
+    assert np.all(np.isfinite(echo.samples)) and echo.samples.any()
+    assert echo.error_bound is not None and echo.error_bound < 1e-3
+
+
+def test_fast_rejects_doppler_with_a_clear_message() -> None:
+    params = EchoParams(platform_velocity=(10.0, 0.0, 0.0), doppler=True)
+    with pytest.raises(ValueError, match=r"Doppler.*reference"):
+        synthesize(cone_cloud(10), BEAM, params, fidelity="fast")
+
+
+def test_fast_validates_its_options() -> None:
+    with pytest.raises(ValueError, match="order"):
+        Fast(order=0)
+    with pytest.raises(ValueError, match="eps"):
+        Fast(eps=0.5)
