@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from hil_bridge.codec import decode, encode
+from hil_bridge.codec import decode, encode, encode_header
 from hil_bridge.errors import TransportClosed
-from hil_bridge.messages import Clock, GliderState
+from hil_bridge.messages import Clock, SonarEcho
 from hil_bridge.proxy import Proxy, proxy_for
 from hil_bridge.transport import BACKENDS, open_transport
 from hil_bridge.transport.zmq import parse_zmq_url
@@ -72,19 +73,23 @@ def test_unsubscribe_stops_delivery(bus_url: str) -> None:
 
 
 def test_slow_subscriber_never_blocks_the_publisher(bus_url: str) -> None:
-    with open_transport(bus_url) as pub, open_transport(bus_url) as sub:
+    # small queues on this subscriber; 8 KiB messages so that the proxy's queues and the
+    # kernel's socket buffers (a few MiB) overflow too: n messages cannot all be held anywhere
+    small = bus_url + ("&hwm=10" if "?" in bus_url else "?depth=10")
+    with open_transport(bus_url) as pub, open_transport(small) as sub:
         sub.subscribe(b"/s\0")
         assert pub.wait_for_subscriber("/s", timeout=10.0)
-        state = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=0.0, bank=0.0,
-                            airspeed=0.0, vz=0.0)
-        n = 20_000  # far beyond every queue bound (mem depth 1000, zmq hwm 1000 per socket)
+        echo = SonarEcho(stamp_ns=0, ping_seq=0, fs=1.0, samples=np.zeros(2048, np.float32),
+                         leaves_in_beam=0, fidelity="fast")
+        payload = encode("/s", echo, seq=0, pub_ns=0)
+        n = 8000  # 64 MiB in total
         for i in range(n):
-            pub.publish(encode("/s", state, seq=i, pub_ns=0))
+            pub.publish([payload[0], encode_header(echo, seq=i, pub_ns=0), payload[2]])
         assert pub.stats()["sent"] == n
         seqs = []
         while (frames := sub.recv(timeout=0.5)) is not None:
             seqs.append(decode(frames).header.seq)
-        assert 0 < len(seqs) < n
+        assert 0 < len(seqs) < n, len(seqs)
         assert seqs == sorted(seqs)
         lost = n - len(seqs)
         # counted where the loss is visible: the mem queue counts it, zmq shows seq gaps
