@@ -350,6 +350,7 @@ def run(
     duration: float | None = None,
     record: str | Path | None = None,
     live: bool | None = None,
+    bus: str | None = None,
     stop_event: threading.Event | None = None,
     handle_signals: bool = True,
     on_started: Callable[[LaunchSpec], None] | None = None,
@@ -360,10 +361,13 @@ def run(
     on SIGINT/SIGTERM (handlers installed only when called from the main thread and
     ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every topic to MCAP with
     :class:`hil_bridge.bag.Recorder`. ``live`` starts the Foxglove view (:mod:`hil_bridge.live`).
+    ``bus`` replaces the file's bus URL.
     ``on_started(spec)`` is called once every node runs. A node that fails to start stops the
     ones already started and re-raises.
     """
     spec = path if isinstance(path, LaunchSpec) else load(path, params_overrides=params_overrides)
+    if bus is not None:
+        spec = dataclasses.replace(spec, bus=bus)
     run_for = duration if duration is not None else spec.duration
     record_path = str(record) if record is not None else spec.record
     want_live = spec.live if live is None else live

@@ -153,6 +153,7 @@ class SimServer:
         self._echo_compute_ms: deque[float] = deque(maxlen=10000)
         self._sim_ns = 0
         self._last_echo_error = ""
+        self._tick_error = ""
         # glider index (swarm) by id; path vehicles by id
         self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
         self._vehicle_ids = set(self.scene.vehicle_ids)
@@ -261,6 +262,7 @@ class SimServer:
             out["registered"] = sorted(self._registered)
             out["freewheeling"] = sorted(self._freewheel)
             out["last_echo_error"] = self._last_echo_error
+            out["tick_error"] = self._tick_error
             ping_echo = list(self._ping_echo_ms)
             compute = list(self._echo_compute_ms)
         out["clock_mode"] = self.clock_spec.mode
@@ -462,8 +464,9 @@ class SimServer:
         mask = np.zeros((1, n), dtype=bool)
         with self._lock:
             for gid, (b, v) in self._good_cmd.items():
-                i = self._glider_index[gid]
-                bank[0, i], speed[0, i], mask[0, i] = b, v, True
+                i = self._glider_index.get(gid)
+                if i is not None:
+                    bank[0, i], speed[0, i], mask[0, i] = b, v, True
         if not mask.any():
             return None
         return Commands(bank_cmd=bank, airspeed_cmd=speed, mask=mask)
@@ -572,6 +575,10 @@ class SimServer:
     def _tick_loop(self) -> None:
         try:
             self._run_ticks()
+        except Exception as exc:  # a bug must not vanish with its thread: report it in stats
+            log.exception("%s: tick loop failed", self.name)
+            with self._lock:
+                self._tick_error = f"{type(exc).__name__}: {exc}"
         finally:
             self._done.set()
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import itertools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -183,6 +184,16 @@ class Trajectory:
         rate = np.gradient(np.unwrap(hdg), t)
         bank = np.arctan(speed_mps * rate / 9.81)
         return cls(t, p, hdg, bank, np.full(t.shape, float(speed_mps)), loop=loop)
+
+
+def _densify(points: FloatArray, max_step_m: float) -> FloatArray:
+    """Polyline (K, 3) resampled so no segment is longer than ``max_step_m`` (corners kept)."""
+    out = [points[:1]]
+    for a, b in itertools.pairwise(points):
+        n = max(1, math.ceil(float(np.linalg.norm(b - a)) / max_step_m))
+        f = np.arange(1, n + 1, dtype=np.float64)[:, None] / n
+        out.append(a + (b - a) * f)
+    return np.concatenate(out)
 
 
 def load_trajectory(path: str | Path, *, vehicle_id: int | None = None) -> Trajectory:
@@ -644,9 +655,11 @@ class Scene:
             if ps.loop:
                 traj = dataclasses.replace(traj, loop=True)
         elif ps.kind == "points":
+            pts = np.asarray(ps.points, dtype=np.float64)
+            if ps.loop and not np.array_equal(pts[0], pts[-1]):
+                pts = np.concatenate([pts, pts[:1]])
             traj = Trajectory.from_path(
-                np.asarray(ps.points, dtype=np.float64), None, speed_mps=ps.speed_mps,
-                loop=ps.loop,
+                _densify(pts, 0.5), None, speed_mps=ps.speed_mps, loop=ps.loop
             )
         else:
             from sim_core.sonar.scenarios import figure_eight_path

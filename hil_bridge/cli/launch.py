@@ -29,6 +29,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="stop after S seconds (default: the file's, else run until Ctrl-C)")
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every topic to an MCAP file")
+    p.add_argument("--bus", default=None, metavar="URL",
+                   help="bus URL replacing the file's (e.g. tcp://127.0.0.1:7410, mem://demo)")
     p.add_argument("--live", action="store_true", help="serve a Foxglove live view on 127.0.0.1")
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     return p
@@ -88,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         duration=args.duration,
         record=args.record,
         live=True if args.live else None,
+        bus=args.bus,
         on_started=_announce,
     )
     if args.json:
