@@ -145,7 +145,7 @@ class AutopilotAdapter(Node):
     Params: ``interface``, ``channel``, ``bitrate`` (python-can bus), ``can_log`` (candump log
     path, ``.log``), ``gliders`` (glider ids, or {glider_id: node_id}), ``state_rate_hz`` (50),
     ``neighbor_rate_hz`` (10), ``heartbeat_hz`` (10), ``state_timeout_s`` (1.0),
-    ``cmd_timeout_s`` (0.5), ``failsafe_after_s`` (2.0), ``failsafe_bank_rad`` (0),
+    ``cmd_timeout_s`` (1.0), ``failsafe_after_s`` (3.0), ``failsafe_bank_rad`` (0),
     ``failsafe_airspeed_mps`` (best glide), ``heartbeat_timeout_s`` (1.0), ``can_options``
     (extra ``can.Bus`` kwargs), ``faults`` (:class:`CanFaultConfig` mapping),
     ``diagnostics_period_s`` (1.0).
@@ -165,8 +165,8 @@ class AutopilotAdapter(Node):
         neighbor_rate_hz: float = 10.0,
         heartbeat_hz: float = 10.0,
         state_timeout_s: float = 1.0,
-        cmd_timeout_s: float = 0.5,
-        failsafe_after_s: float = 2.0,
+        cmd_timeout_s: float = 1.0,
+        failsafe_after_s: float = 3.0,
         failsafe_bank_rad: float = 0.0,
         failsafe_airspeed_mps: float | None = None,
         heartbeat_timeout_s: float = 1.0,

@@ -525,7 +525,7 @@ class MockAutopilot:
             if view.own is None:
                 mode, age_ms = AP_MODES["INIT"], 65535.0
             else:
-                age_ms = min(65535.0, 1000.0 * (now - view.state_time))
+                age_ms = min(65535.0, max(0.0, 1000.0 * (now - view.state_time)))
                 mode = AP_MODES["AUTO"] if self._fresh(view, now) else AP_MODES["NO_STATE"]
             msg = self.codec.encode(
                 "AUTOPILOT_HEARTBEAT", node,

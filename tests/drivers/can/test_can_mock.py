@@ -193,6 +193,7 @@ def test_mock_commands_only_with_fresh_state(
     bridge.drain()
     assert wait_until(lambda: modes() == {AP_MODES["NO_STATE"]})
     assert mock.stats()["commands_sent"] == sent
+    assert mock.stats()["saturated_tx"] == 0  # e.g. the state age never goes negative
 
 
 @pytest.mark.parametrize(
