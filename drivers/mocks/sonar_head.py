@@ -33,7 +33,7 @@ import numpy as np
 import serial
 
 from drivers.serial.framing import FrameDecoder, MsgType, frame_bytes
-from drivers.serial.link import check_url
+from drivers.serial.link import PORT_ERRORS, check_url
 from drivers.serial.protocol import (
     AssembledEcho,
     ConfigPayload,
@@ -110,7 +110,7 @@ class SerialDevicePort:
             return b""
         try:
             data: bytes = ser.read(max(1, min(max_bytes, ser.in_waiting or 1)))
-        except (OSError, ValueError, TypeError, AttributeError):
+        except PORT_ERRORS:
             self._fail(ser)
             return b""
         return data
@@ -121,7 +121,7 @@ class SerialDevicePort:
             return 0
         try:
             n = ser.write(data)
-        except (OSError, ValueError, TypeError, AttributeError):
+        except PORT_ERRORS:
             self._fail(ser)
             return 0
         return len(data) if n is None else int(n)

@@ -38,11 +38,22 @@ import serial
 from drivers import urlhandlers
 from hil_bridge.errors import TransportTimeout
 
-__all__ = ["KNOWN_SCHEMES", "Capture", "Link", "open_link"]
+__all__ = ["KNOWN_SCHEMES", "PORT_ERRORS", "Capture", "Link", "check_url", "open_link"]
 
 log = logging.getLogger(__name__)
 
 urlhandlers.register()
+
+try:
+    import termios
+
+    _TERMIOS_ERRORS: tuple[type[Exception], ...] = (termios.error,)
+except ImportError:  # not a POSIX system
+    _TERMIOS_ERRORS = ()
+
+#: what a port closed or yanked under a read/write may raise (pyserial, termios, the OS)
+PORT_ERRORS: tuple[type[Exception], ...] = (
+    OSError, ValueError, TypeError, AttributeError, *_TERMIOS_ERRORS)
 
 #: URL schemes pyserial ships plus ours; a path without ``scheme://`` is an OS serial device.
 KNOWN_SCHEMES = frozenset({"loop", "socket", "rfc2217", "spy", "alt", "hwgrep", "cp2110",
@@ -285,8 +296,7 @@ class Link:
                 continue
             try:
                 n = ser.write(data)
-                ser.flush()
-            except (OSError, ValueError, TypeError, AttributeError) as exc:
+            except PORT_ERRORS as exc:
                 # a port closed under us (unplug) or by the reader's reconnect
                 self.write_errors += 1
                 self.tx_dropped_bytes += len(data)
@@ -373,7 +383,7 @@ class Link:
             try:
                 waiting = ser.in_waiting
                 data = ser.read(min(max(1, waiting), 65536))
-            except (OSError, ValueError, TypeError, AttributeError) as exc:
+            except PORT_ERRORS as exc:
                 if self._stop.is_set():
                     break
                 self.read_errors += 1

@@ -1,0 +1,136 @@
+"""SonarHeadAdapter on a mem:// bus against the mock head: data path, budget, diagnostics."""
+
+from __future__ import annotations
+
+import itertools
+import threading
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from drivers.mocks.sonar_head import MockSonarHead
+from drivers.serial.adapter import SonarHeadAdapter
+from hil_bridge.messages import Diagnostics, SonarEcho, SonarPing
+from hil_bridge.node import Node
+from sim_core.config import ConfigError
+
+FS = 400000.0
+_BUS = itertools.count()
+
+
+class Simulator:
+    """A bus node answering each /sonar/0/ping with a one-impulse echo."""
+
+    def __init__(self, bus: str, n_samples: int = 4000, at: int = 1000) -> None:
+        self.node = Node("fake_sim", bus=bus, diagnostics_period_s=0)
+        self.echo = np.zeros(n_samples, np.float32)
+        self.echo[at] = 0.25
+        self.pings: list[SonarPing] = []
+        self.diags: list[Diagnostics] = []
+        self.cv = threading.Condition()
+        self.pub = self.node.create_publisher(SonarEcho, "/sonar/0/echo")
+        self.node.create_subscription(SonarPing, "/sonar/0/ping", self.on_ping)
+        self.node.create_subscription(Diagnostics, "/diagnostics", self.on_diag)
+
+    def on_ping(self, ping: SonarPing) -> None:
+        with self.cv:
+            self.pings.append(ping)
+        self.pub.publish(SonarEcho(stamp_ns=ping.stamp_ns, ping_seq=ping.ping_seq, fs=FS,
+                                   samples=self.echo, leaves_in_beam=1, fidelity="test"))
+
+    def on_diag(self, msg: Diagnostics) -> None:
+        with self.cv:
+            self.diags.append(msg)
+            self.cv.notify_all()
+
+    def wait_diag(self, node: str, timeout: float) -> Diagnostics | None:
+        with self.cv:
+            self.cv.wait_for(lambda: any(d.node == node for d in self.diags), timeout)
+            found = [d for d in self.diags if d.node == node]
+        return found[-1] if found else None
+
+
+@pytest.fixture
+def bus() -> str:
+    return f"mem://serial_adapter_{next(_BUS)}"
+
+
+@pytest.fixture
+def mock() -> Iterator[MockSonarHead]:
+    m = MockSonarHead("mock", pty=True, rate_hz=20, encoding="iq16", beamwidth=50)
+    m.start()
+    yield m
+    m.stop()
+
+
+def test_ping_to_bus_and_echo_back_to_the_head(bus: str, mock: MockSonarHead) -> None:
+    sim = Simulator(bus)
+    adapter = SonarHeadAdapter("sonar_head", bus=bus, port=mock.path, ping_rate_hz=20,
+                               echo_samples=4000, encoding="iq16", diagnostics_period_s=0.2)
+    sim.node.start()
+    adapter.start()
+    try:
+        assert mock.wait_echoes(4, 10.0), mock.stats()
+        diag = sim.wait_diag("sonar_head", 5.0)
+    finally:
+        adapter.stop()
+        sim.node.stop()
+    st = adapter.stats()
+    assert st["pings_in"] >= 4 and st["echoes_out"] >= 4 and st["crc_errors"] == 0
+    assert st["link_state"] == 0 and 0 < st["link_utilisation"] < 1
+    ping = sim.pings[0]
+    assert ping.sonar_id == 0 and ping.encoding == 1
+    assert ping.beamwidth == pytest.approx(np.radians(50), rel=1e-6)
+    m = mock.stats()
+    assert m.get("encoding_mismatch", 0) == 0 and m["crc_errors"] == 0
+    assert m["status_rx"] >= 1  # STATUS on connect
+    assert diag is not None and diag.counters["frames_in"] >= 1
+    assert {"crc_errors", "reconnects", "frames_out", "frames_dropped"} <= set(diag.counters)
+    adapter.stop()  # idempotent
+
+
+def test_sonarsim_port_needs_no_pty(bus: str) -> None:
+    sim = Simulator(bus, n_samples=400, at=100)
+    adapter = SonarHeadAdapter("sonar_head", bus=bus, ping_rate_hz=50,
+                               port="sonarsim://?rate_hz=50&encoding=float32&beamwidth=35")
+    sim.node.start()
+    adapter.start()
+    try:
+        assert adapter.host.link.wait_connected(5.0)
+        head = adapter.host.link.port.mock
+        assert head.wait_echoes(3, 10.0)
+    finally:
+        adapter.stop()
+        sim.node.stop()
+    assert head.stats()["last_range_m"] == pytest.approx(340 * 100 / FS / 2)
+
+
+def test_budget_refuse_fails_at_load_and_warn_marks_the_state(
+    bus: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    with pytest.raises(ValueError, match=r"over budget.*921600 baud"):
+        SonarHeadAdapter("sonar_head", bus=bus, port="loop://", ping_rate_hz=20,
+                         encoding="int16", budget="refuse")
+    adapter = SonarHeadAdapter("sonar_head", bus=bus, port="loop://", ping_rate_hz=20,
+                               encoding="int16")
+    try:
+        assert adapter.stats()["link_state"] == 2
+        assert "over budget" in caplog.text
+    finally:
+        adapter.stop()
+    ok = SonarHeadAdapter("sonar_head", bus=bus, port="loop://", ping_rate_hz=20,
+                          echo_samples=20000, encoding="iq16", budget="refuse")
+    ok.stop()
+
+
+@pytest.mark.parametrize(("params", "match"), [
+    ({}, "port"),
+    ({"port": "loop://", "budget": "maybe"}, "budget"),
+    ({"port": "loop://", "baudrate": 0}, "baudrate"),
+    ({"port": "loop://", "encoding": "mp3"}, "encoding"),
+    ({"port": "nope://x"}, "nope"),
+])
+def test_bad_params_fail_at_load(bus: str, params: dict[str, object], match: str) -> None:
+    with pytest.raises((ConfigError, ValueError), match=match):
+        SonarHeadAdapter("sonar_head", bus=bus, **params)
