@@ -239,9 +239,10 @@ class CanLink:
         bus = self._bus
         if bus is not None:
             return bus
-        if time.monotonic() >= self._next_open:
-            self._try_open()
-        return self._bus
+        with self._lock:
+            if self._bus is None and time.monotonic() >= self._next_open:
+                self._try_open()
+            return self._bus
 
     # -- bus-off ------------------------------------------------------------------------------
     def _enter_bus_off(self) -> None:

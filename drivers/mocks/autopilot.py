@@ -56,6 +56,7 @@ AP_MODES = {"INIT": 0, "AUTO": 1, "NO_STATE": 2, "FAULT": 3}
 CONTROLLER_CODES = {"unified": 0, "baseline": 1, "path": 2}
 
 F8 = NDArray[np.float64]
+_NO_OBS = GliderObs(x=0.0, y=0.0, z=0.0, heading=0.0, speed=0.0, vz=0.0)
 
 
 def _wrap(angle: F8) -> F8:
@@ -122,28 +123,34 @@ class PathFollower:
 
     @property
     def target_index(self) -> NDArray[np.intp] | None:
-        """Current target waypoint per vehicle, shape (N,), None before the first call."""
+        """Current target waypoint per vehicle, shape (N,) (-1 until a vehicle is first
+        active), None before the first call."""
         return self._index
 
-    def command(self, xy: ArrayLike, heading: ArrayLike, speed: ArrayLike) -> tuple[F8, F8]:
+    def command(
+        self, xy: ArrayLike, heading: ArrayLike, speed: ArrayLike, active: ArrayLike = True
+    ) -> tuple[F8, F8]:
         """(bank rad, airspeed m/s), each shape (N,), for positions ``xy`` (N, 2) m, heading
-        (N,) rad from +x and airspeed (N,) m/s."""
+        (N,) rad from +x and airspeed (N,) m/s. Only ``active`` vehicles (bool, (N,) or
+        scalar) advance along the route; the others' outputs are meaningless (no state)."""
         p = np.asarray(xy, dtype=np.float64).reshape(self._n, 2)
         psi = np.asarray(heading, dtype=np.float64).reshape(self._n)
         v = np.maximum(np.asarray(speed, dtype=np.float64).reshape(self._n), 0.1)
+        act = np.broadcast_to(np.asarray(active, dtype=bool), (self._n,))
         wp = self.waypoints
         m = wp.shape[0]
+        nearest = np.argmin(((p[:, None, :] - wp[None, :, :]) ** 2).sum(axis=2), axis=1)
         if self._index is None:
-            d2 = ((p[:, None, :] - wp[None, :, :]) ** 2).sum(axis=2)
-            self._index = np.argmin(d2, axis=1).astype(np.intp)
-        idx = self._index
+            self._index = np.full(self._n, -1, dtype=np.intp)
+        idx = np.where(act & (self._index < 0), nearest, self._index).astype(np.intp)
         for _ in range(m):
-            dist = np.hypot(*(wp[idx] - p).T)
-            near = dist < self.lookahead_m
+            dist = np.hypot(*(wp[np.maximum(idx, 0)] - p).T)
+            near = act & (dist < self.lookahead_m)
             if not near.any():
                 break
             idx = np.where(near, (idx + 1) % m, idx)
         self._index = idx
+        idx = np.maximum(idx, 0)
         delta = wp[idx] - p
         dist = np.maximum(np.hypot(delta[:, 0], delta[:, 1]), 1e-6)
         eta = _wrap(np.arctan2(delta[:, 1], delta[:, 0]) - psi)
@@ -483,14 +490,13 @@ class MockAutopilot:
     ) -> dict[int, tuple[float, float]]:
         out: dict[int, tuple[float, float]] = {}
         if self.follower is not None:
-            obs = [views[n].own for n in self.nodes]
-            ready = all(o is not None for o in obs)
-            if not ready:
-                return out
-            xy = np.array([[o.x, o.y] for o in obs if o is not None])
-            psi = np.array([o.heading for o in obs if o is not None])
-            v = np.array([o.speed for o in obs if o is not None])
-            bank, speed = self.follower.command(xy, psi, v)
+            obs = [views[n].own or _NO_OBS for n in self.nodes]
+            xy = np.array([[o.x, o.y] for o in obs])
+            psi = np.array([o.heading for o in obs])
+            v = np.array([o.speed for o in obs])
+            bank, speed = self.follower.command(
+                xy, psi, v, active=np.array([n in fresh for n in self.nodes])
+            )
             for i, n in enumerate(self.nodes):
                 if n in fresh:
                     out[n] = (float(bank[i]), float(speed[i]))

@@ -85,6 +85,18 @@ def test_path_follower_single_vehicle_is_a_row_of_the_batch() -> None:
         assert one[0][0] == batch[0][i] and one[1][0] == batch[1][i]
 
 
+def test_inactive_vehicles_do_not_advance() -> None:
+    route = figure_eight_waypoints()
+    pf = PathFollower(route, n_vehicles=2)
+    xy = np.array([[5.0, 3.0], [0.0, 0.0]])
+    bank, _ = pf.command(xy, np.array([0.4, 0.0]), np.array([9.0, 0.0]), active=[True, False])
+    assert pf.target_index is not None and pf.target_index[1] == -1
+    single = PathFollower(route, n_vehicles=1).command(xy[:1], [0.4], [9.0])
+    assert bank[0] == single[0][0]
+    pf.command(xy, np.array([0.4, 0.0]), np.array([9.0, 9.0]))
+    assert pf.target_index[1] >= 0
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [({"waypoints": [[0, 0]]}, "waypoints"), ({"lookahead_m": 0}, "lookahead_m"),
