@@ -58,6 +58,7 @@ from hil_bridge.messages import (
     GliderCmd,
     GliderNeighbors,
     GliderState,
+    PointCloud,
     SonarEcho,
     SonarPing,
     ThermalMarkers,
@@ -93,10 +94,13 @@ class ServerParams:
     diagnostics_period_s: float = 1.0
     stop_after_s: float | None = None
     publish_thermals: bool = True
+    forest_points: int = 20000
 
     def __post_init__(self) -> None:
         if not isinstance(self.scene, str | Mapping | Path):
             raise ValueError(f"scene: expected a YAML path or a mapping, got {self.scene!r}")
+        if self.forest_points < 0:
+            raise ValueError(f"forest_points: expected >= 0, got {self.forest_points}")
         if self.echo_queue < 1:
             raise ValueError(f"echo_queue: expected >= 1, got {self.echo_queue}")
         if not self.diagnostics_period_s > 0:
@@ -115,9 +119,11 @@ class SimServer:
 
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
-    publish_thermals=True)``. ``scene`` is a scene YAML path or mapping
+    publish_thermals=True, forest_points=20000)``. ``scene`` is a scene YAML path or mapping
     (:mod:`sim_core.scene`); ``clock`` and ``state_rate_hz`` override the scene's.
     ``stop_after_s``: stop ticking at that sim time (the node keeps answering pings).
+    ``forest_points``: at most this many leaf centres around each sonar's route are published
+    once (latched) on ``/forest/points`` for viewers and plots (0: none).
     """
 
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
@@ -145,7 +151,7 @@ class SimServer:
                 "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
                 "cmd_ignored", "pings_received", "pings_dropped", "pings_unknown_sonar",
                 "echoes_published", "echo_errors", "stalls", "stalled_steps", "late_ticks",
-                "lockstep_released", "diagnostics_published",
+                "lockstep_released", "diagnostics_published", "external_steps",
             ),
             0,
         )
@@ -154,6 +160,7 @@ class SimServer:
         self._sim_ns = 0
         self._last_echo_error = ""
         self._tick_error = ""
+        self._flown_gliders: dict[int, dict[str, Any]] = {}
         # glider index (swarm) by id; path vehicles by id
         self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
         self._vehicle_ids = set(self.scene.vehicle_ids)
@@ -199,6 +206,10 @@ class SimServer:
         node = self._node
         self._pubs["/clock"] = node.create_publisher(Clock, "/clock", qos=SENSOR)
         self._pubs["/diagnostics"] = node.create_publisher(Diagnostics, "/diagnostics", qos=SENSOR)
+        if self.scene.spec.sonars and self.params.forest_points > 0:
+            self._pubs["/forest/points"] = node.create_publisher(
+                PointCloud, "/forest/points", qos=LATCHED
+            )
         if self.scene.spec.swarm is not None and self.params.publish_thermals:
             self._pubs["/thermals"] = node.create_publisher(
                 ThermalMarkers, "/thermals", qos=LATCHED
@@ -263,6 +274,7 @@ class SimServer:
             out["freewheeling"] = sorted(self._freewheel)
             out["last_echo_error"] = self._last_echo_error
             out["tick_error"] = self._tick_error
+            out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
             ping_echo = list(self._ping_echo_ms)
             compute = list(self._echo_compute_ms)
         out["clock_mode"] = self.clock_spec.mode
@@ -471,6 +483,22 @@ class SimServer:
             return None
         return Commands(bank_cmd=bank, airspeed_cmd=speed, mask=mask)
 
+    def _record_flown(self, commands: Any) -> None:
+        """Per externally commanded glider: the command of the last step and the state it gave."""
+        st = self.scene.swarm.state
+        flown: dict[int, dict[str, Any]] = {}
+        for gid, i in self._glider_index.items():
+            if commands.mask[0, i]:
+                flown[gid] = {
+                    "step": int(self.scene.swarm.step_count),
+                    "bank_cmd": float(commands.bank_cmd[0, i]), "bank": float(st.bank[0, i]),
+                    "airspeed_cmd": float(commands.airspeed_cmd[0, i]),
+                    "airspeed": float(st.speed[0, i]), "alive": bool(st.alive[0, i]),
+                }
+        with self._lock:
+            self._c["external_steps"] += len(flown)
+            self._flown_gliders.update(flown)
+
     def _wait_lockstep(self, since: dict[int, int]) -> None:
         """Wait for one new command from each registered, non-freewheeling autopilot."""
         deadline = time.monotonic() + self.clock_spec.lockstep_timeout_s
@@ -553,6 +581,33 @@ class SimServer:
             w_max=th.w_max[0, ok],
         ))
 
+    def _publish_forest_points(self, t_ns: int) -> None:
+        """Leaf centres around each sonar's mount (its path's extent, or its start), decimated
+        evenly to ``forest_points``, as one latched PointCloud (intensity = leaf radius, m)."""
+        pub = self._pubs.get("/forest/points")
+        if pub is None:
+            return
+        parts = []
+        for sonar in self.scene.spec.sonars:
+            r = self.scene.query_radius_m(sonar.id)
+            traj = self.scene.trajectories.get(sonar.mount) if self._vehicle_ids else None
+            if traj is not None:
+                lo, hi = traj.xyz.min(axis=0), traj.xyz.max(axis=0)
+                center = (lo + hi) / 2.0
+                r += float(np.linalg.norm(hi - lo)) / 2.0
+            else:
+                x, y, z, _ = self._poses[sonar.mount]
+                center = np.array([x, y, z])
+            leaves = self.scene.leaves_near(center, r)
+            parts.append((np.asarray(leaves.centers), np.asarray(leaves.radii)))
+        centers = np.concatenate([c for c, _ in parts])
+        radii = np.concatenate([r for _, r in parts])
+        n = self.params.forest_points
+        if len(centers) > n:
+            keep = np.linspace(0, len(centers) - 1, n).astype(np.intp)
+            centers, radii = centers[keep], radii[keep]
+        pub.publish(PointCloud(stamp_ns=t_ns, points=centers, intensity=radii, label="leaves"))
+
     def _publish_diagnostics(self, t_ns: int) -> None:
         stats = self.stats()
         counters: dict[str, int | float] = {
@@ -594,6 +649,7 @@ class SimServer:
         since: dict[int, int] = {}
         if swarm is not None:
             self._publish_thermals(0)
+        self._publish_forest_points(0)
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns
             if stop_ns is not None and t_ns > stop_ns:
@@ -605,9 +661,12 @@ class SimServer:
                         self._wait_lockstep(since)
                     if self._stop.is_set():
                         return
-                    swarm.step(self._commands_for_step())
+                    commands = self._commands_for_step()
+                    swarm.step(commands)
                     with self._lock:
                         self._c["physics_steps"] += 1
+                    if commands is not None:
+                        self._record_flown(commands)
                     stepped = True
             st = swarm.state if swarm is not None else None
             with self._lock:
