@@ -20,6 +20,7 @@ leaves with the largest waterdrop metric S1/r (i.e. it raises the selection thre
 
 from __future__ import annotations
 
+import functools
 import math
 
 import finufft
@@ -32,6 +33,8 @@ from sim_core.sonar.reference import Band, Fidelity, direct_sum
 
 __all__ = ["Fast", "Realtime", "chebyshev_nodes", "lagrange_basis"]
 
+#: leaves per block of the node evaluation (keeps the temporaries in cache)
+BLOCK = 8192
 #: leaves sampled (evenly) for the per-echo a-posteriori interpolation error
 CHECK_SAMPLE = 256
 #: minimum Chebyshev nodes with the frequency-dependent (incident_freq) beamwidth
@@ -132,20 +135,27 @@ class Fast(Fidelity):
         f_lo, f_hi = g.m0 * g.df, g.m1 * g.df
         centre, half = 0.5 * (f_lo + f_hi), 0.5 * (f_hi - f_lo)
         nodes = chebyshev_nodes(P)
-        basis = lagrange_basis(nodes, (g.freqs - centre) / half)
+        basis = _basis(P, g.m0, g.m1)
         single = self.eps >= SINGLE_EPS
+        cdt = np.complex64 if single else np.complex128
         K0 = B // 2
-        w = leaf_weights(scene, ch, centre + half * nodes, params, single=single)
-        cycles = g.df * scene.tau[ch]
-        shift = (np.mod((g.m0 + K0) * cycles, 1.0) * (2.0 * np.pi)).astype(w.real.dtype)
-        rot = np.empty(scene.count, dtype=w.dtype)
-        rot.real = np.cos(shift)
-        rot.imag = -np.sin(shift)
-        if mask is not None:
-            rot *= mask
-        strengths = np.multiply(w.T, rot, out=np.empty((P, scene.count), dtype=w.dtype))
-        x = (np.mod(cycles + 0.5, 1.0) - 0.5) * (2.0 * np.pi)
-        x = x.astype(np.float32 if single else np.float64)
+        M = scene.count
+        w = np.empty((M, P), dtype=cdt)
+        strengths = np.empty((P, M), dtype=cdt)
+        x = np.empty(M, dtype=np.float32 if single else np.float64)
+        f_nodes = centre + half * nodes
+        for start in range(0, M, BLOCK):
+            blk = slice(start, min(start + BLOCK, M))
+            w[blk] = leaf_weights(scene.select(blk), ch, f_nodes, params, single=single)
+            cycles = g.df * scene.tau[ch, blk]
+            shift = (np.mod((g.m0 + K0) * cycles, 1.0) * (2.0 * np.pi)).astype(w.real.dtype)
+            rot: NDArray[np.complexfloating] = np.empty(shift.shape[0], dtype=cdt)
+            rot.real = np.cos(shift)
+            rot.imag = -np.sin(shift)
+            if mask is not None:
+                rot *= mask[blk]
+            np.multiply(w[blk].T, rot, out=strengths[:, blk])
+            x[blk] = (np.mod(cycles + 0.5, 1.0) - 0.5) * (2.0 * np.pi)
         modes = finufft.nufft1d1(x, strengths, B, eps=self.eps, isign=-1, nthreads=1)
         tail, weight = _interpolation_error(scene, ch, params, w, nodes, mask)
         return np.einsum("kp,pk->k", basis, modes), tail, weight
@@ -155,6 +165,13 @@ class Fast(Fidelity):
         if params.beam_model == "incident_freq":
             return max(self.order, INCIDENT_FREQ_ORDER)
         return self.order
+
+
+@functools.lru_cache(maxsize=64)
+def _basis(P: int, m0: int, m1: int) -> NDArray[np.float64]:
+    """Lagrange basis of P Chebyshev nodes over the band bins m0..m1, (m1 - m0 + 1, P)."""
+    k = np.arange(m0, m1 + 1, dtype=np.float64)
+    return lagrange_basis(chebyshev_nodes(P), (k - 0.5 * (m0 + m1)) / (0.5 * (m1 - m0)))
 
 
 def _kinked(scene: Scene, ch: int, params: EchoParams) -> NDArray[np.bool_]:

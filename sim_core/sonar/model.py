@@ -76,8 +76,8 @@ class Scene:
     def count(self) -> int:
         return int(self.a.shape[0])
 
-    def select(self, index: NDArray[np.intp]) -> Scene:
-        """The sub-scene of kept leaves ``index`` (ints into 0..count-1)."""
+    def select(self, index: NDArray[np.intp] | slice) -> Scene:
+        """The sub-scene of kept leaves ``index`` (ints into 0..count-1, or a slice: views)."""
         return Scene(
             a=self.a[index],
             beta=self.beta[:, index],
