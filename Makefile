@@ -13,8 +13,8 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m hil_bridge.cli forest generate --preset seed000-fig5d --seed 1 \
-		--out out/demo_forest.npz --plot out/demo_forest.png
+	$(PY) -m hil_bridge.cli launch launch/demo.yaml --duration 20 \
+		--record out/demo.mcap --plot out/demo.png
 
 test: $(STAMP)
 	$(PY) -m pytest -q

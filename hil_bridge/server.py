@@ -5,7 +5,10 @@ Topics (ids are the scene's vehicle/glider/sonar ids)::
     publishes  /clock                     every tick
                /glider/<id>/state         every tick, for every swarm glider and path vehicle
                /glider/<id>/neighbors     after every physics step, only for registered gliders
-               /sonar/<id>/echo           one per answered /sonar/<id>/ping
+               /sonar/<id>/echo           one per answered /sonar/<id>/ping (frame_id
+                                          ``glider/<mount id>``: the vehicle carrying it)
+               /thermals                  latched ThermalMarkers (with a swarm)
+               /forest/points             latched PointCloud of leaves around the sonars
                /diagnostics               every ``diagnostics_period_s`` of wall time
     subscribes /glider/<id>/cmd           bank_cmd (rad), airspeed_cmd (m/s)
                /sonar/<id>/ping           ping_seq, az, el (rad, body frame), beamwidth (rad)
@@ -227,7 +230,8 @@ class SimServer:
             )
         for sonar in self.scene.spec.sonars:
             self._pubs[f"/sonar/{sonar.id}/echo"] = node.create_publisher(
-                SonarEcho, f"/sonar/{sonar.id}/echo", qos=SENSOR
+                SonarEcho, f"/sonar/{sonar.id}/echo", qos=SENSOR,
+                frame_id=f"glider/{sonar.mount}",
             )
             node.create_subscription(
                 SonarPing, f"/sonar/{sonar.id}/ping", self._make_ping_callback(sonar.id),
