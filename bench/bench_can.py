@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import tempfile
+import threading
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -32,8 +33,11 @@ from bench._util import fmt_s, median, table, time_it
 from drivers.can.adapter import AutopilotAdapter
 from drivers.can.busload import frame_bits, worst_case_bits
 from drivers.can.codec import GliderCanCodec
+from drivers.faults.can_bus import FaultInjectingBus
 from drivers.mocks.autopilot import MockAutopilot, ProfileReceiver
 from hil_bridge.errors import CodecError
+from hil_bridge.messages import GliderCmd, GliderState
+from hil_bridge.node import Node
 from hil_bridge.server import SimServer
 
 TITLE = "CAN glider autopilot (drivers.can)"
@@ -219,5 +223,63 @@ def _fuzz() -> str:
     )
 
 
+def _bus_off_recovery() -> str:
+    bus = "mem://bench_can_faults"
+    adapter = AutopilotAdapter("autopilot", bus=bus, channel="bench_can_faults",
+                               gliders=list(range(N_GLIDERS)), faults={"seed": 1})
+    mock = MockAutopilot("mock", channel="bench_can_faults", gliders=list(range(N_GLIDERS)),
+                         rate_hz=RATE_HZ)
+    sim = Node("sim", bus=bus, diagnostics_period_s=0)
+    pubs = [sim.create_publisher(GliderState, f"/glider/{g}/state") for g in range(N_GLIDERS)]
+    arrivals: list[float] = []
+    sim.create_subscription(GliderCmd, "/glider/0/cmd",
+                            lambda _m: arrivals.append(time.monotonic()))
+    stop = threading.Event()
+
+    def feed() -> None:
+        while not stop.wait(1.0 / RATE_HZ):
+            for g, pub in enumerate(pubs):
+                pub.publish(GliderState(stamp_ns=0, x=50.0 * g, y=0.0, z=1000.0, heading=0.0,
+                                        bank=0.0, airspeed=10.0, vz=0.0, glider_id=g))
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    recoveries, gaps = [], []
+    for node in (sim, adapter, mock):
+        node.start()
+    feeder.start()
+    try:
+        time.sleep(1.0)
+        for i in range(10):
+            link = adapter._link
+            assert link is not None and isinstance(link.bus, FaultInjectingBus)
+            t0 = time.monotonic()
+            link.bus.inject_bus_off(30.0)
+            while adapter.stats().get("can_bus_off_recoveries", 0) < i + 1:
+                time.sleep(0.001)
+            recoveries.append(time.monotonic() - t0)
+            time.sleep(0.3)
+            after = [t for t in arrivals if t > t0]
+            gaps.append(after[0] - t0 if after else float("nan"))
+        stats = adapter.stats()
+    finally:
+        stop.set()
+        feeder.join()
+        for node in (mock, adapter, sim):
+            node.stop()
+    return (
+        "### Bus-off recovery\n\n"
+        f"Adapter and mock ({N_GLIDERS} gliders, states and commands at {RATE_HZ:g} Hz); 10 times "
+        "a bus-off that never restarts by itself (`inject_bus_off(30)`), so the link must shut "
+        "the bus down and re-open it. Recovery = injection to the first frame sent again; "
+        "command gap = injection to the next `/glider/0/cmd`.\n\n"
+        + table(["events", "recovery p50", "recovery max", "command gap p50", "command gap max",
+                 "re-opens", "frames dropped while bus-off"],
+                [[len(recoveries), fmt_s(median(recoveries)), fmt_s(max(recoveries)),
+                  fmt_s(median(gaps)), fmt_s(max(gaps)), stats.get("can_reopens", 0),
+                  stats.get("can_tx_dropped_bus_off", 0)]])
+        + "\n"
+    )
+
+
 def run(out_dir: Path) -> str:
-    return "\n".join([_bus_load(out_dir), _codec_cost(), _fuzz()])
+    return "\n".join([_bus_load(out_dir), _bus_off_recovery(), _codec_cost(), _fuzz()])

@@ -13,8 +13,9 @@
 2. Bus-off (``state == BusState.ERROR``, an error frame with ``CAN_ERR_BUSOFF``, or a transmit
    error ``ENETDOWN``) puts the link in ``bus_off``: frames are dropped (counted) without waiting;
    every back-off interval (``reopen_backoff_s`` doubling up to ``max_backoff_s``) one frame is
-   tried, and if the bus still refuses it the bus is shut down and re-opened (a controller
-   restart). The first frame that goes through returns the link to ``up``.
+   tried, and if the bus still refuses it the bus is shut down, re-opened (a controller
+   restart) and the frame tried once more. The first frame that goes through returns the link
+   to ``up``.
 3. ``recv(timeout)`` never raises a bus error: receive errors are counted and back off; error
    frames are counted (and steer the bus-off state) and never returned; ``reopen_after_failures``
    consecutive receive errors re-open the bus. A bus that cannot be opened leaves the link
@@ -279,9 +280,12 @@ class CanLink:
             self._probe_backoff = min(2 * self._probe_backoff, self.policy.max_backoff_s)
             self._next_probe = now + self._probe_backoff
             if bus.state == BusState.ERROR or not self._try_send_once(bus, msg):
-                self._reopen()
-                self._inc("tx_dropped_bus_off")
-                return False
+                fresh = self._bus if self._reopen() else None
+                if fresh is None or fresh.state == BusState.ERROR or not self._try_send_once(
+                    fresh, msg
+                ):
+                    self._inc("tx_dropped_bus_off")
+                    return False
             self._leave_bus_off()
             self._sent(msg)
             return True
