@@ -172,6 +172,7 @@ class SonarHeadHost:
         self.last_head_heartbeat: float | None = None
         self.state = LinkState.OK
         self.counts = collections.Counter[str]()
+        self._rx_cv = threading.Condition()
 
     # ---- lifecycle -------------------------------------------------------------------------
 
@@ -266,6 +267,13 @@ class SonarHeadHost:
             except ValueError as exc:
                 self.counts["bad_payloads"] += 1
                 log.debug("%s: bad %s payload: %s", self.name, frame.msg_type, exc)
+        with self._rx_cv:
+            self._rx_cv.notify_all()
+
+    def wait_for(self, predicate: Callable[[SonarHeadHost], bool], timeout: float) -> bool:
+        """Block until ``predicate(self)`` holds, re-checked after each batch of received bytes."""
+        with self._rx_cv:
+            return self._rx_cv.wait_for(lambda: predicate(self), timeout)
 
     def _handle(self, frame: Frame) -> None:
         t = frame.msg_type

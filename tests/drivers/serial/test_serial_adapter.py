@@ -134,3 +134,28 @@ def test_budget_refuse_fails_at_load_and_warn_marks_the_state(
 def test_bad_params_fail_at_load(bus: str, params: dict[str, object], match: str) -> None:
     with pytest.raises((ConfigError, ValueError), match=match):
         SonarHeadAdapter("sonar_head", bus=bus, **params)
+
+
+def test_loop_port_reads_back_valid_frames(bus: str) -> None:
+    """On loop:// the adapter decodes its own output: every frame it writes is valid §2."""
+    sim = Node("echo_src", bus=bus, diagnostics_period_s=0)
+    pub = sim.create_publisher(SonarEcho, "/sonar/0/echo")
+    adapter = SonarHeadAdapter("sonar_head", bus=bus, port="loop://", encoding="float32",
+                               echo_samples=3000, ping_rate_hz=1, heartbeat_period_s=0.05)
+    sim.start()
+    adapter.start()
+    try:
+        assert adapter.host.link.wait_connected(5.0)
+        assert pub.wait_for_subscribers(5.0)
+        pub.publish(SonarEcho(stamp_ns=1, ping_seq=9, fs=FS, samples=np.ones(3000, np.float32),
+                              leaves_in_beam=0, fidelity="test"))
+        # 3000 float32 samples = 3 ECHO chunks, read back as frames a host never expects
+        assert adapter.host.wait_for(
+            lambda h: h.counts["unexpected_in"] >= 3 and h.counts["status_in"] >= 2, 5.0)
+    finally:
+        adapter.stop()
+        sim.stop()
+    st = adapter.stats()
+    assert st["frames_dropped"] == 0 and st["crc_errors"] == 0
+    assert st["echoes_out"] == 1
+    assert adapter.host.counts["heartbeats_in"] >= 1

@@ -112,3 +112,39 @@ def test_unplug_then_replug_reconnects_under_the_same_path(tmp_path: Path) -> No
         link.stop()
         dev.close()
     link.stop()  # idempotent
+
+
+def test_socket_url_round_trip_and_reconnect_after_the_peer_drops() -> None:
+    """socket://: a TCP 'device' that echoes bytes, closes the first connection, accepts again."""
+    import socket
+
+    server = socket.create_server(("127.0.0.1", 0))
+    server.settimeout(5.0)
+    port = server.getsockname()[1]
+
+    def device() -> None:
+        for round_ in range(2):
+            conn, _ = server.accept()
+            with conn:
+                conn.settimeout(5.0)
+                data = conn.recv(64)
+                conn.sendall(data.upper())
+                if round_ == 0:
+                    conn.shutdown(socket.SHUT_RDWR)
+
+    t = threading.Thread(target=device, daemon=True)
+    t.start()
+    sink = Sink()
+    link = open_link(f"socket://127.0.0.1:{port}", on_bytes=sink, backoff_initial_s=0.01,
+                     backoff_max_s=0.05)
+    try:
+        link.send(b"ping\x00")
+        assert sink.wait_len(5)
+        assert link.wait_for(lambda lk: lk.connected and lk.reconnects == 1, 5.0)
+        link.send(b"again\x00")
+        assert sink.wait_len(11)
+    finally:
+        link.stop()
+        t.join(5.0)
+        server.close()
+    assert bytes(sink.data) == b"PING\x00AGAIN\x00"
