@@ -125,7 +125,7 @@ def _bus_load(out_dir: Path) -> str:
     ax.set_xlabel("share of a 1 Mbit/s bus (%)")
     ax.set_title(f"{N_GLIDERS} gliders at {RATE_HZ:g} Hz: total {total_typ:.1f} % "
                  f"(worst {total_worst:.1f} %)")
-    ax.legend(loc="lower right")
+    ax.legend(loc="upper right")
     fig.tight_layout()
     fig.savefig(out_dir / "can_bus_load.png", dpi=110)
     plt.close(fig)
