@@ -33,7 +33,15 @@ from types import TracebackType
 from typing import Any, Generic, TypeVar
 
 from hil_bridge.clock import SimClock, default_clock
-from hil_bridge.codec import Envelope, Header, decode_header, decode_payload, encode, validate_topic
+from hil_bridge.codec import (
+    Envelope,
+    Header,
+    decode_header,
+    decode_payload,
+    encode_header,
+    encode_payload,
+    validate_topic,
+)
 from hil_bridge.errors import CodecError
 from hil_bridge.messages import Clock, CmdAck, Diagnostics, Message
 from hil_bridge.qos import LATCHED, SENSOR, QoSProfile, qos_profile
@@ -94,14 +102,14 @@ class Publisher(Generic[M]):
             )
         with self._lock:
             seq = self._seq
-            frames = encode(
-                self.topic,
-                msg,
-                seq=seq,
-                pub_ns=time.monotonic_ns(),
-                frame_id=self.frame_id,
-                src=self.node.src,
-            )
+            frames = [
+                self.topic_frame,
+                encode_header(
+                    msg, seq=seq, pub_ns=time.monotonic_ns(), frame_id=self.frame_id,
+                    src=self.node.src,
+                ),
+                encode_payload(msg),
+            ]
             self.node.transport.publish(frames)
             self._seq = seq + 1
             self._counters["sent"] += 1
