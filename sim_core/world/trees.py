@@ -268,7 +268,7 @@ class LppTree:
                 geo,
                 seg_start=_to_enu(tr.seg_start * self.unit_m),
                 seg_end=_to_enu(tr.seg_end * self.unit_m),
-                seg_radius=np.full(tr.seg_start.shape[0], 0.02),
+                seg_radius=np.full(tr.seg_start.shape[0], 0.05 * self.unit_m),
             )
         return geo
 
@@ -289,16 +289,17 @@ TREE_MODELS: dict[str, TreeModel] = {
     "maple": GMT3Tree(),
     # seed 000 single-tree variant (Fig 5a/b first-level branches), 1 unit = 2 m
     "maple-single": GMT3Tree(variant="single", unit_m=2.0, nodes=8, leaves_per_node=6),
-    # stand-in for the missing hazelnut CAD (spec §2A.4): a low, wide GMT3 shrub, ~3-4 m
+    # stand-in for the missing hazelnut CAD (spec §2A.4): a short-stemmed, round GMT3 shrub,
+    # ~3-4 m tall and ~3 m wide
     "hazelnut-bush": GMT3Tree(
         levels=5,
-        trunk=0.8,
-        angle_deg=65.0,
-        ratio_side=0.8,
-        ratio_centre=0.72,
-        sprout=(0.05, 0.25),
-        radius0=0.03,
-        unit_m=1.0,
+        trunk=0.25,
+        angle_deg=30.0,
+        ratio_side=0.85,
+        ratio_centre=0.8,
+        sprout=(0.0, 0.05),
+        radius0=0.015,
+        unit_m=2.5,
         leaf_radius_mean_m=0.03,
         leaf_radius_sd_m=0.006,
     ),

@@ -173,9 +173,9 @@ def test_callable_intensity_and_conditioned_count() -> None:
     assert f.n_trees == 7 and np.all(f.tree_xy[:, 0] < 5)
 
 
-@settings(max_examples=12, deadline=None)
+@settings(max_examples=16, deadline=None)
 @given(
-    rate=st.sampled_from([0.0, 1e-9, 0.002]),
+    rate=st.sampled_from([0.0, 1e-9, 0.002, 50.0]),
     side=st.sampled_from([0.0, 1.0, 30.0]),
     level=st.integers(0, 2),
     seed=st.integers(0, 1000),
@@ -183,8 +183,13 @@ def test_callable_intensity_and_conditioned_count() -> None:
 def test_extreme_parameters(rate: float, side: float, level: int, seed: int) -> None:
     spec = ForestSpec(
         domain=(0.0, 0.0, side, side),
+        max_expected_trees=1000.0,
         species=(SpeciesSpec("a", tree="tree7", growth_level=level, rate=rate),),
     )
+    if rate * side * side > 1000.0:
+        with pytest.raises(ValueError, match="huge intensity: species 'a'"):
+            build_forest(spec, seed=seed)
+        return
     f = build_forest(spec, seed=seed)
     if rate == 0 or side == 0:
         assert f.n_trees == 0 and len(f.leaves) == 0
