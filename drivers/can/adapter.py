@@ -232,11 +232,11 @@ class AutopilotAdapter(Node):
         """Start the bus node, open the CAN bus and start the CAN threads (non-blocking)."""
         if self._can_threads or self._stop_evt.is_set():
             return self
-        super().start()
-        self._start_wall = time.monotonic()
         self._link = CanLink(
             self.bus_config, policy=LinkPolicy(), log_path=self.can_log, stop_event=self._stop_evt
         )
+        super().start()
+        self._start_wall = time.monotonic()
         for target, suffix in ((self._can_rx_loop, "can-rx"), (self._can_tx_loop, "can-tx")):
             t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
             t.start()
