@@ -23,12 +23,14 @@ heartbeat and in ``/diagnostics``):
              sqrt(Sink_C / Sink_A) of the seed polar = 11.36 m/s). The next command frame ends it.
 
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
-recovery, re-open); no exception leaves the adapter's threads. Counters are in :meth:`stats`
+recovery, re-open); no exception leaves the adapter's threads (anything unexpected is logged
+and counted as ``loop_errors``). Counters are in :meth:`stats`
 and published on ``/diagnostics`` (by the node, every ``diagnostics_period_s``).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -57,6 +59,8 @@ __all__ = [
     "best_glide_speed",
     "parse_gliders",
 ]
+
+log = logging.getLogger(__name__)
 
 #: cmd_state values (BRIDGE_HEARTBEAT.cmd_state, the DBC's value table).
 CMD_STATES = {"WAITING": 0, "FRESH": 1, "HOLD": 2, "FAILSAFE": 3}
@@ -309,13 +313,17 @@ class AutopilotAdapter(Node):
         state_period, hb_period = 1.0 / self.state_rate_hz, 1.0 / self.heartbeat_hz
         while not self._stop_evt.is_set():
             now = time.monotonic()
-            if now >= next_state:
-                self._send_states(now)
-                next_state = max(next_state + state_period, now)
-            if now >= next_hb:
-                self._supervise(now)
-                self._send_heartbeats()
-                next_hb = max(next_hb + hb_period, now)
+            try:
+                if now >= next_state:
+                    next_state = max(next_state + state_period, now)
+                    self._send_states(now)
+                if now >= next_hb:
+                    next_hb = max(next_hb + hb_period, now)
+                    self._supervise(now)
+                    self._send_heartbeats()
+            except Exception:
+                self._inc("loop_errors")
+                log.exception("%s: CAN transmit cycle failed", self.name)
             self._stop_evt.wait(max(0.0, min(next_state, next_hb) - time.monotonic()))
 
     def _send(self, name: str, node: int, values: Mapping[str, float]) -> bool:
@@ -468,7 +476,11 @@ class AutopilotAdapter(Node):
             except CodecError:
                 self._inc("rx_decode_errors")
                 continue
-            self._on_frame(frame)
+            try:
+                self._on_frame(frame)
+            except Exception:
+                self._inc("loop_errors")
+                log.exception("%s: handling CAN frame %s failed", self.name, frame.name)
 
     def _on_frame(self, frame: DecodedFrame) -> None:
         g = self._by_node.get(frame.node_id)

@@ -22,6 +22,7 @@ commanded; its heartbeat says ``NO_STATE``. Launchable (``Cls(name, *, bus, **pa
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -49,6 +50,8 @@ __all__ = [
     "ProfileReceiver",
     "figure_eight_waypoints",
 ]
+
+log = logging.getLogger(__name__)
 
 #: ap_mode values of AUTOPILOT_HEARTBEAT (the DBC's value table).
 AP_MODES = {"INIT": 0, "AUTO": 1, "NO_STATE": 2, "FAULT": 3}
@@ -441,8 +444,12 @@ class MockAutopilot:
             except CodecError:
                 self._inc("rx_decode_errors")
                 continue
-            if self.receiver.feed(frame, time.monotonic()):
-                self._inc("rx_frames_used")
+            try:
+                if self.receiver.feed(frame, time.monotonic()):
+                    self._inc("rx_frames_used")
+            except Exception:
+                self._inc("loop_errors")
+                log.exception("%s: assembling CAN frame %s failed", self.name, frame.name)
 
     # -- control ------------------------------------------------------------------------------
     def _tx_loop(self) -> None:
@@ -451,12 +458,16 @@ class MockAutopilot:
         ctl_period, hb_period = 1.0 / self.rate_hz, 1.0 / self.heartbeat_hz
         while not self._stop.is_set():
             now = time.monotonic()
-            if now >= next_ctl:
-                self._control(now)
-                next_ctl = max(next_ctl + ctl_period, now)
-            if now >= next_hb:
-                self._heartbeat(now)
-                next_hb = max(next_hb + hb_period, now)
+            try:
+                if now >= next_ctl:
+                    next_ctl = max(next_ctl + ctl_period, now)
+                    self._control(now)
+                if now >= next_hb:
+                    next_hb = max(next_hb + hb_period, now)
+                    self._heartbeat(now)
+            except Exception:
+                self._inc("loop_errors")
+                log.exception("%s: control cycle failed", self.name)
             self._stop.wait(max(0.0, min(next_ctl, next_hb) - time.monotonic()))
 
     def _fresh(self, view: NodeView, now: float) -> bool:

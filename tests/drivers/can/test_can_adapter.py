@@ -336,3 +336,24 @@ def test_best_glide_speed_is_the_polar_optimum() -> None:
     sink = law.Sink_A * v**2 + law.Sink_B * v + law.Sink_C
     assert best_glide_speed(law) == pytest.approx(v[np.argmax(v / -sink)], abs=1e-3)
     assert math.isclose(best_glide_speed(), math.sqrt(2.3782 / 0.01843))
+
+
+def test_unexpected_errors_are_counted_and_loops_survive(sim: Sim, make_adapter: Any,
+                                                         raw: RawAutopilot) -> None:
+    ad = make_adapter()
+    real = ad._on_frame
+    calls = {"n": 0}
+
+    def flaky(frame: Any) -> None:
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise RuntimeError("injected handler bug")
+        real(frame)
+
+    ad._on_frame = flaky
+    sim.publish_state(3)
+    raw.command(0, 0.1, 10.0)
+    raw.command(0, 0.2, 10.0)
+    assert wait_until(lambda: ad.stats().get("cmd_forwarded", 0) == 1)
+    assert ad.stats()["loop_errors"] == 1
+    assert all(t.is_alive() for t in ad._can_threads)
