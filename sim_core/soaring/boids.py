@@ -32,7 +32,9 @@ __all__ = [
     "controller_command",
     "find_neighbors",
     "law_params",
+    "neighbor_pairs",
     "power",
+    "velocity_xy",
 ]
 
 F8 = NDArray[np.float64]
@@ -48,6 +50,14 @@ _PER_RUN = (
     "thermalBankFactor", "neighborRadius", "fov", "forwardSpeedMin", "forwardSpeedMax",
     "bankMin", "bankMax", "Sink_A", "Sink_B", "Sink_C", "collisionKillDistance", "agentCeiling",
     "agentFloor", "k",
+)
+
+
+#: Per-run parameters used per neighbour pair by :func:`boids_accel`.
+_PAIR_PARAMS = (
+    "neighborRadius", "collisionKillDistance", "cohesionAscensionIgnore", "cohesionAscensionMax",
+    "ascensionFactorPower", "cohPower", "separationHeightWidth", "sepPower",
+    "alignmentHeightWidth", "aliPower", "unified",
 )
 
 
@@ -72,6 +82,14 @@ class LawParams:
 
     def select(self, runs: NDArray[np.intp]) -> LawParams:
         return LawParams({k: v[runs] for k, v in self.p.items()}, self.dt)
+
+    def values(self, name: str) -> list[float]:
+        """Distinct values of a per-run parameter in this batch."""
+        return [float(v) for v in np.unique(self.p[name])]
+
+    def per_pair(self, run: NDArray[np.intp]) -> dict[str, NDArray[Any]]:
+        """The per-run parameters the controller needs per neighbour pair, shape (V,)."""
+        return {name: self.p[name][run, 0] for name in _PAIR_PARAMS}
 
 
 def law_params(laws: Sequence[Law]) -> LawParams:
@@ -108,38 +126,41 @@ def law_params(laws: Sequence[Law]) -> LawParams:
     return LawParams(p, dt)
 
 
-def power(base: F8, exponent: F8) -> F8:
-    """base ** exponent with a per-run exponent (B, 1), evaluated the same way for a run
-    whatever batch it is in (the method depends only on the exponent's value).
+def power(base: F8, exponent: F8 | float, values: Sequence[float] | None = None) -> F8:
+    """base ** exponent, evaluated the same way for an element whatever else is in the array
+    (the method depends only on the exponent's value), so a run's result does not depend on
+    its batch.
 
-    base : (..., B, N); exponent : (B, 1). Exponents 0, 1, 2, −1, −2, 0.5 take exact or
-    correctly rounded paths (0 ** 0 = 1, as in MATLAB); others use ``np.power``.
+    ``exponent`` is broadcastable to ``base``; ``values`` lists its distinct values (computed
+    if omitted). Exponents 0, 1, 2, −1, −2, 0.5 take exact or correctly rounded paths
+    (0 ** 0 = 1, as in MATLAB); others use ``np.power``.
     """
-    e = exponent[:, 0]
-    out = np.empty(np.broadcast_shapes(base.shape, exponent.shape))
-    for val in np.unique(e):
-        rows = np.flatnonzero(e == val)
-        full = rows.size == e.size
-        x = base if full else base[..., rows, :]
-        if val == 0:
-            r = np.ones_like(x)
-        elif val == 1:
-            r = x.copy()
-        elif val == 2:
-            r = x * x
-        elif val == -1:
-            r = 1.0 / x
-        elif val == -2:
-            r = 1.0 / (x * x)
-        elif val == 0.5:
-            r = np.sqrt(x)
-        else:
-            r = np.power(x, val)
-        if full:
-            out[...] = r
-        else:
-            out[..., rows, :] = r
+    e = np.asarray(exponent, dtype=np.float64)
+    vals = np.unique(e) if values is None else values
+    if len(vals) == 1:
+        return _pow1(np.asarray(base, dtype=np.float64), float(vals[0]))
+    x, ee = np.broadcast_arrays(np.asarray(base, dtype=np.float64), e)
+    out = np.empty(x.shape)
+    for val in vals:
+        m = ee == val
+        out[m] = _pow1(x[m], float(val))
     return out
+
+
+def _pow1(x: F8, val: float) -> F8:
+    if val == 0:
+        return np.ones_like(x)
+    if val == 1:
+        return x.copy()
+    if val == 2:
+        return x * x
+    if val == -1:
+        return 1.0 / x
+    if val == -2:
+        return 1.0 / (x * x)
+    if val == 0.5:
+        return np.sqrt(x)
+    return np.power(x, val)
 
 
 def find_neighbors(
@@ -167,7 +188,7 @@ def find_neighbors(
     if width == 0 or n == 0:
         return idx, valid
     R = P["neighborRadius"][:, :, None]
-    half_fov = P["fov"][:, :, None] / 2.0
+    cos_half = np.cos(P["fov"][:, :, None] / 2.0)
     limited_fov = P["fov"][:, :, None] < 2 * math.pi
     kk = P["k"][:, 0].astype(np.intp)
     rows_per = max(1, chunk_elems // max(1, b * n))
@@ -182,8 +203,8 @@ def find_neighbors(
         cand &= cols[None, None, :] != np.arange(sl.start, sl.stop)[None, :, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             cosang = (dx * np.cos(heading[:, sl, None]) + dy * np.sin(heading[:, sl, None])) / d3
-            ang = np.arccos(np.clip(cosang, -1.0, 1.0))
-        cand &= ~(limited_fov & (ang > half_fov))
+        # acos(c) > fov/2  <=>  c < cos(fov/2); NaN (d3 = 0) compares False and is kept
+        cand &= ~(limited_fov & (cosang < cos_half))
         key = np.where(cand, d3, np.inf)
         order = np.argsort(key, axis=2, kind="stable")[:, :, :width]
         ok = np.take_along_axis(cand, order, axis=2)
@@ -210,79 +231,113 @@ class BoidsAccel:
     cohesion_mag: F8
 
 
+def velocity_xy(speed: F8, heading: F8) -> tuple[F8, F8]:
+    """Horizontal velocity (v cos ψ, v sin ψ), m/s, of arrays of any shape."""
+    return speed * np.cos(heading), speed * np.sin(heading)
+
+
 def boids_accel(
     own: dict[str, F8],
     nb: dict[str, F8],
-    valid: B8,
+    owner: NDArray[np.intp],
     P: LawParams,
     waggle_sign: F8,
+    pair_params: dict[str, NDArray[Any]] | None = None,
 ) -> BoidsAccel:
     """Desired acceleration of every glider (``agentControl_Unified``/``_Baseline``, §3.4).
 
-    own: x, y, z, heading, speed, vz, each (B, N) (the saved state); nb: the same keys, each
-    (K, B, N), the neighbours' saved state; valid (K, B, N); waggle_sign (B, N) in {−1, 0, 1}.
+    own: x, y, z, heading, speed, vz, each (B, N) (the saved state; optional cos, sin of the
+    heading, if the caller has them). Neighbour pairs, V of
+    them, sorted by owner and then by list slot: nb holds the neighbour's x, y, z, vx, vy, vz
+    (velocities from :func:`velocity_xy`), each (V,); ``owner`` (V,) is the owning glider's flat
+    index b·N + i. ``pair_params``: ``P.per_pair(owner // N)`` if cached by the caller.
+    Sums over a glider's neighbours run in slot order (``bincount``), whatever the batch.
     Hazards guarded without changing other results: a neighbour straight above or below
     (dxy = 0) has ê = 0 and adds no cohesion, separation or alignment; a target at distance 0
     adds no migration; a distance of 0 never reaches a negative power.
     """
-    R = P["neighborRadius"]
-    rx = nb["x"] - own["x"]
-    ry = nb["y"] - own["y"]
-    rz = nb["z"] - own["z"]
-    d3 = np.sqrt(rx * rx + ry * ry + rz * rz)
-    dxy = np.sqrt(rx * rx + ry * ry)
-    flat = valid & (dxy > 0)
-    safe_dxy = np.where(flat, dxy, 1.0)
-    ex = np.where(flat, rx / safe_dxy, 0.0)
-    ey = np.where(flat, ry / safe_dxy, 0.0)
-    collision = np.any(valid & (d3 < P["collisionKillDistance"]), axis=0)
+    B, N = own["x"].shape
+    M = B * N
+    pp = P.per_pair(owner // max(N, 1)) if pair_params is None else pair_params
+    if "cos" in own:
+        ch, sh = own["cos"], own["sin"]
+    else:
+        ch, sh = np.cos(own["heading"]), np.sin(own["heading"])
+    vix, viy = own["speed"] * ch, own["speed"] * sh
+    rx = nb["x"] - own["x"].ravel()[owner]
+    ry = nb["y"] - own["y"].ravel()[owner]
+    rz = nb["z"] - own["z"].ravel()[owner]
+    dxy2 = rx * rx + ry * ry
+    dxy = np.sqrt(dxy2)
+    d3 = np.sqrt(dxy2 + rz * rz)
+    flat = dxy > 0
+    inv = np.divide(1.0, dxy, out=np.zeros_like(dxy), where=flat)
+    ex = rx * inv
+    ey = ry * inv
+    collision = np.zeros(M, dtype=bool)
+    collision[owner[d3 < pp["collisionKillDistance"]]] = True
 
-    # relative velocities, own velocity from the (unchanged) current heading
-    vix = own["speed"] * np.cos(own["heading"])
-    viy = own["speed"] * np.sin(own["heading"])
-    rvx = nb["speed"] * np.cos(nb["heading"]) - vix
-    rvy = nb["speed"] * np.sin(nb["heading"]) - viy
-    dw = nb["vz"] - own["vz"]
+    unified = pp["unified"]
+    ign, wmax = pp["cohesionAscensionIgnore"], pp["cohesionAscensionMax"]
+    dwc = np.maximum(np.minimum(nb["vz"] - own["vz"].ravel()[owner], wmax), ign)
+    height = power(np.maximum(1.0 - own["z"] / P["agentCeiling"], 0.0), P["heightFactorPower"],
+                   P.values("heightFactorPower"))
+    asc = power((dwc - ign) / (wmax - ign), pp["ascensionFactorPower"],
+                P.values("ascensionFactorPower"))
+    weight = np.where(unified, height.ravel()[owner] * asc, 1.0)
+    abs_rz = np.abs(rz)
+    R = pp["neighborRadius"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ndxy = dxy / R
+        coh_w = np.where(flat, weight * power(ndxy, pp["cohPower"], P.values("cohPower")), 0.0)
+        seen_s = flat & (~unified | (abs_rz < pp["separationHeightWidth"] / 2))
+        seen_a = flat & (~unified | (abs_rz < pp["alignmentHeightWidth"] / 2))
+        sep_w = np.where(seen_s, power(d3 / R, pp["sepPower"], P.values("sepPower")), 0.0)
+        ali_w = np.where(seen_a, power(ndxy, pp["aliPower"], P.values("aliPower")), 0.0)
 
-    unified = P["unified"]
-    ign, wmax = P["cohesionAscensionIgnore"], P["cohesionAscensionMax"]
-    dwc = np.where(dw > wmax, wmax, dw)
-    dwc = np.where(dwc < ign, ign, dwc)
-    height = power(np.maximum(1.0 - own["z"] / P["agentCeiling"], 0.0), P["heightFactorPower"])
-    asc = power((dwc - ign) / (wmax - ign), P["ascensionFactorPower"])
-    weight = np.where(unified, height * asc, 1.0)
-    ndxy = safe_dxy / R
-    ndxyz = np.where(flat, d3, 1.0) / R
-    coh_w = np.where(flat, weight * power(ndxy, P["cohPower"]), 0.0)
-    seen_s = flat & (~unified | (np.abs(rz) < P["separationHeightWidth"] / 2))
-    seen_a = flat & (~unified | (np.abs(rz) < P["alignmentHeightWidth"] / 2))
-    sep_w = np.where(seen_s, power(ndxyz, P["sepPower"]), 0.0)
-    ali_w = np.where(seen_a, power(ndxy, P["aliPower"]), 0.0)
+    def total(w: F8) -> F8:
+        return np.bincount(owner, weights=w, minlength=M).reshape(B, N).astype(np.float64)
 
-    n = np.sum(valid, axis=0)
+    n = np.bincount(owner, minlength=M).reshape(B, N)
     inv_n = np.where(n > 0, 1.0 / np.maximum(n, 1), 0.0)
-    cx = np.sum(coh_w * ex, axis=0) * inv_n
-    cy = np.sum(coh_w * ey, axis=0) * inv_n
-    sx = np.sum(-ex * sep_w, axis=0) * inv_n
-    sy = np.sum(-ey * sep_w, axis=0) * inv_n
-    alx = np.sum(rvx * ali_w, axis=0) * inv_n
-    aly = np.sum(rvy * ali_w, axis=0) * inv_n
+    cx = total(coh_w * ex) * inv_n
+    cy = total(coh_w * ey) * inv_n
+    sx = -total(ex * sep_w) * inv_n
+    sy = -total(ey * sep_w) * inv_n
+    alx = total((nb["vx"] - vix.ravel()[owner]) * ali_w) * inv_n
+    aly = total((nb["vy"] - viy.ravel()[owner]) * ali_w) * inv_n
 
     tx = P["target_x"] - own["x"]
     ty = P["target_y"] - own["y"]
     dist = np.sqrt(tx * tx + ty * ty)
-    mscale = np.where(dist > 0, power(np.where(dist > 0, dist, 1.0), P["migPower"]), 0.0)
+    mscale = np.where(
+        dist > 0,
+        power(np.where(dist > 0, dist, 1.0), P["migPower"], P.values("migPower")),
+        0.0,
+    )
     mx, my = tx * mscale, ty * mscale
-
-    wx = -np.sin(own["heading"]) * waggle_sign
-    wy = np.cos(own["heading"]) * waggle_sign
 
     Ks, Kc, Ka = P["separation"], P["cohesion"], P["alignment"]
     Km, Kw = P["migration"], P["waggle"]
-    ax = sx * Ks + cx * Kc + alx * Ka + mx * Km + wx * Kw
-    ay = sy * Ks + cy * Kc + aly * Ka + my * Km + wy * Kw
+    ax = sx * Ks + cx * Kc + alx * Ka + mx * Km
+    ay = sy * Ks + cy * Kc + aly * Ka + my * Km
+    if np.any(Kw != 0):  # a zero gain adds only ±0
+        ax = ax + (-sh * waggle_sign) * Kw
+        ay = ay + (ch * waggle_sign) * Kw
     coh_mag = np.sqrt((cx * Kc) ** 2 + (cy * Kc) ** 2)
-    return BoidsAccel(ax=ax, ay=ay, collision=collision, cohesion_mag=coh_mag)
+    return BoidsAccel(ax=ax, ay=ay, collision=collision.reshape(B, N), cohesion_mag=coh_mag)
+
+
+def neighbor_pairs(
+    idx: NDArray[np.intp], valid: B8
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """(owner, other) flat glider indices b·N + i of every valid list slot (K, B, N), sorted by
+    owner then slot, as :func:`boids_accel` wants them."""
+    _, _, n = valid.shape
+    b, i, k = np.nonzero(np.moveaxis(valid, 0, 2))
+    owner = b * n + i
+    other = b * n + idx[k, b, i]
+    return owner.astype(np.intp), other.astype(np.intp)
 
 
 @dataclass(frozen=True, slots=True)
@@ -339,9 +394,12 @@ def controller_command(
     P = law_params([law])
     own_d = {k: np.array([[float(getattr(own, k))]]) for k in _OBS_KEYS}
     K = arr.shape[0]
-    nb = {k: arr[:, j].reshape(K, 1, 1).copy() for j, k in enumerate(_OBS_KEYS)}
-    valid = np.ones((K, 1, 1), dtype=bool)
-    acc = boids_accel(own_d, nb, valid, P, np.array([[float(waggle_sign)]]))
+    cols = {k: arr[:, j].reshape(K, 1, 1).copy() for j, k in enumerate(_OBS_KEYS)}
+    vx, vy = velocity_xy(cols["speed"], cols["heading"])
+    nb = {"x": cols["x"], "y": cols["y"], "z": cols["z"], "vx": vx, "vy": vy, "vz": cols["vz"]}
+    owner = np.zeros(K, dtype=np.intp)
+    acc = boids_accel(own_d, {k: v.ravel() for k, v in nb.items()}, owner, P,
+                      np.array([[float(waggle_sign)]]))
     bank, speed = accel_to_command(
         acc.ax,
         acc.ay,

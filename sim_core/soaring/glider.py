@@ -43,19 +43,21 @@ def accel_to_command(
     g: ArrayLike,
     thermal_bank_factor: ArrayLike,
     updraft: ArrayLike,
+    cos_sin: tuple[F8, F8] | None = None,
 ) -> tuple[F8, F8]:
     """The seed's desired planar acceleration → (bank_cmd rad, airspeed_cmd m/s).
 
     a_f = a·f̂ (f̂ = heading unit vector); a_c = sign((f̂ × a)_z)·sqrt(‖a‖² − a_f²), 0 if
     ‖a‖ − |a_f| < 1e−6; airspeed_cmd = v + a_f·dt/10; bank_cmd = atan(a_c/g) +
     thermalBankFactor·w·sign(atan(a_c/g)). Limits are applied by :func:`glider_step`.
+    ``cos_sin``: (cos ψ, sin ψ) if the caller has them already.
     """
     norm = np.sqrt(ax * ax + ay * ay)
     big = norm > A_MAX
     if big.any():
         scale = np.where(big, A_MAX / np.where(big, norm, 1.0), 1.0)
         ax, ay, norm = ax * scale, ay * scale, np.where(big, A_MAX, norm)
-    fx, fy = np.cos(heading), np.sin(heading)
+    fx, fy = (np.cos(heading), np.sin(heading)) if cos_sin is None else cos_sin
     a_f = ax * fx + ay * fy
     small = norm - np.abs(a_f) < 1e-6
     a_c = np.where(small, 0.0, np.sqrt(np.maximum(norm * norm - a_f * a_f, 0.0)))
@@ -108,6 +110,7 @@ def glider_step(
     floor: ArrayLike,
     bank_rate_max: ArrayLike = np.inf,
     speed_rate_max: ArrayLike = np.inf,
+    cos_sin: tuple[F8, F8] | None = None,
 ) -> GliderStep:
     """Fly one step of dt seconds from the commands (seed §3.3).
 
@@ -117,16 +120,18 @@ def glider_step(
     unless it reached z <= 0 (ground: then x, y, z, heading and speed keep their old values;
     the caller keeps its old vz and omega); ψ += ω·dt. Rate limits are in rad/s and m/s²
     (``inf`` = none, the seed). With both limits infinite the result is bit-identical to
-    the seed's update.
+    the seed's update. ``cos_sin``: (cos ψ, sin ψ) if the caller has them already.
     """
-    with np.errstate(invalid="ignore"):
-        d_speed = airspeed_cmd - speed
-        lim_v = speed_rate_max * dt
-        d_speed = np.where(np.isinf(lim_v), d_speed, np.clip(d_speed, -lim_v, lim_v))
-        v_cmd = np.where(np.isinf(lim_v), airspeed_cmd, speed + d_speed)
-        d_bank = bank_cmd - bank
-        lim_b = bank_rate_max * dt
-        b_cmd = np.where(np.isinf(lim_b), bank_cmd, bank + np.clip(d_bank, -lim_b, lim_b))
+    lim_v = np.asarray(speed_rate_max * dt)
+    v_cmd = airspeed_cmd
+    if not np.isinf(lim_v).all():
+        step_v = np.clip(airspeed_cmd - speed, -lim_v, lim_v)
+        v_cmd = np.where(np.isinf(lim_v), airspeed_cmd, speed + step_v)
+    lim_b = np.asarray(bank_rate_max * dt)
+    b_cmd = bank_cmd
+    if not np.isinf(lim_b).all():
+        step_b = np.clip(bank_cmd - bank, -lim_b, lim_b)
+        b_cmd = np.where(np.isinf(lim_b), bank_cmd, bank + step_b)
     new_speed = np.where(
         v_cmd > speed_max, speed_max, np.where(v_cmd < speed_min, speed_min, v_cmd)
     )
@@ -134,8 +139,9 @@ def glider_step(
     omega = np.tan(new_bank) * g / new_speed
     A, B, C = sink_abc
     vz = sink_rate(new_speed, new_bank, A, B, C) + updraft
-    nx = x + new_speed * np.cos(heading) * dt
-    ny = y + new_speed * np.sin(heading) * dt
+    ch, sh = (np.cos(heading), np.sin(heading)) if cos_sin is None else cos_sin
+    nx = x + new_speed * ch * dt
+    ny = y + new_speed * sh * dt
     nz = z + vz * dt
     below = nz < floor
     ground = below & (nz <= 0)

@@ -27,7 +27,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim_core.rng import derive_rng
-from sim_core.soaring.boids import LawParams, boids_accel, find_neighbors, law_params
+from sim_core.soaring.boids import (
+    LawParams,
+    boids_accel,
+    find_neighbors,
+    law_params,
+    neighbor_pairs,
+)
 from sim_core.soaring.glider import accel_to_command, glider_step
 from sim_core.soaring.law import Law
 from sim_core.soaring.thermals import (
@@ -288,6 +294,9 @@ class SwarmSim:
         self._waggle_left = np.zeros((B, n))
         self._nb_idx = np.zeros((self._width, B, n), dtype=np.intp)
         self._nb_valid = np.zeros((self._width, B, n), dtype=bool)
+        self._owner = np.zeros(0, dtype=np.intp)
+        self._other = np.zeros(0, dtype=np.intp)
+        self._pair_params: dict[str, NDArray[Any]] = {}
         self.cohesion_mag = np.zeros((B, n))
         self.step_count = 0
         n_agents = np.array([lw.n_agents for lw in laws], dtype=np.int64)
@@ -396,23 +405,28 @@ class SwarmSim:
                   bottom=P["fade_bottom"], dt=self.dt)
         B, n = s.x.shape
         if step == 1 or step % self._nfs == 0:
-            self._nb_idx, self._nb_valid = find_neighbors(
-                s.x, s.y, s.z, s.heading, s.alive, P, width=self._width
-            )
-        own = {"x": s.x, "y": s.y, "z": s.z, "heading": s.heading, "speed": s.speed, "vz": s.vz}
-        flat = self._nb_idx + (np.arange(B) * n)[None, :, None]
-        nb = {k: v.ravel()[flat] for k, v in own.items()}
+            idx, valid = find_neighbors(s.x, s.y, s.z, s.heading, s.alive, P, width=self._width)
+            self._nb_idx, self._nb_valid = idx, valid
+            self._owner, self._other = neighbor_pairs(idx, valid)
+            self._pair_params = P.per_pair(self._owner // max(n, 1))
+        ch, sh = np.cos(s.heading), np.sin(s.heading)
+        own = {"x": s.x, "y": s.y, "z": s.z, "heading": s.heading, "speed": s.speed, "vz": s.vz,
+               "cos": ch, "sin": sh}
+        vx, vy = s.speed * ch, s.speed * sh
+        other = self._other
+        nb = {k: v.ravel()[other] for k, v in
+              (("x", s.x), ("y", s.y), ("z", s.z), ("vx", vx), ("vy", vy), ("vz", s.vz))}
         w_th = _updraft_xy(s.x, s.y, th)
         external = (
             np.broadcast_to(np.asarray(commands.mask, dtype=bool), (B, n))
             if commands is not None else np.zeros((B, n), dtype=bool)
         )
         self._update_waggle(s.alive & ~external)
-        acc = boids_accel(own, nb, self._nb_valid, P, self._waggle_sign)
+        acc = boids_accel(own, nb, self._owner, P, self._waggle_sign, self._pair_params)
         self.cohesion_mag = acc.cohesion_mag
         bank_cmd, speed_cmd = accel_to_command(
             acc.ax, acc.ay, s.heading, s.speed, dt=self.dt, g=P["g"],
-            thermal_bank_factor=P["thermalBankFactor"], updraft=w_th,
+            thermal_bank_factor=P["thermalBankFactor"], updraft=w_th, cos_sin=(ch, sh),
         )
         if commands is not None:
             bank_cmd = np.where(external, np.asarray(commands.bank_cmd, dtype=np.float64), bank_cmd)
@@ -426,6 +440,7 @@ class SwarmSim:
             sink_abc=(P["Sink_A"], P["Sink_B"], P["Sink_C"]),
             ceiling=P["agentCeiling"], floor=P["agentFloor"],
             bank_rate_max=P["bank_rate_max"], speed_rate_max=P["speed_rate_max"],
+            cos_sin=(ch, sh),
         )
         alive = s.alive
         collided = alive & acc.collision
@@ -541,6 +556,8 @@ class SwarmSim:
         self._waggle_left = self._waggle_left[runs]
         self._nb_idx = self._nb_idx[:, runs]
         self._nb_valid = self._nb_valid[:, runs]
+        self._owner, self._other = neighbor_pairs(self._nb_idx, self._nb_valid)
+        self._pair_params = self.P.per_pair(self._owner // max(self._state.x.shape[1], 1))
         self.cohesion_mag = self.cohesion_mag[runs]
         self._map_min = self._map_min[runs]
         self._cell = self._cell[runs]

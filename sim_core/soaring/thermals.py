@@ -46,6 +46,11 @@ class Thermals:
     valid: B8
 
     @property
+    def radius2(self) -> F8:
+        """R², m² (the containment test is d² < R²)."""
+        return self.radius * self.radius
+
+    @property
     def shape(self) -> tuple[int, int]:
         return (int(self.x.shape[0]), int(self.x.shape[1]))
 
@@ -187,13 +192,15 @@ def _updraft_xy(x: F8, y: F8, th: Thermals) -> F8:
         return np.zeros((b, m))
     dx = x[:, :, None] - th.x[:, None, :]
     dy = y[:, :, None] - th.y[:, None, :]
-    d = np.sqrt(dx * dx + dy * dy)
-    inside = (d < th.radius[:, None, :]) & th.valid[:, None, :]
+    d2 = dx * dx + dy * dy
+    inside = (d2 < th.radius2[:, None, :]) & th.valid[:, None, :]
     first = np.argmax(inside, axis=2)
-    hit = np.take_along_axis(inside, first[..., None], axis=2)[..., 0]
-    dsel = np.take_along_axis(d, first[..., None], axis=2)[..., 0]
-    rsel = np.take_along_axis(th.radius, first.reshape(b, m), axis=1)
-    wsel = np.take_along_axis(th.strength, first.reshape(b, m), axis=1)
+    flat = (np.arange(b * m) * t + first.ravel()).reshape(b, m)
+    hit = inside.ravel()[flat]
+    dsel = np.sqrt(d2.ravel()[flat])
+    run_t = (np.arange(b)[:, None] * t + first).ravel()
+    rsel = th.radius.ravel()[run_t].reshape(b, m)
+    wsel = th.strength.ravel()[run_t].reshape(b, m)
     q = 3.0 * dsel / rsel
     u = q * q
     w = wsel * np.exp(-u) * (1.0 - u)

@@ -116,8 +116,8 @@ def test_no_neighbours_only_migration_acts() -> None:
     own = {k: np.array([[val]]) for k, val in
            {"x": 1200.0, "y": -700.0, "z": 900.0, "heading": 0.4, "speed": 11.0,
             "vz": -0.5}.items()}
-    nb = {k: np.zeros((0, 1, 1)) for k in own}
-    acc = boids_accel(own, nb, np.zeros((0, 1, 1), dtype=bool), P, np.zeros((1, 1)))
+    nb = {k: np.zeros(0) for k in ("x", "y", "z", "vx", "vy", "vz")}
+    acc = boids_accel(own, nb, np.zeros(0, dtype=np.intp), P, np.zeros((1, 1)))
     d = math.hypot(1200.0, 700.0)
     assert math.isclose(acc.ax[0, 0], -1200.0 * d**5 * 1e-21, rel_tol=1e-12)
     assert math.isclose(acc.ay[0, 0], 700.0 * d**5 * 1e-21, rel_tol=1e-12)
