@@ -212,8 +212,8 @@ class SerialFaultProxy:
 
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {"unplugs": self.unplugs}
-        out.update({f"to_host_{k}": v for k, v in self.to_host.counts.items()})
-        out.update({f"to_device_{k}": v for k, v in self.to_device.counts.items()})
+        out.update({f"to_host_{k}": v for k, v in dict(self.to_host.counts).items()})
+        out.update({f"to_device_{k}": v for k, v in dict(self.to_device.counts).items()})
         return out
 
     def _host_to_device(self) -> None:

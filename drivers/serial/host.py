@@ -191,7 +191,7 @@ class SonarHeadHost:
             "reconnects": self.link.reconnects,
             "state": int(self.state),
         }
-        out.update({k: v for k, v in self.counts.items() if k not in out})
+        out.update({k: v for k, v in dict(self.counts).items() if k not in out})
         out.update({f"decoder_{k}": v for k, v in self.decoder.stats().items()})
         out.update({f"link_{k}": v for k, v in self.link.stats().items()})
         return out

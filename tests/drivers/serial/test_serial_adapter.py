@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import threading
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -131,7 +132,7 @@ def test_budget_refuse_fails_at_load_and_warn_marks_the_state(
     ({"port": "loop://", "encoding": "mp3"}, "encoding"),
     ({"port": "nope://x"}, "nope"),
 ])
-def test_bad_params_fail_at_load(bus: str, params: dict[str, object], match: str) -> None:
+def test_bad_params_fail_at_load(bus: str, params: dict[str, Any], match: str) -> None:
     with pytest.raises((ConfigError, ValueError), match=match):
         SonarHeadAdapter("sonar_head", bus=bus, **params)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import struct
+from typing import Any
 
 import numpy as np
 import pytest
@@ -61,7 +62,7 @@ def test_designed_payloads_round_trip(payload: object) -> None:
 
 
 @pytest.mark.parametrize("cls", [PingPayload, ConfigPayload, StatusPayload, HeartbeatPayload])
-def test_wrong_length_payload_is_rejected(cls: type) -> None:
+def test_wrong_length_payload_is_rejected(cls: Any) -> None:
     with pytest.raises(ValueError, match="payload"):
         cls.unpack(b"\x00" * 3)
 
