@@ -23,7 +23,8 @@ from __future__ import annotations
 import math
 import threading
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from copy import deepcopy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import cast
@@ -43,6 +44,7 @@ __all__ = [
     "GliderCanCodec",
     "SignalSpec",
     "load_database",
+    "node_database",
 ]
 
 #: The profile's DBC (installed with the package).
@@ -53,6 +55,22 @@ MAX_NODE_ID = 15
 ANGLE_SIGNALS = frozenset({"heading_rad", "nb_heading_rad"})
 
 _TWO_PI = 2.0 * math.pi
+
+
+def node_database(nodes: Iterable[int], dbc_path: str | Path = DBC_PATH) -> Database:
+    """The profile expanded for ``nodes``: every message once per node, named ``<NAME>_N<n>``
+    with frame id ``base + n``, for vendor tools that look frames up by id (``candump | cantools
+    decode``, PCAN-Explorer, SavvyCAN). Write it with ``.as_dbc_string()``."""
+    base = load_database(dbc_path)
+    messages = []
+    for n in sorted(set(nodes)):
+        _check_node_id(n)
+        for msg in base.messages:
+            copy = deepcopy(msg)
+            copy.frame_id = msg.frame_id + n
+            copy.name = f"{msg.name}_N{n}"
+            messages.append(copy)
+    return Database(messages=messages, nodes=base.nodes, version=base.version)
 
 
 def load_database(path: str | Path = DBC_PATH) -> Database:

@@ -10,7 +10,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.can.codec import ANGLE_SIGNALS, DBC_PATH, GliderCanCodec, load_database
+from drivers.can.codec import (
+    ANGLE_SIGNALS,
+    DBC_PATH,
+    GliderCanCodec,
+    load_database,
+    node_database,
+)
 from hil_bridge.errors import CodecError
 
 CODEC = GliderCanCodec()
@@ -202,3 +208,19 @@ def test_random_frames_decode_or_raise_codec_error(frame_id: int, data: bytes) -
         return
     for sig in CODEC.signals(out.name):
         assert sig.minimum <= out.signals[sig.name] <= sig.maximum
+
+
+def test_node_database_decodes_every_node_like_the_codec() -> None:
+    import cantools
+
+    expanded = cantools.database.load_string(node_database([0, 3, 15]).as_dbc_string(), "dbc")
+    assert len(expanded.messages) == 3 * len(CODEC.message_names)
+    for node in (0, 3, 15):
+        for name in CODEC.message_names:
+            msg = CODEC.encode(name, node, _midpoints(name))
+            vendor = expanded.decode_message(msg.arbitration_id, bytes(msg.data),
+                                             decode_choices=False)
+            assert expanded.get_message_by_frame_id(msg.arbitration_id).name == f"{name}_N{node}"
+            assert vendor == pytest.approx(dict(CODEC.decode(msg).signals))
+    with pytest.raises(ValueError, match="node_id"):
+        node_database([16])
