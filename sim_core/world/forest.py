@@ -507,6 +507,10 @@ class ForestEngine:
             raise ValueError(f"species {s.name!r}: count needs an intensity and a domain")
         if s.count > self.spec.max_expected_trees:
             raise ValueError(f"species {s.name!r}: count {s.count} > max_expected_trees")
+        if bound == 0 and s.count > 0:
+            raise ValueError(
+                f"species {s.name!r}: intensity is zero on the domain; cannot place {s.count} trees"
+            )
         rng = derive_rng(self.seed, "count", s.name)
         pts: list[F64] = []
         have, drawn = 0, 0

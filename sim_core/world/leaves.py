@@ -81,6 +81,8 @@ class Leaves:
     def select(self, index: ArrayLike) -> Leaves:
         """The subset given by a boolean mask of length M or an integer index array."""
         idx = np.asarray(index)
+        if idx.size == 0 and idx.dtype != bool:
+            idx = idx.astype(np.intp)
         if idx.dtype == bool and idx.shape != (len(self),):
             raise ValueError(f"boolean mask must have shape ({len(self)},), got {idx.shape}")
         return Leaves(self.centers[idx], self.normals[idx], self.radii[idx], self.tree_id[idx])

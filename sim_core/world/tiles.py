@@ -24,6 +24,9 @@ from sim_core.world.leaves import Leaves
 
 __all__ = ["TiledForest"]
 
+#: bytes charged per cached tile on top of its arrays (Python objects, tree rows)
+TILE_OVERHEAD_BYTES = 1024
+
 
 @dataclass(frozen=True)
 class _Tile:
@@ -105,7 +108,7 @@ class TiledForest:
             return hit
         built = self._build(tile)
         self._cache[tile] = built
-        self._bytes[tile] = built.leaves.nbytes
+        self._bytes[tile] = built.leaves.nbytes + TILE_OVERHEAD_BYTES
         self._evict()
         return built
 
@@ -117,7 +120,7 @@ class TiledForest:
 
     @property
     def cache_bytes(self) -> int:
-        """Bytes held by the cached tiles (leaf arrays and built k-d trees)."""
+        """Bytes held by the cached tiles (leaf arrays, built k-d trees, a fixed overhead)."""
         return sum(self._bytes.values())
 
     @property
@@ -156,7 +159,8 @@ class TiledForest:
         for t in self.tiles_near(p, radius_m):
             tile = self._get(t)
             idx = tile.leaves.query_ball(p, radius_m)
-            self._bytes[t] = tile.leaves.nbytes
+            if t in self._cache:  # the k-d tree now exists; a tile evicted on arrival stays out
+                self._bytes[t] = tile.leaves.nbytes + TILE_OVERHEAD_BYTES
             if idx.size:
                 sub = tile.leaves.select(idx)
                 parts.append(Leaves(sub.centers, sub.normals, sub.radii, sub.tree_id + offset))

@@ -241,3 +241,23 @@ def test_tiled_reach_check_fails_clearly() -> None:
     world = TiledForest(spec, seed=6, tile_size_m=30.0)
     with pytest.raises(ValueError, match=r"raise forest\.max_crown_radius_m"):
         world.leaves_near(np.array([30.0, 30.0, 5.0]), 30.0)
+
+
+def test_tiny_cache_stays_consistent() -> None:
+    world = TiledForest(SMALL, seed=6, tile_size_m=20.0, max_cache_bytes=1)
+    for p in ([10.0, 10.0, 2.0], [50.0, 50.0, 2.0], [10.0, 10.0, 2.0]):
+        ref = build_forest(SMALL, seed=6).leaves
+        near = world.leaves_near(np.array(p), 15.0)
+        expect = ref.select(ref.query_ball(np.array(p), 15.0))
+        np.testing.assert_array_equal(_sorted_rows(near), _sorted_rows(expect))
+        assert world.cache_bytes <= 1 and world.cached_tiles == []
+
+
+def test_count_on_zero_intensity_fails_clearly() -> None:
+    spec = ForestSpec(
+        domain=(0, 0, 10, 10),
+        species=(SpeciesSpec("a", count=2,
+                             kernels=(KernelSpec(peak=1.0, center=(500, 500), div=(1, 1)),)),),
+    )
+    with pytest.raises(ValueError, match="intensity is zero on the domain"):
+        build_forest(spec, seed=0)

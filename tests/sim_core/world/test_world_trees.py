@@ -109,3 +109,15 @@ def test_unknown_model_and_bad_params() -> None:
         GMT3Tree(leaf_radius_mean_m=0.0)
     with pytest.raises(ValueError, match="keep_prob"):
         LppTree("tree4", keep_prob=2.0)
+
+
+@pytest.mark.parametrize("name", sorted(TREE_MODELS))
+def test_crowns_stay_within_the_tiling_bound(name: str) -> None:
+    from sim_core.world.forest import CROWN_BOUND_M
+
+    model = TREE_MODELS[name]
+    if isinstance(model, LppTree):  # the largest growth level the ±1 draw can give
+        model = dataclasses.replace(model, iterations=model.load().iterations + 1,
+                                    growth_jitter=False)
+    reach = max(model.grow(np.random.default_rng(s)).crown_radius for s in range(2))
+    assert reach < 0.8 * CROWN_BOUND_M[name]
