@@ -25,6 +25,7 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import re
 import threading
 import time
 from collections import deque
@@ -54,6 +55,7 @@ log = logging.getLogger(__name__)
 M = TypeVar("M", bound=Message)
 
 _NODE_IDS = itertools.count()
+_NAME_RE = re.compile(r"^[A-Za-z0-9_]+$")
 _RX_SLICE_S = 0.02
 _SEEN_WINDOW = 1024
 
@@ -259,7 +261,7 @@ class Node:
         clock: SimClock | None = None,
         diagnostics_period_s: float = 1.0,
     ) -> None:
-        if not isinstance(name, str) or not name or not name.replace("_", "a").isalnum():
+        if not isinstance(name, str) or not _NAME_RE.match(name):
             raise ValueError(f"node name must be a non-empty [A-Za-z0-9_] string, got {name!r}")
         if diagnostics_period_s < 0:
             raise ValueError(f"diagnostics_period_s must be >= 0, got {diagnostics_period_s}")

@@ -9,6 +9,8 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +22,7 @@ from hil_bridge.cli.bag import main as bag_main
 from hil_bridge.codec import decode_payload, encode
 from hil_bridge.messages import Clock, GliderState, SonarEcho
 from hil_bridge.node import Node
+from hil_bridge.proxy import Proxy
 from hil_bridge.qos import SENSOR
 from hil_bridge.transport import open_transport
 
@@ -225,3 +228,34 @@ def test_bad_player_and_recorder_arguments(tmp_path: Path) -> None:
         Recorder(tmp_path / "r.mcap", bus="mem://x", compression="gzip")
     with pytest.raises(ValueError, match="invalid topic"):
         Recorder(tmp_path / "r.mcap", ["bad topic"], bus="mem://x")
+
+
+def test_cli_record_until_sigint_writes_a_complete_file(tmp_path: Path) -> None:
+    path = tmp_path / "cli.mcap"
+    with Proxy("tcp://127.0.0.1:0", "tcp://127.0.0.1:0") as proxy:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "hil_bridge.cli", "bag", "record", str(path), "--bus",
+             proxy.url, "--flush-period", "0.05"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        try:
+            assert proc.stdout is not None and "recording" in proc.stdout.readline()
+            with Node("src", bus=proxy.url, diagnostics_period_s=0) as node:
+                pub = node.create_publisher(GliderState, "/glider/0/state")
+                assert pub.wait_for_subscribers(WAIT)
+                for i in range(30):
+                    pub.publish(_state(i))
+                # the recorder flushes a chunk every 0.05 s: poll the growing file
+                deadline = time.monotonic() + WAIT
+                tick = threading.Event()
+                while not (path.exists() and bag_info(path).messages >= 30):
+                    assert time.monotonic() < deadline and proc.poll() is None
+                    tick.wait(0.02)
+        finally:
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "recorded 30 messages" in out
+    info = bag_info(path)
+    assert not info.truncated and info.messages == 30
+
