@@ -77,9 +77,11 @@ class Message:
 
     def __post_init__(self) -> None:
         for name, dtype in self.ARRAYS.items():
-            arr = np.asarray(getattr(self, name), dtype=np.dtype(dtype))
-            if not arr.flags.c_contiguous or arr.flags.writeable:
-                arr = np.ascontiguousarray(arr).copy()
+            given = getattr(self, name)
+            arr = np.ascontiguousarray(given, dtype=np.dtype(dtype))
+            if arr.flags.writeable:
+                if arr is given or arr.base is given:
+                    arr = arr.copy()  # never freeze (or alias) the caller's buffer
                 arr.flags.writeable = False
             object.__setattr__(self, name, arr)
 

@@ -107,8 +107,13 @@ class Proxy:
                         sock.curve_secretkey = self.curve.server_secret
                         sock.curve_publickey = self.curve.server_public
                         sock.curve_server = True
-                xsub.bind(_bindable(self._requested[0]))
-                xpub.bind(_bindable(self._requested[1]))
+                for sock, endpoint in ((xsub, self._requested[0]), (xpub, self._requested[1])):
+                    try:
+                        sock.bind(_bindable(endpoint))
+                    except zmq.ZMQError as exc:
+                        raise OSError(
+                            exc.errno, f"cannot bind {endpoint}: {exc.strerror}"
+                        ) from None
                 ctrl = f"inproc://hil-bridge-proxy-ctrl-{next(_IDS)}"
                 ctrl_rx.bind(ctrl)
                 ctrl_tx.connect(ctrl)

@@ -141,8 +141,11 @@ class ZmqTransport(Transport):
             wake = f"inproc://hil-bridge-wake-{next(_WAKE_IDS)}"
             wake_rx.bind(wake)
             wake_tx.connect(wake)
-            pub.connect(ends.pub)
-            sub.connect(ends.sub)
+            for sock, endpoint in ((pub, ends.pub), (sub, ends.sub)):
+                try:
+                    sock.connect(endpoint)
+                except zmq.ZMQError as exc:
+                    raise ValueError(f"cannot connect to {endpoint!r}: {exc.strerror}") from None
         except (zmq.ZMQError, OSError, ValueError):
             for sock in self._sockets:
                 sock.close(0)
