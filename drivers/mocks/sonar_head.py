@@ -368,7 +368,7 @@ class MockSonarHead:
         delay = done - time.monotonic()
         if delay > 0:
             self._stop.wait(delay)
-        n = device.write(data)
+        n = device.write(data, 0.05)  # a UART never blocks: bytes nobody takes are lost
         self._counts["bytes_tx"] += n
         self._counts["frames_tx"] += 1
         if n < len(data):
