@@ -13,7 +13,8 @@ Controllers:
   (the glider applies the same limits, so flying these commands reproduces the swarm). The
   default control rate is ``1 / law.dt``, the rate the seed's controller is tuned for.
 * ``path`` — :class:`PathFollower`, pure pursuit along a closed route of waypoints (by default
-  the seed 000 figure-eight route) at a fixed airspeed, for a low-flying sonar vehicle.
+  a figure-eight like the seed 000 "8" route) at a fixed airspeed, for a low-flying sonar
+  vehicle; default control rate 10 Hz.
 
 A node without fresh state (older than ``state_timeout_s``), or whose glider is dead, is not
 commanded; its heartbeat says ``NO_STATE``. Launchable (``Cls(name, *, bus, **params)``): the
@@ -44,6 +45,7 @@ from sim_core.soaring.law import Law
 __all__ = [
     "AP_MODES",
     "CONTROLLER_CODES",
+    "PATH_RATE_HZ",
     "MockAutopilot",
     "NodeView",
     "PathFollower",
@@ -53,6 +55,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: Default control rate of the path follower, Hz.
+PATH_RATE_HZ = 10.0
 #: ap_mode values of AUTOPILOT_HEARTBEAT (the DBC's value table).
 AP_MODES = {"INIT": 0, "AUTO": 1, "NO_STATE": 2, "FAULT": 3}
 #: ap_controller values of AUTOPILOT_HEARTBEAT.
@@ -319,10 +323,10 @@ class MockAutopilot:
 
     Params: ``interface``, ``channel``, ``bitrate`` (python-can bus), ``gliders`` (node ids it
     flies), ``controller`` (unified | baseline | path), ``law`` (law YAML path or mapping;
-    default the packaged seed law), ``rate_hz`` (control rate; default ``1 / law.dt``),
-    ``heartbeat_hz``, ``state_timeout_s``, ``waypoints`` ((M, 2) route for ``path``; default
-    :func:`figure_eight_waypoints`), ``path_airspeed_mps``, ``lookahead_m``, ``bank_max_rad``
-    (path follower), ``can_log`` (candump log of its own traffic), ``faults``.
+    default the packaged seed law), ``rate_hz`` (control rate; default ``1 / law.dt`` for Boids,
+    10 Hz for ``path``), ``heartbeat_hz``, ``state_timeout_s``, ``waypoints`` ((M, 2) route for
+    ``path``; default :func:`figure_eight_waypoints`), ``path_airspeed_mps``, ``lookahead_m``,
+    ``bank_max_rad`` (path follower), ``can_log`` (candump log of its own traffic), ``faults``.
     """
 
     def __init__(
@@ -355,7 +359,9 @@ class MockAutopilot:
         self.nodes = _parse_nodes(gliders)
         self.controller = controller
         self.law = _load_law(law)
-        self.rate_hz = float(rate_hz) if rate_hz is not None else 1.0 / self.law.dt
+        if rate_hz is None:
+            rate_hz = PATH_RATE_HZ if controller == "path" else 1.0 / self.law.dt
+        self.rate_hz = float(rate_hz)
         if not self.rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         if not heartbeat_hz > 0:

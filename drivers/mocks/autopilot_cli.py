@@ -11,6 +11,8 @@ import threading
 import time
 from typing import Any
 
+import numpy as np
+
 __all__ = ["main"]
 
 _STATUS_KEYS = ("commands_sent", "heartbeats_sent", "rx_states", "rx_nb_sets",
@@ -38,7 +40,14 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--controller", default="unified", choices=["unified", "baseline", "path"])
     parser.add_argument("--law", default=None, metavar="FILE", help="law YAML (default: seed law)")
     parser.add_argument("--rate", type=float, default=None, metavar="HZ",
-                        help="control rate (default: 1 / law.dt)")
+                        help="control rate (default: 1 / law.dt for Boids, 10 Hz for path)")
+    parser.add_argument("--waypoints", default=None, metavar="FILE",
+                        help="path controller: closed route, two columns x y in metres "
+                        "(text/CSV; default: a figure-eight around the origin)")
+    parser.add_argument("--path-airspeed", type=float, default=10.0, metavar="M/S",
+                        help="path controller: airspeed command")
+    parser.add_argument("--lookahead", type=float, default=25.0, metavar="M",
+                        help="path controller: pure-pursuit look-ahead distance")
     parser.add_argument("--can-log", default=None, metavar="PATH",
                         help="candump-format log of the mock's traffic (.log)")
     parser.add_argument("--duration", type=float, default=None, metavar="S",
@@ -49,9 +58,18 @@ def main(argv: list[str]) -> int:
 
     from drivers.mocks.autopilot import MockAutopilot
 
+    waypoints = None
+    if args.waypoints is not None:
+        delimiter = "," if args.waypoints.endswith(".csv") else None
+        try:
+            waypoints = np.loadtxt(args.waypoints, delimiter=delimiter, ndmin=2)
+        except ValueError as exc:
+            raise ValueError(f"--waypoints {args.waypoints}: expected two numeric columns x y "
+                             f"({exc})") from None
     mock = MockAutopilot(
         "mock_autopilot", interface=args.interface, channel=args.channel, bitrate=args.bitrate,
         gliders=args.gliders, controller=args.controller, law=args.law, rate_hz=args.rate,
+        waypoints=waypoints, path_airspeed_mps=args.path_airspeed, lookahead_m=args.lookahead,
         can_log=args.can_log,
     )
     mock.start()

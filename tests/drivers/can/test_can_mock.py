@@ -226,3 +226,16 @@ def test_mock_cli_runs_and_summarises(capsys: pytest.CaptureFixture[str]) -> Non
     assert code == 0
     assert "nodes [0, 1], controller baseline" in out
     assert "summary:" in out and "heartbeats_sent=" in out
+
+
+def test_mock_cli_path_waypoints(tmp_path: Any, capsys: pytest.CaptureFixture[str]) -> None:
+    good = tmp_path / "route.csv"
+    good.write_text("0,0\n50,0\n50,50\n")
+    assert cli_main(["--channel", unique("cli-"), "--controller", "path", "--waypoints",
+                     str(good), "--duration", "0.1", "--every", "0"]) == 0
+    assert "controller path, 10 Hz" in capsys.readouterr().out
+    bad = tmp_path / "route.txt"
+    bad.write_text("0 0 1\n50\n")
+    with pytest.raises(ValueError, match="two numeric columns"):
+        cli_main(["--channel", unique("cli-"), "--controller", "path", "--waypoints", str(bad),
+                  "--duration", "0.1"])
