@@ -15,7 +15,8 @@ ERROR frame to the head + STATUS state OVER_BUDGET). Heartbeat and STATUS go to 
 
 ``stats()`` adds to the node's bus counters: ``frames_in``, ``frames_out``, ``crc_errors``,
 ``frames_dropped`` (any decode failure), ``echoes_out``, ``echoes_dropped``, ``reconnects``,
-``pings_in``, ``link_utilisation`` and the decoder/link detail; all of them reach
+``pings_in``, ``link_state`` (0 ok, 1 degraded = frames dropped in the last heartbeat period,
+2 over budget), ``link_utilisation`` and the decoder/link detail; all of them reach
 ``/diagnostics``. Parameters: :class:`SonarHeadParams` (docs/serial.md).
 """
 
@@ -178,6 +179,7 @@ class SonarHeadAdapter(Node):
     def _beat_loop(self) -> None:
         period = self.params.heartbeat_period_s
         while not self._beat_stop.wait(period):
+            self.host.update_state()
             if self.host.link.connected:
                 self.host.send_heartbeat()
                 self.host.send_status()

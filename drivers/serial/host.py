@@ -171,6 +171,7 @@ class SonarHeadHost:
         self.head_errors: collections.deque[ErrorPayload] = collections.deque(maxlen=32)
         self.last_head_heartbeat: float | None = None
         self.state = LinkState.OK
+        self._dropped_seen = 0
         self.counts = collections.Counter[str]()
         self._rx_cv = threading.Condition()
 
@@ -238,6 +239,15 @@ class SonarHeadHost:
         self.counts["echoes_out"] += 1
         self.counts["echo_bytes_out"] += len(blob)
         return len(chunks)
+
+    def update_state(self) -> LinkState:
+        """DEGRADED while frames were dropped since the last call, OK again once none are;
+        OVER_BUDGET is kept until the budget fits (set by the owner)."""
+        dropped = self.decoder.dropped
+        if self.state != LinkState.OVER_BUDGET:
+            self.state = LinkState.DEGRADED if dropped > self._dropped_seen else LinkState.OK
+        self._dropped_seen = dropped
+        return self.state
 
     def send_heartbeat(self) -> None:
         uptime = int((time.monotonic() - self._t0) * 1e3)

@@ -160,3 +160,18 @@ def test_loop_port_reads_back_valid_frames(bus: str) -> None:
     assert st["frames_dropped"] == 0 and st["crc_errors"] == 0
     assert st["echoes_out"] == 1
     assert adapter.host.counts["heartbeats_in"] >= 1
+
+
+def test_link_state_degrades_while_frames_drop() -> None:
+    from drivers.serial.host import SonarHeadHost
+    from drivers.serial.protocol import LinkState
+
+    host = SonarHeadHost("loop://")  # never started: only the decoder is exercised
+    assert host.update_state() is LinkState.OK
+    host.decoder.feed(b"\x05\x01\x00")  # a COBS error
+    assert host.update_state() is LinkState.DEGRADED
+    assert host.update_state() is LinkState.OK  # nothing dropped since
+    host.state = LinkState.OVER_BUDGET
+    host.decoder.feed(b"\x05\x01\x00")
+    assert host.update_state() is LinkState.OVER_BUDGET
+    host.stop()
