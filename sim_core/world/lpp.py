@@ -268,6 +268,9 @@ def expand(
 
 _OPEN, _CLOSE, _ROT, _MOVE, _LEAF = 1, 2, 3, 4, 5
 
+#: tokens per vectorised block in the scan (bounds the temporaries to a few MB)
+_CHUNK = 32768
+
 
 @dataclass(frozen=True)
 class TurtleResult:
@@ -393,6 +396,8 @@ def interpret(
     # segmented inclusive scan (log-step) of the local transforms inside every bracket level
     members = pos[body]
     order = members[np.argsort(seg[members], kind="stable")]
+    draw = is_draw & mv
+    draw_len = t[1, draw].copy()
     qs, ts = q[:, order], t[:, order]
     sseg = seg[order]
     first = np.ones(order.size, dtype=bool)
@@ -400,29 +405,33 @@ def interpret(
     rank = np.arange(order.size) - np.maximum.accumulate(np.where(first, np.arange(order.size), 0))
     k = 1
     while order.size and k <= int(rank.max()):
-        i = np.nonzero(rank >= k)[0]
-        prev_q, prev_t = qs[:, i - k], ts[:, i - k]
-        ts[:, i] = prev_t + _qrot(prev_q, ts[:, i])
-        qs[:, i] = _qmul(prev_q, qs[:, i])
+        active = np.nonzero(rank >= k)[0]
+        # chunks from the top down: a chunk reads only lower indices, which are still unchanged
+        for c in range((active.size - 1) // _CHUNK, -1, -1):
+            i = active[c * _CHUNK : (c + 1) * _CHUNK]
+            prev_q, prev_t = qs[:, i - k], ts[:, i - k]
+            ts[:, i] = prev_t + _qrot(prev_q, ts[:, i])
+            qs[:, i] = _qmul(prev_q, qs[:, i])
         k *= 2
-    Wq = np.empty_like(q)
-    Wt = np.empty_like(t)
+    Wq, Wt = q, t  # the local transforms are no longer needed: reuse their memory
     Wq[:, order], Wt[:, order] = qs, ts
+    del qs, ts
 
     # resolve nesting: world = world('[' that opens the level) ∘ prefix inside the level
-    for at in groups[1:]:
-        parent = seg[at]
-        pq = Wq[:, parent]
-        Wt[:, at] = Wt[:, parent] + _qrot(pq, Wt[:, at])
-        Wq[:, at] = _qmul(pq, Wq[:, at])
+    for level_tokens in groups[1:]:
+        for c in range(0, level_tokens.size, _CHUNK):
+            at = level_tokens[c : c + _CHUNK]
+            parent = seg[at]
+            pq = Wq[:, parent]
+            Wt[:, at] = Wt[:, parent] + _qrot(pq, Wt[:, at])
+            Wq[:, at] = _qmul(pq, Wq[:, at])
 
     yhat = np.array([[0.0], [1.0], [0.0]])
     leaf = kind == _LEAF
     leaf_dir = _qrot(Wq[:, leaf], np.broadcast_to(yhat, (3, int(leaf.sum())))).T
-    draw = is_draw & mv
     heading = _qrot(Wq[:, draw], np.broadcast_to(yhat, (3, int(draw.sum())))).T
     seg_end = Wt[:, draw].T
-    seg_start = seg_end - heading * t[1, draw][:, None]
+    seg_start = seg_end - heading * draw_len[:, None]
     return TurtleResult(
         leaf_pos=Wt[:, leaf].T.copy(),
         leaf_dir=leaf_dir / np.linalg.norm(leaf_dir, axis=1, keepdims=True),
