@@ -407,8 +407,8 @@ def interpret(
     while order.size and k <= int(rank.max()):
         active = np.nonzero(rank >= k)[0]
         # chunks from the top down: a chunk reads only lower indices, which are still unchanged
-        for c in range((active.size - 1) // _CHUNK, -1, -1):
-            i = active[c * _CHUNK : (c + 1) * _CHUNK]
+        for blk in range((active.size - 1) // _CHUNK, -1, -1):
+            i = active[blk * _CHUNK : (blk + 1) * _CHUNK]
             prev_q, prev_t = qs[:, i - k], ts[:, i - k]
             ts[:, i] = prev_t + _qrot(prev_q, ts[:, i])
             qs[:, i] = _qmul(prev_q, qs[:, i])
@@ -419,8 +419,8 @@ def interpret(
 
     # resolve nesting: world = world('[' that opens the level) ∘ prefix inside the level
     for level_tokens in groups[1:]:
-        for c in range(0, level_tokens.size, _CHUNK):
-            at = level_tokens[c : c + _CHUNK]
+        for blk in range(0, level_tokens.size, _CHUNK):
+            at = level_tokens[blk : blk + _CHUNK]
             parent = seg[at]
             pq = Wq[:, parent]
             Wt[:, at] = Wt[:, parent] + _qrot(pq, Wt[:, at])
