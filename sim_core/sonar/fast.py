@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
+from typing import Any
 
 import finufft
 import numpy as np
@@ -35,6 +37,11 @@ __all__ = ["Fast", "Realtime", "chebyshev_nodes", "lagrange_basis"]
 
 #: leaves per block of the node evaluation (keeps the temporaries in cache)
 BLOCK = 8192
+#: the largest node count adaptation goes to
+MAX_ORDER = 24
+#: groups with at least this many leaves run one NUFFT per node on a cached plan (finufft's
+#: batched mode is slower there); smaller groups use one batched call
+LOOP_MIN_LEAVES = 20_000
 #: leaves sampled (evenly) for the per-echo a-posteriori interpolation error
 CHECK_SAMPLE = 256
 #: minimum Chebyshev nodes with the frequency-dependent (incident_freq) beamwidth
@@ -67,24 +74,36 @@ def lagrange_basis(nodes: NDArray[np.float64], t: NDArray[np.float64]) -> NDArra
 
 
 class Fast(Fidelity):
-    """Chebyshev expansion of order ``order`` (nodes) + finufft type-1 at tolerance ``eps``.
+    """Chebyshev interpolation at ``order`` nodes + finufft type-1 at tolerance ``eps``.
 
-    ``error_bound`` reported per echo: 10 x (the interpolant's last Chebyshev coefficient
-    relative to the first, amplitude-weighted over leaves) + 10 x eps; measured errors against
-    ``reference`` are in docs/sonar.md and BENCHMARKS.md.
+    The interpolation error is checked a posteriori on a sample of leaves (exact weights at
+    2P + 1 check frequencies); if it exceeds ``adapt`` the node count is doubled (up to
+    MAX_ORDER) and the group recomputed (``adapt=None``: never). ``error_bound`` reported per
+    echo = that check error (amplitude-weighted, kinked leaves counted at KINK_ERROR when
+    interpolated) + 2 eps + the float32 phase floor. Measured errors against ``reference``:
+    docs/sonar.md and BENCHMARKS.md.
     """
 
     name = "fast"
 
-    def __init__(self, order: int = 4, eps: float = 1e-4, kink_order: int = 16) -> None:
+    def __init__(
+        self,
+        order: int = 3,
+        eps: float = 1e-4,
+        kink_order: int = 16,
+        adapt: float | None = 2e-4,
+    ) -> None:
         for name, value in (("order", order), ("kink_order", kink_order)):
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
                 raise ValueError(f"Fast.{name} must be an integer in [1, 64], got {value!r}")
-        self.kink_order = kink_order
         if not 1e-14 <= eps < 1e-1:
             raise ValueError(f"Fast.eps must be in [1e-14, 0.1), got {eps!r}")
+        if adapt is not None and not adapt > 0:
+            raise ValueError(f"Fast.adapt must be None or > 0, got {adapt!r}")
         self.order = order
+        self.kink_order = kink_order
         self.eps = eps
+        self.adapt = adapt
 
     def supports(self, params: EchoParams) -> str | None:
         if params.doppler and params.moving:
@@ -102,7 +121,11 @@ class Fast(Fidelity):
         centre_f = 0.5 * (g.m0 + g.m1) * g.df
         for ch in range(C):
             kinked = _kinked(scene, ch, params)
-            spec, tail, weight = self._group(scene, ch, params, self.order_for(params), ~kinked)
+            order = self.order_for(params)
+            spec, tail, weight = self._group(scene, ch, params, order, ~kinked)
+            while self.adapt is not None and tail > self.adapt and order < MAX_ORDER:
+                order = min(2 * order, MAX_ORDER)
+                spec, tail, weight = self._group(scene, ch, params, order, ~kinked)
             err = tail * weight
             n_kinked = int(np.count_nonzero(kinked))
             if n_kinked:
@@ -140,24 +163,30 @@ class Fast(Fidelity):
         cdt = np.complex64 if single else np.complex128
         K0 = B // 2
         M = scene.count
-        w = np.empty((M, P), dtype=cdt)
         strengths = np.empty((P, M), dtype=cdt)
-        x = np.empty(M, dtype=np.float32 if single else np.float64)
         f_nodes = centre + half * nodes
+        cycles = g.df * scene.tau[ch]
+        shift = (np.mod((g.m0 + K0) * cycles, 1.0) * (2.0 * np.pi)).astype(strengths.real.dtype)
+        rot: NDArray[np.complexfloating] = np.empty(M, dtype=cdt)
+        rot.real = np.cos(shift)
+        rot.imag = -np.sin(shift)
+        if mask is not None:
+            rot *= mask
         for start in range(0, M, BLOCK):
             blk = slice(start, min(start + BLOCK, M))
-            w[blk] = leaf_weights(scene.select(blk), ch, f_nodes, params, single=single)
-            cycles = g.df * scene.tau[ch, blk]
-            shift = (np.mod((g.m0 + K0) * cycles, 1.0) * (2.0 * np.pi)).astype(w.real.dtype)
-            rot: NDArray[np.complexfloating] = np.empty(shift.shape[0], dtype=cdt)
-            rot.real = np.cos(shift)
-            rot.imag = -np.sin(shift)
-            if mask is not None:
-                rot *= mask[blk]
-            np.multiply(w[blk].T, rot, out=strengths[:, blk])
-            x[blk] = (np.mod(cycles + 0.5, 1.0) - 0.5) * (2.0 * np.pi)
-        modes = finufft.nufft1d1(x, strengths, B, eps=self.eps, isign=-1, nthreads=1)
-        tail, weight = _interpolation_error(scene, ch, params, w, nodes, mask)
+            w = leaf_weights(scene.select(blk), ch, f_nodes, params, single=single,
+                             freq_major=True)
+            np.multiply(w, rot[blk], out=strengths[:, blk])
+        x = ((np.mod(cycles + 0.5, 1.0) - 0.5) * (2.0 * np.pi)).astype(strengths.real.dtype)
+        if M < LOOP_MIN_LEAVES:
+            modes = finufft.nufft1d1(x, strengths, B, eps=self.eps, isign=-1, nthreads=1)
+        else:
+            modes = np.empty((P, B), dtype=cdt)
+            plan = _plan(B, self.eps, single)
+            plan.setpts(x)
+            for p in range(P):
+                plan.execute(strengths[p], out=modes[p])
+        tail, weight = _interpolation_error(scene, ch, params, strengths, rot, nodes, mask)
         return np.einsum("kp,pk->k", basis, modes), tail, weight
 
     def order_for(self, params: EchoParams) -> int:
@@ -165,6 +194,12 @@ class Fast(Fidelity):
         if params.beam_model == "incident_freq":
             return max(self.order, INCIDENT_FREQ_ORDER)
         return self.order
+
+
+@functools.lru_cache(maxsize=64)
+def _check_basis(P: int) -> NDArray[np.float64]:
+    """Lagrange basis of P Chebyshev nodes at the 2P + 1 check points, (P, 2P + 1)."""
+    return lagrange_basis(chebyshev_nodes(P), chebyshev_nodes(2 * P + 1)).T
 
 
 @functools.lru_cache(maxsize=64)
@@ -198,7 +233,8 @@ def _interpolation_error(
     scene: Scene,
     ch: int,
     params: EchoParams,
-    w: NDArray[np.complexfloating],
+    strengths: NDArray[np.complexfloating],
+    rot: NDArray[np.complexfloating],
     nodes: NDArray[np.float64],
     mask: NDArray[np.bool_] | None,
 ) -> tuple[float, float]:
@@ -206,27 +242,43 @@ def _interpolation_error(
 
     On an even sample of at most CHECK_SAMPLE leaves the interpolant is compared with the exact
     weights at 2P + 1 check frequencies (Chebyshev points interleaved with the nodes):
-    error = sum_i max_f |interp - exact| / sum_i max_f |exact|. The weight is sum_i |W_i| at
-    the nodes' mean, rescaled to all leaves of the group.
+    error = sum_i max_f |interp - exact| / sum_i max_f |exact|. The weight is that amplitude
+    sum rescaled to all leaves of the group. ``strengths`` = W(f_p) * ``rot`` (P, M).
     """
     index = np.flatnonzero(mask) if mask is not None else np.arange(scene.count)
     if index.shape[0] == 0:
         return 0.0, 0.0
-    step = max(1, index.shape[0] // CHECK_SAMPLE)
-    pick = index[::step]
+    pick = index[:: max(1, index.shape[0] // CHECK_SAMPLE)]
     g = params.grid
     f_lo, f_hi = g.m0 * g.df, g.m1 * g.df
     check = chebyshev_nodes(2 * nodes.shape[0] + 1)
     exact = leaf_weights(
         scene.select(pick), ch, 0.5 * (f_lo + f_hi) + 0.5 * (f_hi - f_lo) * check, params
     )
-    approx = w[pick] @ lagrange_basis(nodes, check).T.astype(w.real.dtype)
+    w = (strengths[:, pick] / rot[pick]).T
+    approx = w @ _check_basis(nodes.shape[0])
     amp = np.abs(exact).max(axis=1)
     total = float(amp.sum())
     if total == 0.0:
         return 0.0, 0.0
     err = float(np.abs(approx - exact).max(axis=1).sum())
     return err / total, total * index.shape[0] / pick.shape[0]
+
+
+_PLANS = threading.local()
+
+
+def _plan(modes: int, eps: float, single: bool) -> Any:
+    """A per-thread cached finufft type-1 plan (one transform; points unsorted: the fine grid
+    of a few thousand points fits in cache, so sorting only costs)."""
+    cache: dict[tuple[int, float, bool], Any] = _PLANS.__dict__.setdefault("plans", {})
+    key = (modes, eps, single)
+    if key not in cache:
+        cache[key] = finufft.Plan(
+            1, (modes,), n_trans=1, eps=eps, isign=-1, nthreads=1, spread_sort=0,
+            dtype="complex64" if single else "complex128",
+        )
+    return cache[key]
 
 
 class Realtime(Fidelity):
@@ -249,7 +301,7 @@ class Realtime(Fidelity):
         overhead_s: float = 4e-4,
         per_leaf_s: float = 1.2e-7,
     ) -> None:
-        self.fast = Fast(order=order, eps=eps)
+        self.fast = Fast(order=order, eps=eps, adapt=None)
         if not (overhead_s >= 0 and per_leaf_s > 0):
             raise ValueError(
                 f"Realtime cost model needs overhead_s >= 0 and per_leaf_s > 0, got "

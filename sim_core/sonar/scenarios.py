@@ -31,6 +31,7 @@ __all__ = [
     "fig6_scene",
     "fig7_scene",
     "figure_eight_path",
+    "leaf_cone",
     "maple_cluster",
     "table1_setups",
 ]
@@ -63,6 +64,29 @@ class Ping:
 
     label: str
     beam: Beam
+
+
+def leaf_cone(
+    m: int,
+    rng: np.random.Generator,
+    *,
+    half_angle_rad: float = math.radians(8.0),
+    r_lo: float = 1.0,
+    r_hi: float = 8.0,
+) -> Leaves:
+    """``m`` synthetic leaves in a cone around +x from the origin (benchmark scenes).
+
+    Ranges U[r_lo, r_hi] m, directions uniform over the cone's cross-section, isotropic normals,
+    radii N(2.5 cm, 0.5 cm) truncated to [0, 0.5] m (seed 000 leaf size).
+    """
+    r = rng.uniform(r_lo, r_hi, m)
+    th = half_angle_rad * np.sqrt(rng.uniform(0.0, 1.0, m))
+    ph = rng.uniform(0.0, 2.0 * np.pi, m)
+    st = np.sin(th)
+    centers = np.stack([r * np.cos(th), r * st * np.cos(ph), r * st * np.sin(ph)], 1)
+    normals = rng.normal(size=(m, 3))
+    radii = np.clip(rng.normal(0.025, 0.005, m), 0.0, 0.5)
+    return Leaves(centers, normals, radii, np.zeros(m, dtype=np.int32))
 
 
 def canopy_centers(forest: Forest) -> NDArray[np.float64]:
