@@ -279,12 +279,23 @@ class ForestSpec:
 
 
 def load_forest_spec(path: str | Path) -> ForestSpec:
-    """Read a scene YAML (a ForestSpec mapping, or one under a top-level ``forest:`` key)."""
+    """Read a ForestSpec from YAML.
+
+    Accepted: a ForestSpec mapping; the same under a top-level ``forest:`` key; or a server
+    scene file whose ``forest:`` section names a ``preset`` or gives ForestSpec fields as
+    ``spec`` (:mod:`sim_core.scene`). Relative paths resolve against the file's directory.
+    """
     from sim_core.config import load_yaml
+    from sim_core.world.presets import get_preset
 
     data = load_yaml(path)
     if isinstance(data, Mapping) and "forest" in data and "species" not in data:
         data = data["forest"]
+        if isinstance(data, Mapping) and "species" not in data:
+            if data.get("preset") is not None:
+                return get_preset(str(data["preset"]))
+            if data.get("spec") is not None:
+                data = data["spec"]
     if not isinstance(data, Mapping):
         raise ValueError(f"{path}: expected a mapping with a 'species' list")
     return ForestSpec.from_dict(data, base_dir=Path(path).resolve().parent)

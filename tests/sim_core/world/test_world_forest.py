@@ -261,3 +261,13 @@ def test_count_on_zero_intensity_fails_clearly() -> None:
     )
     with pytest.raises(ValueError, match="intensity is zero on the domain"):
         build_forest(spec, seed=0)
+
+
+def test_server_scene_file_forest_section(tmp_path: Path) -> None:
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("forest: {preset: seed000-fig5d, tiled: true}\nsonars: []\n")
+    assert load_forest_spec(scene) == get_preset("seed000-fig5d")
+    scene.write_text(
+        "forest:\n  tiled: false\n  spec:\n    species: [{name: a, positions: [[1, 2]]}]\n"
+    )
+    assert load_forest_spec(scene).species[0].positions == ((1.0, 2.0),)
