@@ -172,7 +172,7 @@ def load(
             raise ConfigError(f"--param: unknown node(s) {unknown}; the file has {names}")
         new_nodes = []
         for n in nodes or []:
-            over = params_overrides.get(n.get("name")) if isinstance(n, Mapping) else None
+            over = params_overrides.get(str(n.get("name"))) if isinstance(n, Mapping) else None
             if over:
                 n = {**n, "params": apply_overrides(n.get("params") or {}, over)}
             new_nodes.append(n)
@@ -357,7 +357,8 @@ def run(
 ) -> RunSummary:
     """Start every node of a launch file in order, wait, stop them in reverse order.
 
-    The run ends at ``duration`` seconds (argument, else the file's; ``None`` = until a signal),
+    The run ends ``duration`` seconds after every node started (argument, else the file's;
+    ``None`` = until a signal),
     on SIGINT/SIGTERM (handlers installed only when called from the main thread and
     ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every topic to MCAP with
     :class:`hil_bridge.bag.Recorder`. ``live`` starts the Foxglove view (:mod:`hil_bridge.live`).
@@ -407,7 +408,7 @@ def run(
             extras.append(view)
         if on_started is not None:
             on_started(spec)
-        deadline = None if run_for is None else t0 + run_for
+        deadline = None if run_for is None else time.monotonic() + run_for
         while not flag.event.is_set():
             if stop_event is not None and stop_event.is_set():
                 flag.set("stop_event")

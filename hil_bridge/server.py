@@ -27,9 +27,13 @@ swarm's stepping. Commands for path vehicles are counted in ``cmd_ignored``.
 
 **Echoes.** Each ping is answered at the pose of its sonar's vehicle when the ping *arrives*
 (the latest published state), with the beam boresight at world azimuth ``heading + az`` and
-elevation ``el`` (bank and pitch are not applied). Echoes are computed on a worker thread with a
-bounded queue (``echo_queue`` pings; when full the oldest waiting ping is dropped and counted),
-so a slow echo never delays the state stream.
+elevation ``el`` (bank and pitch are not applied). Pings wait in a bounded queue (``echo_queue``;
+when full the oldest waiting ping is dropped and counted) served by an echo thread. With
+``echo_worker: process`` (default) the echo thread hands each ping to a spawned worker process
+that holds its own copy of the scene (forest tile cache included): tile building and synthesis
+then never hold this process's GIL, so a slow echo cannot delay the state stream.
+``echo_worker: thread`` computes in the echo thread itself (no extra process; the tick loop
+then shares the GIL with the synthesis).
 
 **Time.** The server ticks at ``state_rate_hz`` of sim time. The swarm steps every ``law.dt`` of
 sim time (zero-order hold of its state between steps); path vehicles are sampled at each tick.
@@ -44,7 +48,10 @@ from __future__ import annotations
 
 import logging
 import math
+import multiprocessing
+import os
 import queue
+import signal
 import threading
 import time
 from collections import deque
@@ -55,6 +62,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from hil_bridge.errors import HilError
 from hil_bridge.messages import (
     Clock,
     Diagnostics,
@@ -98,6 +106,7 @@ class ServerParams:
     stop_after_s: float | None = None
     publish_thermals: bool = True
     forest_points: int = 20000
+    echo_worker: Literal["process", "thread"] = "process"
 
     def __post_init__(self) -> None:
         if not isinstance(self.scene, str | Mapping | Path):
@@ -117,13 +126,126 @@ class ServerParams:
 _REJECT_BANK = math.pi / 2
 
 
+def _job_echo(
+    scene: Scene, position: tuple[float, float, float], sonar_id: int, az_world: float,
+    el: float, beamwidth: float,
+) -> dict[str, Any]:
+    """Echo of sonar ``sonar_id`` at ``position`` (m) with a world-frame beam (rad)."""
+    from sim_core.sonar import Beam, synthesize
+
+    t0 = time.monotonic()
+    p = np.asarray(position, dtype=np.float64)
+    beam = Beam.from_az_el(p, az_world, el, beamwidth)
+    leaves = scene.leaves_near(p, scene.query_radius_m(sonar_id))
+    echo = synthesize(leaves, beam, scene.echo_params(sonar_id),
+                      fidelity=scene.sonar(sonar_id).fidelity)
+    bound = echo.error_bound
+    return {
+        "samples": np.asarray(echo.samples, dtype=np.float32), "fs": float(echo.fs),
+        "leaves_in_beam": int(echo.leaves_in_beam), "fidelity": str(echo.fidelity),
+        "dropped": int(echo.dropped), "error_bound": math.nan if bound is None else float(bound),
+        "compute_ns": int((time.monotonic() - t0) * 1e9),
+    }
+
+
+def _job_points(
+    scene: Scene, regions: tuple[tuple[tuple[float, float, float], float], ...], limit: int
+) -> dict[str, Any]:
+    """Leaf centres (N, 3) and radii (N,) within the (centre, radius m) ``regions``, evenly
+    decimated to at most ``limit``."""
+    centers, radii = [], []
+    for center, r in regions:
+        leaves = scene.leaves_near(np.asarray(center, dtype=np.float64), r)
+        centers.append(np.asarray(leaves.centers, dtype=np.float32))
+        radii.append(np.asarray(leaves.radii, dtype=np.float32))
+    c = np.concatenate(centers) if centers else np.zeros((0, 3), np.float32)
+    rr = np.concatenate(radii) if radii else np.zeros(0, np.float32)
+    if len(c) > limit:
+        keep = np.linspace(0, len(c) - 1, limit).astype(np.intp)
+        c, rr = c[keep], rr[keep]
+    return {"points": c, "radii": rr}
+
+
+_WORKER_JOBS: dict[str, Any] = {"echo": _job_echo, "points": _job_points}
+
+
+def _echo_process_main(spec: Any, requests: Any, responses: Any) -> None:
+    """Body of the echo worker process: its own Scene (and forest tile cache), one job at a
+    time; exits on ``None`` or when its parent is gone."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    parent = os.getppid()
+    scene = Scene(spec)
+    while True:
+        try:
+            job = requests.get(timeout=1.0)
+        except queue.Empty:
+            if os.getppid() != parent:
+                return
+            continue
+        if job is None:
+            return
+        key, kind, args = job
+        try:
+            responses.put((key, _WORKER_JOBS[kind](scene, *args), ""))
+        except ValueError as exc:
+            responses.put((key, None, str(exc)))
+
+
+class _EchoProcess:
+    """A spawned worker process computing echoes, so heavy numpy/tile work never holds the
+    GIL of the process that runs the state stream. ``call`` blocks until its result."""
+
+    def __init__(self, spec: Any, stop: threading.Event) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._requests: Any = ctx.Queue()
+        self._responses: Any = ctx.Queue()
+        self._proc = ctx.Process(
+            target=_echo_process_main, args=(spec, self._requests, self._responses),
+            name="echoloop-echo", daemon=True,
+        )
+        self._proc.start()
+        self._key = 0
+        self._closing = stop
+
+    def call(self, kind: str, args: tuple[Any, ...]) -> Any:
+        """Run job ``kind`` in the worker; None when closing; HilError if the worker died."""
+        self._key += 1
+        self._requests.put((self._key, kind, args))
+        while not self._closing.is_set():
+            try:
+                key, result, error = self._responses.get(timeout=0.1)
+            except queue.Empty:
+                if not self._proc.is_alive():
+                    raise HilError(f"echo worker exited (code {self._proc.exitcode})") from None
+                continue
+            if key != self._key:
+                continue
+            if error:
+                raise ValueError(error)
+            return result
+        return None
+
+    def close(self) -> None:
+        if self._proc.is_alive():
+            self._requests.put(None)
+            self._proc.join(timeout=5.0)
+            if self._proc.is_alive():
+                self._proc.terminate()
+                self._proc.join()
+        self._requests.close()
+        self._responses.close()
+        self._requests.join_thread()
+        self._responses.join_thread()
+
+
 class SimServer:
     """Launchable simulation server (see the module docstring for topics and semantics).
 
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
-    publish_thermals=True, forest_points=20000)``. ``scene`` is a scene YAML path or mapping
-    (:mod:`sim_core.scene`); ``clock`` and ``state_rate_hz`` override the scene's.
+    publish_thermals=True, forest_points=20000, echo_worker="process")``. ``scene`` is a
+    scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and ``state_rate_hz``
+    override the scene's.
     ``stop_after_s``: stop ticking at that sim time (the node keeps answering pings).
     ``forest_points``: at most this many leaf centres around each sonar's route are published
     once (latched) on ``/forest/points`` for viewers and plots (0: none).
@@ -370,52 +492,65 @@ class SimServer:
     # ------------------------------------------------------------------ echo worker
 
     def _echo_loop(self) -> None:
-        from sim_core.sonar import Beam, synthesize
+        """Echo thread: publish the forest points, then answer pings one at a time, computing
+        in the worker process (``echo_worker: process``) or in this thread."""
+        worker: _EchoProcess | None = None
+        try:
+            if self.params.echo_worker == "process":
+                worker = _EchoProcess(self.scene.spec, self._stop)
+                compute = worker.call
+            else:
+                scene = self.scene
 
-        while not self._stop.is_set():
-            try:
-                sonar_id, ping, pose, t_recv = self._pings.get(timeout=0.05)
-            except queue.Empty:
-                continue
-            x, y, z, heading = pose
-            sonar = self.scene.sonar(sonar_id)
-            t0 = time.monotonic()
-            try:
-                position = np.array([x, y, z], dtype=np.float64)
-                beam = Beam.from_az_el(
-                    position, heading + float(ping.az), float(ping.el), float(ping.beamwidth)
-                )
-                leaves = self.scene.leaves_near(position, self.scene.query_radius_m(sonar_id))
-                echo = synthesize(
-                    leaves, beam, self.scene.echo_params(sonar_id), fidelity=sonar.fidelity
-                )
-            except ValueError as exc:
-                with self._lock:
-                    self._c["echo_errors"] += 1
-                    self._last_echo_error = f"ping {ping.ping_seq} of sonar {sonar_id}: {exc}"
-                log.warning("%s: %s", self.name, self._last_echo_error)
-                continue
-            t1 = time.monotonic()
-            samples = np.asarray(echo.samples, dtype=np.float32)
-            bound = echo.error_bound
-            msg = SonarEcho(
-                stamp_ns=self._now_ns(),
-                ping_seq=int(ping.ping_seq),
-                fs=float(echo.fs),
-                samples=samples,
-                leaves_in_beam=int(echo.leaves_in_beam),
-                fidelity=str(echo.fidelity),
-                sonar_id=sonar_id,
-                dropped=int(echo.dropped),
-                error_bound=math.nan if bound is None else float(bound),
-                compute_ns=int((t1 - t0) * 1e9),
-            )
-            self._pubs[f"/sonar/{sonar_id}/echo"].publish(msg)
-            t2 = time.monotonic()
+                def compute(kind: str, args: tuple[Any, ...]) -> Any:
+                    return _WORKER_JOBS[kind](scene, *args)
+
+            self._publish_forest_points(compute)
+            while not self._stop.is_set():
+                try:
+                    sonar_id, ping, pose, t_recv = self._pings.get(timeout=0.05)
+                except queue.Empty:
+                    continue
+                self._answer_ping(compute, sonar_id, ping, pose, t_recv)
+        finally:
+            if worker is not None:
+                worker.close()
+
+    def _answer_ping(
+        self, compute: Any, sonar_id: int, ping: SonarPing,
+        pose: tuple[float, float, float, float], t_recv: float,
+    ) -> None:
+        x, y, z, heading = pose
+        args = ((x, y, z), sonar_id, heading + float(ping.az), float(ping.el),
+                float(ping.beamwidth))
+        try:
+            out = compute("echo", args)
+        except (ValueError, HilError) as exc:
             with self._lock:
-                self._c["echoes_published"] += 1
-                self._echo_compute_ms.append((t1 - t0) * 1e3)
-                self._ping_echo_ms.append((t2 - t_recv) * 1e3)
+                self._c["echo_errors"] += 1
+                self._last_echo_error = f"ping {ping.ping_seq} of sonar {sonar_id}: {exc}"
+            log.warning("%s: %s", self.name, self._last_echo_error)
+            return
+        if out is None:  # stopping
+            return
+        msg = SonarEcho(
+            stamp_ns=self._now_ns(),
+            ping_seq=int(ping.ping_seq),
+            fs=out["fs"],
+            samples=out["samples"],
+            leaves_in_beam=out["leaves_in_beam"],
+            fidelity=out["fidelity"],
+            sonar_id=sonar_id,
+            dropped=out["dropped"],
+            error_bound=out["error_bound"],
+            compute_ns=out["compute_ns"],
+        )
+        self._pubs[f"/sonar/{sonar_id}/echo"].publish(msg)
+        t2 = time.monotonic()
+        with self._lock:
+            self._c["echoes_published"] += 1
+            self._echo_compute_ms.append(out["compute_ns"] / 1e6)
+            self._ping_echo_ms.append((t2 - t_recv) * 1e3)
 
     # ------------------------------------------------------------------ tick loop
 
@@ -585,32 +720,32 @@ class SimServer:
             w_max=th.w_max[0, ok],
         ))
 
-    def _publish_forest_points(self, t_ns: int) -> None:
+    def _publish_forest_points(self, compute: Any) -> None:
         """Leaf centres around each sonar's mount (its path's extent, or its start), decimated
         evenly to ``forest_points``, as one latched PointCloud (intensity = leaf radius, m)."""
         pub = self._pubs.get("/forest/points")
         if pub is None:
             return
-        parts = []
+        regions: list[tuple[tuple[float, float, float], float]] = []
         for sonar in self.scene.spec.sonars:
             r = self.scene.query_radius_m(sonar.id)
             traj = self.scene.trajectories.get(sonar.mount) if self._vehicle_ids else None
             if traj is not None:
                 lo, hi = traj.xyz.min(axis=0), traj.xyz.max(axis=0)
-                center = (lo + hi) / 2.0
+                c = (lo + hi) / 2.0
                 r += float(np.linalg.norm(hi - lo)) / 2.0
+                regions.append(((float(c[0]), float(c[1]), float(c[2])), r))
             else:
                 x, y, z, _ = self._poses[sonar.mount]
-                center = np.array([x, y, z])
-            leaves = self.scene.leaves_near(center, r)
-            parts.append((np.asarray(leaves.centers), np.asarray(leaves.radii)))
-        centers = np.concatenate([c for c, _ in parts])
-        radii = np.concatenate([r for _, r in parts])
-        n = self.params.forest_points
-        if len(centers) > n:
-            keep = np.linspace(0, len(centers) - 1, n).astype(np.intp)
-            centers, radii = centers[keep], radii[keep]
-        pub.publish(PointCloud(stamp_ns=t_ns, points=centers, intensity=radii, label="leaves"))
+                regions.append(((x, y, z), r))
+        try:
+            out = compute("points", (tuple(regions), self.params.forest_points))
+        except (ValueError, HilError) as exc:
+            log.warning("%s: no forest points: %s", self.name, exc)
+            return
+        if out is not None:
+            pub.publish(PointCloud(stamp_ns=self._now_ns(), points=out["points"],
+                                   intensity=out["radii"], label="leaves"))
 
     def _publish_diagnostics(self, t_ns: int) -> None:
         stats = self.stats()
@@ -653,7 +788,6 @@ class SimServer:
         since: dict[int, int] = {}
         if swarm is not None:
             self._publish_thermals(0)
-        self._publish_forest_points(0)
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns
             if stop_ns is not None and t_ns > stop_ns:

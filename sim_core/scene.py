@@ -528,7 +528,7 @@ class Scene:
                     f"ids are {sorted(mounts)}"
                 )
         for i, v in enumerate(spec.vehicles):
-            if v.path.kind == "file":
+            if v.path.kind in ("file", "figure_eight"):
                 try:
                     self._vehicle_trajectory(v)
                 except ValueError as exc:
@@ -664,7 +664,13 @@ class Scene:
         else:
             from sim_core.sonar.scenarios import figure_eight_path
 
-            xyz, heading = figure_eight_path(**ps.params)
+            try:
+                xyz, heading = figure_eight_path(**ps.params)
+            except TypeError as exc:
+                raise ValueError(f"params: {exc}") from None
+            if ps.loop:
+                xyz = np.concatenate([xyz, xyz[:1]])
+                heading = np.concatenate([heading, heading[:1]])
             traj = Trajectory.from_path(xyz, heading, speed_mps=ps.speed_mps, loop=ps.loop)
         if v.z_m is not None:
             xyz = traj.xyz.copy()

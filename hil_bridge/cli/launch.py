@@ -69,6 +69,13 @@ def headline(summary: RunSummary) -> list[str]:
             f"p50 {head.get('latency_p50_ms', float('nan')):.1f} ms, "
             f"p99 {head.get('latency_p99_ms', float('nan')):.1f} ms"
         )
+    for pinger in _find(summary, "echoes_received"):
+        pct = pinger.get("ping_echo_ms", {})
+        lines.append(
+            f"pinger: {pinger['pings_sent']} pings, {pinger['echoes_received']} echoes back; "
+            f"ping -> echo p50 {pct.get('p50', float('nan')):.1f} ms, "
+            f"p99 {pct.get('p99', float('nan')):.1f} ms"
+        )
     for ap in _find(summary, "cmd_forwarded"):
         lines.append(
             f"CAN: {ap.get('can_tx_frames', 0)} frames sent, {ap.get('can_rx_frames', 0)} "
@@ -145,7 +152,7 @@ def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
         is_state = topic.startswith("/glider/") and topic.endswith("/state")
         if not (is_state or topic in ("/thermals", "/forest/points") or topic.endswith("/echo")):
             continue
-        msg = decode_payload(m.header.type, m.header.v, m.payload)
+        msg: Any = decode_payload(m.header.type, m.header.v, m.payload)
         if is_state:
             tracks.setdefault(int(topic.split("/")[2]), []).append((msg.x, msg.y))
         elif topic == "/thermals":

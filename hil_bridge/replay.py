@@ -1,0 +1,229 @@
+"""Trajectory replay: drive a vehicle along a logged trajectory so pings get echoes from a scene.
+
+``echoloop replay FILE`` builds a launch description in code (plain data, the same runner as
+``echoloop launch``): a :class:`~hil_bridge.server.SimServer` whose scene has one path vehicle
+following ``FILE`` (:func:`sim_core.scene.load_trajectory`: linear position, shortest-arc
+heading), a sonar mounted on it, and optionally a :class:`Pinger` node that pings at a fixed
+rate. External pingers (a sonar-head adapter with a real head) can ping ``/sonar/<id>/ping``
+instead; the server answers each at the vehicle's pose when the ping arrives.
+
+File formats (see ``docs/server.md``): CSV with a header row containing at least
+``t, x, y, z, heading, bank, airspeed`` (s, m ENU, rad, rad, m/s; ``#`` comment lines allowed),
+or NPZ with one array per column. Multi-vehicle traces (``t, id, x, y, z, heading, bank,
+airspeed, vz, alive`` as written by ``echoloop swarm``) need ``vehicle_id``.
+
+The vehicle's time axis starts at the file's first ``t``: sim time 0 is mapped to it. The run
+pace is the server clock's real-time factor ``rate``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim_core.config import ConfigError, load_yaml
+from sim_core.rng import make_rng
+from sim_core.scene import load_trajectory
+
+__all__ = ["DEFAULT_REPLAY_SCENE", "Pinger", "build_replay_launch"]
+
+#: Scene used when none is given: the seed 000 forest (tiled) around the replayed vehicle.
+DEFAULT_REPLAY_SCENE: dict[str, Any] = {
+    "forest": {"preset": "seed000-fig5d", "tiled": True},
+}
+
+
+class Pinger:
+    """Launchable node that pings ``/sonar/<sonar_id>/ping`` at ``rate_hz`` (wall clock).
+
+    ``Pinger(name, *, bus, sonar_id=0, rate_hz=10.0, az=0.0, el=0.0, beamwidth=0.7,
+    beamwidth_range=None, seed=0, max_pings=None)``. With ``beamwidth_range = [lo, hi]`` each
+    ping's beamwidth is drawn from U(lo, hi) (seed 000 used [30°, 65°]). It subscribes to the
+    echoes and reports how many came back, with ping -> echo latency percentiles (ms).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        bus: str,
+        sonar_id: int = 0,
+        rate_hz: float = 10.0,
+        az: float = 0.0,
+        el: float = 0.0,
+        beamwidth: float = 0.7,
+        beamwidth_range: tuple[float, float] | list[float] | None = None,
+        seed: int = 0,
+        max_pings: int | None = None,
+    ) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz: expected > 0, got {rate_hz}")
+        if not 0 < beamwidth < np.pi:
+            raise ValueError(f"beamwidth: expected 0 < beamwidth < pi rad, got {beamwidth}")
+        if beamwidth_range is not None:
+            lo, hi = (float(v) for v in beamwidth_range)
+            if not 0 < lo <= hi < np.pi:
+                raise ValueError(f"beamwidth_range: expected 0 < lo <= hi < pi, got {[lo, hi]}")
+        if max_pings is not None and max_pings < 1:
+            raise ValueError(f"max_pings: expected >= 1, got {max_pings}")
+        self.name = name
+        self.bus = bus
+        self.sonar_id = int(sonar_id)
+        self.period_s = 1.0 / float(rate_hz)
+        self.az, self.el, self.beamwidth = float(az), float(el), float(beamwidth)
+        self.beamwidth_range = None if beamwidth_range is None else (lo, hi)
+        self.max_pings = max_pings
+        self._rng = make_rng(seed)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._node: Any = None
+        self._pub: Any = None
+        self._sent: dict[int, int] = {}
+        self._c = {"pings_sent": 0, "echoes_received": 0, "echoes_unmatched": 0,
+                   "echo_samples": 0}
+        self._latency_ms: deque[float] = deque(maxlen=10000)
+        self._last_echo: Any = None
+
+    def start(self) -> None:
+        from hil_bridge.messages import SonarEcho, SonarPing
+        from hil_bridge.node import Node
+        from hil_bridge.qos import SENSOR
+
+        self._node = Node(self.name, bus=self.bus)
+        self._pub = self._node.create_publisher(
+            SonarPing, f"/sonar/{self.sonar_id}/ping", qos=SENSOR
+        )
+        self._node.create_subscription(
+            SonarEcho, f"/sonar/{self.sonar_id}/echo", self._on_echo, qos=SENSOR
+        )
+        self._node.start()
+        self._thread = threading.Thread(target=self._loop, name=f"{self.name}-ping", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._node is not None:
+            self._node.stop()
+            self._node = None
+
+    def stats(self) -> dict[str, Any]:
+        from hil_bridge.server import percentiles
+
+        with self._lock:
+            out: dict[str, Any] = dict(self._c)
+            out["ping_echo_ms"] = percentiles(list(self._latency_ms))
+        return out
+
+    @property
+    def last_echo(self) -> Any:
+        """The most recent :class:`~hil_bridge.messages.SonarEcho` received (or None)."""
+        with self._lock:
+            return self._last_echo
+
+    def _loop(self) -> None:
+        from hil_bridge.messages import SonarPing
+
+        seq = 0
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            if self.max_pings is not None and seq >= self.max_pings:
+                break
+            bw = self.beamwidth
+            if self.beamwidth_range is not None:
+                bw = float(self._rng.uniform(*self.beamwidth_range))
+            with self._lock:
+                self._sent[seq] = time.monotonic_ns()
+                if len(self._sent) > 4096:
+                    self._sent.pop(next(iter(self._sent)))
+                self._c["pings_sent"] += 1
+            self._pub.publish(SonarPing(
+                stamp_ns=self._node.now_ns(), ping_seq=seq, az=self.az, el=self.el,
+                beamwidth=bw, encoding=2, sonar_id=self.sonar_id,
+            ))
+            seq = (seq + 1) % 65536
+            next_t += self.period_s
+            self._stop.wait(max(0.0, next_t - time.monotonic()))
+
+    def _on_echo(self, msg: Any) -> None:
+        now = time.monotonic_ns()
+        with self._lock:
+            t_ping = self._sent.pop(int(msg.ping_seq), None)
+            if t_ping is None:
+                self._c["echoes_unmatched"] += 1
+            else:
+                self._latency_ms.append((now - t_ping) / 1e6)
+            self._c["echoes_received"] += 1
+            self._c["echo_samples"] += int(msg.samples.shape[-1])
+            self._last_echo = msg
+
+
+def build_replay_launch(
+    trajectory: str | Path,
+    *,
+    vehicle_id: int | None = None,
+    scene: str | Path | Mapping[str, Any] | None = None,
+    sonar_rate_hz: float | None = 10.0,
+    sonar: Mapping[str, Any] | None = None,
+    pinger: Mapping[str, Any] | None = None,
+    rate: float = 1.0,
+    state_rate_hz: float = 50.0,
+    bus: str = "tcp://127.0.0.1:7400",
+    clock_mode: str = "realtime",
+) -> tuple[dict[str, Any], float]:
+    """Launch mapping (for :func:`hil_bridge.launch.run`) replaying ``trajectory``, and its length.
+
+    ``scene``: a scene YAML path or mapping whose forest (and anything else but ``vehicles`` and
+    ``sonars``) is used; default :data:`DEFAULT_REPLAY_SCENE`. The replayed vehicle gets id
+    ``vehicle_id`` (default 0, or the file's id) and sonar 0 is mounted on it with ``sonar``
+    settings (``fidelity``, ``echo`` overrides). ``sonar_rate_hz`` None: no built-in pinger;
+    ``pinger``: extra :class:`Pinger` params (default beamwidths U(30°, 65°) as seed 000).
+    The server stops ticking at the trajectory's end (the vehicle rests at its last pose).
+    Returns ``(launch mapping, trajectory duration in wall seconds at rate)``.
+    """
+    traj = load_trajectory(trajectory, vehicle_id=vehicle_id)
+    base: dict[str, Any]
+    if scene is None:
+        base = dict(DEFAULT_REPLAY_SCENE)
+    elif isinstance(scene, Mapping):
+        base = dict(scene)
+    else:
+        loaded = load_yaml(scene)
+        if not isinstance(loaded, Mapping):
+            raise ConfigError(f"{scene}: expected a scene mapping, got {loaded!r}")
+        base = dict(loaded)
+    vid = 0 if vehicle_id is None else int(vehicle_id)
+    path: dict[str, Any] = {"kind": "file", "file": str(trajectory), "loop": False}
+    if vehicle_id is not None:
+        path["id"] = int(vehicle_id)
+    base["vehicles"] = [{"id": vid, "path": path, "time_offset_s": -float(traj.t[0])}]
+    if "forest" in base:
+        base["sonars"] = [{"id": 0, "mount": vid, **dict(sonar or {})}]
+    else:
+        base.pop("sonars", None)
+    base["state_rate_hz"] = state_rate_hz
+    base["clock"] = {**dict(base.get("clock") or {}), "mode": clock_mode, "rate": rate}
+    nodes: list[dict[str, Any]] = [
+        {"name": "server", "entry": "hil_bridge.server:SimServer",
+         "params": {"scene": base, "stop_after_s": traj.duration}},
+    ]
+    if sonar_rate_hz is not None and "forest" in base:
+        ping_params: dict[str, Any] = {"beamwidth_range": [math.radians(30), math.radians(65)]}
+        ping_params.update(dict(pinger or {}))
+        if "beamwidth" in ping_params:
+            ping_params.pop("beamwidth_range")
+        nodes.append({
+            "name": "pinger", "entry": "hil_bridge.replay:Pinger",
+            "params": {"sonar_id": 0, "rate_hz": float(sonar_rate_hz), **ping_params},
+        })
+    return {"bus": bus, "nodes": nodes}, traj.duration / rate
