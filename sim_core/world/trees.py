@@ -193,8 +193,6 @@ class LppTree:
     """A seed 001 L++ tree: ``grammar`` is a packaged name (``"tree4"``) or a file path.
 
     Attributes:
-        leaf_size: the seed's leaf size (grammar units); kept for reference, the acoustic size
-            comes from ``leaf_radius_*``.
         unit_m: metres per grammar unit (segment length 1).
         iterations: growth level override (``None``: the grammar's header).
         growth_jitter: apply the seed's ±1 growth-level draw.
@@ -203,7 +201,6 @@ class LppTree:
     """
 
     grammar: str
-    leaf_size: float = 1.4
     unit_m: float = 0.4
     iterations: int | None = None
     growth_jitter: bool = True
@@ -280,7 +277,8 @@ def _to_enu(v: F64) -> F64:
 
 TreeModel = GMT3Tree | LppTree
 
-# Leaf radii of the L++ species keep the seed's leafSize ratios around 2.5 cm (mean leafSize 1.4).
+# Leaf radii of the L++ species keep the ratios of the seed's leafSize (tree4..7: 1.5, 1.6, 1.1,
+# 1.4) around 2.5 cm: mean radius = leafSize x 2.5 cm / 1.4, sd = 20 % of the mean.
 _R = 0.025 / 1.4
 
 #: named tree models (species presets)
@@ -304,14 +302,13 @@ TREE_MODELS: dict[str, TreeModel] = {
         leaf_radius_sd_m=0.006,
     ),
     # seed 001 species (spec §2B.2); unit_m chosen so heights fall in 5-25 m
-    "tree4": LppTree("tree4", leaf_size=1.5, unit_m=0.4, leaf_radius_mean_m=1.5 * _R,
-                     leaf_radius_sd_m=0.2 * 1.5 * _R),
-    "tree5": LppTree("tree5", leaf_size=1.6, unit_m=0.5, leaf_radius_mean_m=1.6 * _R,
-                     leaf_radius_sd_m=0.2 * 1.6 * _R),
-    "tree6": LppTree("tree6", leaf_size=1.1, unit_m=0.45, leaf_radius_mean_m=1.1 * _R,
-                     leaf_radius_sd_m=0.2 * 1.1 * _R),
-    "tree7": LppTree("tree7", leaf_size=1.4, unit_m=0.35, leaf_radius_mean_m=1.4 * _R,
-                     leaf_radius_sd_m=0.2 * 1.4 * _R),
+    **{
+        name: LppTree(name, unit_m=unit, leaf_radius_mean_m=size * _R,
+                      leaf_radius_sd_m=0.2 * size * _R)
+        for name, unit, size in (
+            ("tree4", 0.4, 1.5), ("tree5", 0.5, 1.6), ("tree6", 0.45, 1.1), ("tree7", 0.35, 1.4)
+        )
+    },
 }
 
 
