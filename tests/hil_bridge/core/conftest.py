@@ -28,7 +28,7 @@ def bus_url(request: pytest.FixtureRequest) -> Iterator[str]:
 @pytest.fixture(autouse=True)
 def _no_socket_leaks() -> Iterator[None]:
     """Every transport the test opened must be closed when it ends (python-can's guard)."""
-    ctx = zmq.Context.instance()
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
     before = {id(s) for s in ctx._sockets if not s.closed}
     channels_before = set(mem._CHANNELS)
     yield
