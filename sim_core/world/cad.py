@@ -35,7 +35,7 @@ __all__ = ["CadTree", "Template", "load_template"]
 F64 = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Template:
     """A loaded template in its own frame converted to z up (arrays read-only by convention).
 

@@ -304,7 +304,7 @@ def load_forest_spec(path: str | Path) -> ForestSpec:
 # --- forest ----------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Forest:
     """A built forest: all leaves plus one row per tree (``leaves.tree_id`` indexes the rows).
 

@@ -33,7 +33,7 @@ __all__ = ["Skeleton", "grow_skeleton", "skeleton_leaves"]
 F64 = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Skeleton:
     """Branch segments in model units, z up, tree base at the origin.
 

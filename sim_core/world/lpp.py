@@ -272,7 +272,7 @@ _OPEN, _CLOSE, _ROT, _MOVE, _LEAF = 1, 2, 3, 4, 5
 _CHUNK = 32768
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class TurtleResult:
     """Turtle output in grammar units, L++ frame (y up).
 

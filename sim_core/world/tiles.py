@@ -28,7 +28,7 @@ __all__ = ["TiledForest"]
 TILE_OVERHEAD_BYTES = 1024
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Tile:
     leaves: Leaves
     tree_xy: NDArray[np.float64]

@@ -47,7 +47,7 @@ F64 = NDArray[np.float64]
 LEAF_DISC_RATIO = 0.3206
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class TreeGeometry:
     """One tree in metres (z up, base at the origin).
 
