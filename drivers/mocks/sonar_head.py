@@ -12,7 +12,8 @@
 3. throttles both directions to ``baudrate`` (10 bits per byte, 8N1) — ptys and pipes move
    bytes instantly, a UART does not — so latencies are those of the real link;
 4. decodes and reassembles ECHO chunks (CRC, order, completeness, encoding = the one the ping
-   requested), estimates the range of the first return above a threshold and measures the
+   requested; an abandoned echo or an unparsable payload is reported to the host in an ERROR
+   frame), estimates the range of the first return above a threshold and measures the
    latency from firing a ping to receiving the last chunk of its echo.
 
 The ``bus`` argument is accepted for the launch contract only: a device speaks serial, never
@@ -40,6 +41,7 @@ from drivers.serial.protocol import (
     EchoAssembler,
     EchoChunk,
     Encoding,
+    ErrorCode,
     ErrorPayload,
     HeartbeatPayload,
     PingPayload,
@@ -261,6 +263,7 @@ class MockSonarHead:
         self._rng = make_rng(self.cfg.seed)
         self._stop = threading.Event()
         self._tx_wake = threading.Event()
+        self._errors: collections.deque[ErrorPayload] = collections.deque(maxlen=64)
         self._config_due = True
         self._host_seen_at: float | None = None
         self._threads: list[threading.Thread] = []
@@ -395,6 +398,9 @@ class MockSonarHead:
             if self._config_due:
                 self._config_due = False
                 self._send(MsgType.CONFIG, config.pack())
+            while self._errors:
+                self._send(MsgType.ERROR, self._errors.popleft().pack())
+                self._counts["errors_tx"] += 1
             if now >= next_beat:
                 self._send(MsgType.HEARTBEAT, HeartbeatPayload(self._uptime_ms()).pack())
                 next_beat += 1.0
@@ -452,9 +458,14 @@ class MockSonarHead:
                     self._tx_wake.set()
                 self._host_seen_at = now
             for f in frames:
-                self._handle(f.msg_type, f.payload)
+                self._handle(f.msg_type, f.seq, f.payload)
 
-    def _handle(self, msg_type: int, payload: bytes) -> None:
+    def _report(self, err: ErrorPayload) -> None:
+        """Queue an ERROR frame for the host (sent by the transmit thread)."""
+        self._errors.append(err)
+        self._tx_wake.set()
+
+    def _handle(self, msg_type: int, seq: int, payload: bytes) -> None:
         try:
             if msg_type == MsgType.ECHO:
                 self._on_chunk(EchoChunk.unpack(payload))
@@ -469,14 +480,21 @@ class MockSonarHead:
                 self._counts["errors_rx"] += 1
             else:
                 self._counts["unexpected_rx"] += 1
-        except ValueError:
+        except ValueError as exc:
             self._counts["bad_payloads"] += 1
+            self._report(ErrorPayload(ErrorCode.BAD_PAYLOAD, seq, str(exc)))
 
     def _on_chunk(self, chunk: EchoChunk) -> None:
         now = time.monotonic()
         with self._echo_done:
             self._counts["chunks_rx"] += 1
+            incomplete = self._assembler.incomplete
             echo = self._assembler.feed(chunk)
+            if self._assembler.incomplete > incomplete:
+                lost = self._assembler.last_abandoned_ping
+                ref = chunk.ping_seq if lost is None else lost
+                self._report(ErrorPayload(ErrorCode.ECHO_INCOMPLETE, ref,
+                                          f"echo of ping {ref} incomplete"))
             if echo is None:
                 return
             sent = self._pending.pop(echo.ping_seq, None)

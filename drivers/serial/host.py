@@ -275,7 +275,11 @@ class SonarHeadHost:
             try:
                 self._handle(frame)
             except ValueError as exc:
+                # CRC-valid but unparsable: a head speaking another revision. Tell it.
                 self.counts["bad_payloads"] += 1
+                unsupported = frame.msg_type == MsgType.PING and len(frame.payload) == PING.size
+                code = ErrorCode.UNSUPPORTED_ENCODING if unsupported else ErrorCode.BAD_PAYLOAD
+                self.send_error(code, frame.seq, str(exc))
                 log.debug("%s: bad %s payload: %s", self.name, frame.msg_type, exc)
         with self._rx_cv:
             self._rx_cv.notify_all()
@@ -320,7 +324,7 @@ class SonarHeadHost:
             err = ErrorPayload.unpack(frame.payload)
             self.head_errors.append(err)
             self.counts["errors_in"] += 1
-            log.warning("%s: head reports error %d (seq %d): %s", self.name, err.code,
-                        err.ref_seq, err.text)
+            log.debug("%s: head reports error %d (seq %d): %s", self.name, err.code,
+                      err.ref_seq, err.text)
         else:
             self.counts["unexpected_in"] += 1

@@ -412,6 +412,11 @@ class EchoAssembler:
         self.incomplete = 0
         self.duplicates = 0
 
+    @property
+    def last_abandoned_ping(self) -> int | None:
+        """ping_seq of the most recently abandoned partial echo (None if none yet)."""
+        return None if self._abandoned is None else self._abandoned[0]
+
     def stats(self) -> dict[str, int]:
         return {"echoes_complete": self.complete, "echoes_incomplete": self.incomplete,
                 "chunk_duplicates": self.duplicates}

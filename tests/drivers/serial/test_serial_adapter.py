@@ -175,3 +175,25 @@ def test_link_state_degrades_while_frames_drop() -> None:
     host.decoder.feed(b"\x05\x01\x00")
     assert host.update_state() is LinkState.OVER_BUDGET
     host.stop()
+
+
+def test_unsupported_encoding_in_a_ping_is_answered_with_an_error() -> None:
+    import struct
+
+    from drivers.serial.framing import MsgType, frame_bytes
+    from drivers.serial.host import SonarHeadHost
+    from drivers.serial.protocol import ErrorCode
+
+    host = SonarHeadHost("loop://")  # the host reads back what it writes
+    host.start()
+    try:
+        assert host.link.wait_connected(5.0)
+        bad_ping = struct.pack("<HfffB", 3, 0.0, 0.0, 0.5, 9)  # encoding 9 does not exist
+        host.link.send(frame_bytes(MsgType.PING, 77, 0, bad_ping))
+        assert host.wait_for(lambda h: any(e.code == ErrorCode.UNSUPPORTED_ENCODING
+                                           for e in h.head_errors), 5.0)
+    finally:
+        host.stop()
+    err = next(e for e in host.head_errors if e.code == ErrorCode.UNSUPPORTED_ENCODING)
+    assert err.ref_seq == 77 and "encoding" in err.text
+    assert host.counts["bad_payloads"] == 1 and host.counts["pings_in"] == 0
