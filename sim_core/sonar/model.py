@@ -198,9 +198,8 @@ def prepare(
     else:
         idx = np.flatnonzero(cand_mask)
         r, d, proj = np.sqrt(r2[idx]), d[idx], proj[idx]
-    u = d / r[:, None]
     if params.seed2020:
-        th2 = _theta2(u, beam.boresight, True)
+        th2 = _theta2(d / r[:, None], beam.boresight, True)
     else:
         th2 = np.arccos(np.clip(proj / r, -1.0, 1.0)) ** 2
     s1 = a0 * np.exp(-th2 / (2.0 * sigma * sigma))
@@ -210,34 +209,40 @@ def prepare(
     else:
         sel = np.flatnonzero(keep)
         idx2 = idx[sel]
-        d, r, u, th2, s1 = d[sel], r[sel], u[sel], th2[sel], s1[sel]
+        d, r, th2, s1 = d[sel], r[sel], th2[sel], s1[sel]
     if idx2.shape[0] == c.shape[0]:
-        nhat = n / np.sqrt(nn2)[:, None]
+        nn = np.sqrt(nn2)
         a = np.maximum(a, params.a_min)
     else:
-        nhat = n[idx2] / np.sqrt(nn2[idx2])[:, None]
+        n, nn = n[idx2], np.sqrt(nn2[idx2])
         a = np.maximum(a[idx2], params.a_min)
+    nd = np.einsum("ij,ij->i", n, d) / nn
     m = r.shape[0]
+    monostatic = not params.ears
+    need_u = params.shading or not monostatic or (params.doppler and params.moving)
+    u = d / r[:, None] if need_u else d
     vel = np.asarray(params.platform_velocity, dtype=np.float64)
     shade = np.ones(m)
     if params.shading and m > 1:
-        shade = shading_factor(u, r, a, np.einsum("ij,ij->i", nhat, u), params.shading_opacity)
+        shade = shading_factor(u, r, a, nd / r, params.shading_opacity)
     channels = _ear_geometry(beam, params)
     C = len(channels)
     beta = np.empty((C, m))
     beam_gain = np.empty((C, m))
     rest = np.empty((C, m))
     tau = np.empty((C, m))
-    path = np.empty((C, m))
-    cap = np.empty((C, m))
-    theta2 = np.empty((C, 2, m))
-    leaf_ratio = np.ones((C, m))
-    eta = np.ones((C, m))
+    path = np.empty((C, m)) if params.absorption else _filled(0.0, C, m)
+    cap = np.empty((C, m)) if params.near_field_cap else _filled(0.0, C, m)
+    incident = params.beam_model == "incident_freq"
+    theta2 = np.empty((C, 2, m)) if incident else _filled(0.0, C, 2, m)
+    doppler = params.doppler and params.moving
+    leaf_ratio = np.empty((C, m)) if doppler else _filled(1.0, C, m)
+    eta = np.empty((C, m)) if doppler else _filled(1.0, C, m)
     t1 = r / v
     for ch, (pos, axis, sig) in enumerate(channels):
-        monostatic = not params.ears
         if monostatic:
-            dr, rr, ur, th2r, s1r = d, r, u, th2, s1
+            dr, rr, th2r, s1r = d, r, th2, s1
+            beta[ch] = np.arccos(np.clip(np.abs(nd) / r, 0.0, 1.0))
         else:
             dr = d + (beam.position - pos)
             rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
@@ -245,21 +250,22 @@ def prepare(
             ur = dr / rr[:, None]
             th2r = _theta2(ur, axis, params.seed2020)
             s1r = a0 * np.exp(-th2r / (2.0 * sig * sig))
-        if monostatic:
-            bis = u
-        else:
             bis = u + ur
             bis_n = np.sqrt(np.einsum("ij,ij->i", bis, bis))
             ok = bis_n > 0.0
             bis = np.where(ok[:, None], bis / np.where(ok, bis_n, 1.0)[:, None], u)
-        beta[ch] = np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", nhat, bis)), 0.0, 1.0))
+            nhat_bis = np.abs(np.einsum("ij,ij->i", n, bis)) / nn
+            beta[ch] = np.arccos(np.clip(nhat_bis, 0.0, 1.0))
         spread = 1.0 if (not params.spreading or params.seed2020) else 1.0 / (r * rr)
         beam_gain[ch] = s1 * s1r
         rest[ch] = shade * spread
-        theta2[ch, 0] = th2
-        theta2[ch, 1] = th2r
-        cap[ch] = 0.5 * np.sqrt(r * rr)
-        path[ch] = r + rr
+        if incident:
+            theta2[ch, 0] = th2
+            theta2[ch, 1] = th2r
+        if params.near_field_cap:
+            cap[ch] = 0.5 * np.sqrt(r * rr)
+        if params.absorption:
+            path[ch] = r + rr
         if params.moving:
             q = dr - vel * t1[:, None]
             qq = np.einsum("ij,ij->i", q, q)
@@ -267,7 +273,7 @@ def prepare(
             vv = float(vel @ vel)
             s = qq / (qv + np.sqrt(qv * qv + (v * v - vv) * qq))
             tau[ch] = t1 + s
-            if params.doppler:
+            if doppler:
                 u_rx = (q - vel * s[:, None]) / (v * s)[:, None]
                 leaf_ratio[ch] = v / (v - u @ vel)
                 eta[ch] = leaf_ratio[ch] * (v + u_rx @ vel) / v
@@ -300,6 +306,11 @@ def prepare(
         dropped=dropped,
         speed=v,
     )
+
+
+def _filled(value: float, *shape: int) -> F64:
+    """A read-only broadcast array of ``value`` (no memory per leaf) for unused fields."""
+    return np.broadcast_to(np.float64(value), shape)
 
 
 def _erf_fast(x: NDArray[np.floating]) -> NDArray[np.floating]:
