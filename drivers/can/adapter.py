@@ -215,7 +215,6 @@ class AutopilotAdapter(Node):
         self._by_node = {g.node: g for g in self._glider.values()}
         self._glock = threading.Lock()
         self._c: Counter[str] = Counter()
-        self._clock_lock = threading.Lock()
         self._stop_evt = threading.Event()
         self._can_threads: list[threading.Thread] = []
         self._link: CanLink | None = None
