@@ -33,6 +33,7 @@ class _Tile:
     leaves: Leaves
     tree_xy: NDArray[np.float64]
     tree_species: NDArray[np.str_]
+    tree_height: NDArray[np.float64]
 
 
 class TiledForest:
@@ -94,7 +95,7 @@ class TiledForest:
                     "raise forest.max_crown_radius_m"
                 )
         self.tiles_built += 1
-        return _Tile(forest.leaves, forest.tree_xy, forest.tree_species)
+        return _Tile(forest.leaves, forest.tree_xy, forest.tree_species, forest.tree_height)
 
     def tile(self, tile: tuple[int, int]) -> Leaves:
         """Leaves of the trees owned by ``tile`` (tree ids local to the tile), cached."""
@@ -174,7 +175,7 @@ class TiledForest:
 
     def trees_in_tiles(self, tiles: list[tuple[int, int]]) -> Forest:
         """The trees owned by ``tiles`` assembled tile by tile (through the cache)."""
-        xy, sp, parts = [], [], []
+        xy, sp, hs, parts = [], [], [], []
         offset = 0
         for t in tiles:
             tile = self._get(t)
@@ -184,12 +185,10 @@ class TiledForest:
             )
             xy.append(tile.tree_xy)
             sp.append(tile.tree_species)
+            hs.append(tile.tree_height)
             offset += tile.tree_xy.shape[0]
         leaves = Leaves.concat(parts)
         tree_xy = np.concatenate(xy) if xy else np.zeros((0, 2))
         species = np.concatenate(sp) if sp else np.zeros(0, dtype=np.str_)
-        heights = np.zeros(tree_xy.shape[0])
-        for k in range(tree_xy.shape[0]):
-            sel = leaves.tree_id == k
-            heights[k] = float(leaves.centers[sel, 2].max()) if sel.any() else 0.0
+        heights = np.concatenate(hs) if hs else np.zeros(0)
         return Forest(leaves, tree_xy, species, heights, tuple(self.engine.names))
