@@ -258,13 +258,15 @@ class AutopilotAdapter(Node):
 
     def stats(self) -> dict[str, Any]:
         """Node counters plus ``can_*`` (link), adapter counters, saturation and per-glider
-        ``cmd_state:<id>`` / ``ap_alive:<id>`` (numbers, so they reach ``/diagnostics``)."""
+        ``cmd_state:<id>`` / ``ap_alive:<id>`` / ``ap_mode:<id>`` (numbers, so they reach
+        ``/diagnostics``)."""
         out = super().stats()
         with self._glock:
             out.update(self._c)
             for g in self._glider.values():
                 out[f"cmd_state:{g.gid}"] = g.cmd_state
                 out[f"ap_alive:{g.gid}"] = int(g.ap_alive)
+                out[f"ap_mode:{g.gid}"] = g.ap_mode
         if self._link is not None:
             link = self._link.stats()
             state = str(link.pop("state"))

@@ -170,6 +170,7 @@ def test_diagnostics_and_stats_report_the_link(sim: Sim, make_adapter: Any,
     stats = ad.stats()
     assert stats["can_link"] == "up" and stats["cmd_state:3"] == CMD_STATES["FRESH"]
     assert stats["ap_alive:3"] == 1 and stats["ap_heartbeats_in"] > 0
+    assert stats["ap_mode:3"] == 1  # the mock flies it: AUTO
 
 
 class RawAutopilot:
