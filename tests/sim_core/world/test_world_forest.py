@@ -213,6 +213,7 @@ def test_tiles_equal_a_one_shot_build(tile: float) -> None:
     n = int(np.ceil(60.0 / tile))
     tiled = world.trees_in_tiles([(i, j) for i in range(n + 1) for j in range(n + 1)])
     assert tiled.n_trees == one_shot.n_trees
+    np.testing.assert_array_equal(np.sort(tiled.tree_height), np.sort(one_shot.tree_height))
     np.testing.assert_array_equal(_sorted_rows(tiled.leaves), _sorted_rows(one_shot.leaves))
     for p in ([10.0, 50.0, 3.0], [30.0, 30.0, 5.0], [59.0, 1.0, 0.0]):
         near = world.leaves_near(np.array(p), 12.0)
