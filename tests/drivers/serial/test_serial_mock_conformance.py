@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
 import math
+import os
 import threading
 from pathlib import Path
 from typing import Any
@@ -181,3 +183,31 @@ def test_capture_decodes_to_the_counted_frames(tmp_path: Path) -> None:
     assert len(rx) == host.decoder.frames_ok
     assert len(tx) == host.counts["frames_out"]
     assert sum(f.msg_type == MsgType.PING for f in rx) == host.counts["pings_in"]
+
+
+#: the in-process mock always; a real head too when HIL_SERIAL_PORT names its port
+HEAD_PORTS = [pytest.param("sonarsim://?rate_hz=50&encoding=int16", id="sonarsim")]
+if os.environ.get("HIL_SERIAL_PORT"):
+    HEAD_PORTS.append(pytest.param(os.environ["HIL_SERIAL_PORT"], id="hardware",
+                                   marks=pytest.mark.hardware))
+
+
+@pytest.mark.parametrize("port", HEAD_PORTS)
+def test_head_conformance(port: str) -> None:
+    """What any head must do: announce CONFIG, send valid PINGs, accept ECHO chunks."""
+    answer = Pings(impulse_echo(1000))
+    baud = int(os.environ.get("HIL_SERIAL_BAUD", "921600"))
+    host = SonarHeadHost(port, baudrate=baud, on_ping=answer)
+    answer.host = host
+    try:
+        host.start()
+        assert answer.wait(3, 10.0), host.stats()
+        assert host.wait_for(lambda h: h.head_config is not None, 5.0)
+        assert host.wait_for(lambda h: h.counts["echoes_out"] >= 3, 5.0)
+    finally:
+        host.stop()
+    assert host.decoder.dropped == 0 and host.counts["bad_payloads"] == 0
+    assert host.head_config is not None and host.head_config.proto_version == 1
+    seqs = [p.ping_seq for p in answer.pings]
+    assert all((b - a) % 65536 == 1 for a, b in itertools.pairwise(seqs))
+    assert not [e for e in host.head_errors if e.code != 3]  # only over-budget is tolerable
