@@ -27,6 +27,9 @@ class PtyPort:
 
     def __init__(self, link: str | Path | None = None) -> None:
         self.link = Path(link) if link is not None else None
+        if self.link is not None and self.link.exists() and not self.link.is_symlink():
+            raise ValueError(f"link {str(self.link)!r} exists and is not a symlink; refusing to "
+                             "replace it")
         self._lock = threading.Lock()
         self._master = -1
         self._slave = -1

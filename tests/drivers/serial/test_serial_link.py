@@ -148,3 +148,19 @@ def test_socket_url_round_trip_and_reconnect_after_the_peer_drops() -> None:
         t.join(5.0)
         server.close()
     assert bytes(sink.data) == b"PING\x00AGAIN\x00"
+
+
+def test_pty_link_never_replaces_a_real_file(tmp_path: Path) -> None:
+    precious = tmp_path / "ttyUSB0"
+    precious.write_text("not a symlink")
+    with pytest.raises(ValueError, match="not a symlink"):
+        PtyPort(precious)
+    assert precious.read_text() == "not a symlink"
+    stale = tmp_path / "stale"
+    stale.symlink_to(tmp_path / "gone")  # left by a crashed run: replaced
+    port = PtyPort(stale)
+    try:
+        assert Path(str(stale)).resolve() == Path(port.path).resolve()
+    finally:
+        port.close()
+    assert not stale.exists() and not stale.is_symlink()
