@@ -1,0 +1,295 @@
+"""Live view: a Foxglove WebSocket server (foxglove-sdk) on loopback showing the bus.
+
+Off by default; ``echoloop launch FILE --live`` or ``live: true`` in a launch file starts it
+(open https://app.foxglove.dev, "Open connection", ``ws://127.0.0.1:8765``). Topics served:
+
+- ``/live/gliders`` (``foxglove.SceneUpdate``): one arrow per glider/vehicle at its pose (world
+  frame ``world``, ENU metres; yaw = heading, roll = bank), dead gliders grey;
+- ``/live/trails`` (``SceneUpdate``): the last ``trail_points`` positions of each vehicle;
+- ``/live/thermals`` (``SceneUpdate``): a translucent cylinder per thermal (radius R, 200 m);
+- ``/live/forest`` (``foxglove.PointCloud``): the server's ``/forest/points`` leaf centres
+  (already decimated by the server to ``forest_points``);
+- ``/live/echo/<sonar id>`` (JSON): every ``echo_every``-th echo, its envelope decimated to at
+  most ``echo_points`` samples (``range_m``, ``amplitude``) for a Plot panel.
+
+It reads the bus with one raw prefix subscription per family (``/glider/``, ``/thermals``,
+``/forest/``, ``/sonar/``), so it sees gliders it was not told about. Scene updates are sent at
+``rate_hz`` (wall clock). The server binds 127.0.0.1 only: ``host`` must be a loopback address.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import math
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+__all__ = ["LiveView"]
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _quaternion(yaw: float, roll: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of yaw about z then roll about the body x axis (ZYX, no pitch)."""
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    return (cy * sr, sy * sr, sy * cr, cy * cr)
+
+
+class LiveView:
+    """Launchable Foxglove bridge: ``LiveView(name, *, bus, host="127.0.0.1", port=8765,
+    rate_hz=10.0, trail_points=200, echo_every=1, echo_points=2000)``.
+
+    ``port=0`` picks a free port (read :attr:`port` after :meth:`start`).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        bus: str,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        rate_hz: float = 10.0,
+        trail_points: int = 200,
+        echo_every: int = 1,
+        echo_points: int = 2000,
+    ) -> None:
+        if not _is_loopback(host):
+            raise ValueError(f"host: the live view binds loopback only, got {host!r}")
+        if not 0 <= port <= 65535:
+            raise ValueError(f"port: expected 0..65535, got {port}")
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz: expected > 0, got {rate_hz}")
+        if trail_points < 2 or echo_every < 1 or echo_points < 2:
+            raise ValueError(
+                "trail_points >= 2, echo_every >= 1 and echo_points >= 2 expected, got "
+                f"{trail_points}, {echo_every}, {echo_points}"
+            )
+        self.name = name
+        self.bus = bus
+        self.host = host
+        self.requested_port = port
+        self.period_s = 1.0 / rate_hz
+        self.trail_points = trail_points
+        self.echo_every = echo_every
+        self.echo_points = echo_points
+        self.port: int | None = None
+        self._server: Any = None
+        self._ctx: Any = None
+        self._channels: dict[str, Any] = {}
+        self._transport: Any = None
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._lock = threading.Lock()
+        self._poses: dict[int, tuple[float, float, float, float, float, bool]] = {}
+        self._trails: dict[int, deque[tuple[float, float, float]]] = {}
+        self._thermals: Any = None
+        self._thermals_dirty = False
+        self._forest: Any = None
+        self._echo_count = 0
+        self._c = {"received": 0, "bad": 0, "scene_updates": 0, "echoes_sent": 0,
+                   "forest_sent": 0, "thermals_sent": 0}
+
+    # ------------------------------------------------------------------ launchable contract
+
+    def start(self) -> None:
+        import foxglove
+        from foxglove.channels import PointCloudChannel, SceneUpdateChannel
+
+        from hil_bridge.transport import open_transport
+
+        self._ctx = foxglove.Context()
+        self._channels = {
+            "gliders": SceneUpdateChannel("/live/gliders", context=self._ctx),
+            "trails": SceneUpdateChannel("/live/trails", context=self._ctx),
+            "thermals": SceneUpdateChannel("/live/thermals", context=self._ctx),
+            "forest": PointCloudChannel("/live/forest", context=self._ctx),
+        }
+        self._server = foxglove.start_server(
+            name=f"echoloop {self.name}", host=self.host, port=self.requested_port,
+            context=self._ctx,
+        )
+        self.port = int(self._server.port)
+        self._transport = open_transport(self.bus)
+        for prefix in (b"/glider/", b"/thermals\0", b"/forest/points\0", b"/sonar/"):
+            self._transport.subscribe(prefix)
+        self._threads = [
+            threading.Thread(target=self._rx_loop, name=f"{self.name}-rx", daemon=True),
+            threading.Thread(target=self._send_loop, name=f"{self.name}-send", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._transport is not None:
+            self._transport.wakeup()
+        for t in self._threads:
+            t.join()
+        self._threads = []
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+        if self._server is not None:
+            self._server.stop()
+            self._server = None
+
+    def stats(self) -> dict[str, Any]:
+        with self._lock:
+            out: dict[str, Any] = dict(self._c)
+            out["vehicles"] = len(self._poses)
+        out["port"] = self.port
+        return out
+
+    # ------------------------------------------------------------------ bus side
+
+    def _rx_loop(self) -> None:
+        from hil_bridge.codec import decode_header, decode_payload, topic_from_frame
+        from hil_bridge.errors import HilError
+
+        while not self._stop.is_set():
+            try:
+                frames = self._transport.recv(timeout=0.1)
+            except HilError:
+                return
+            if frames is None:
+                continue
+            try:
+                topic = topic_from_frame(frames[0])
+                header = decode_header(frames[1])
+                msg: Any = decode_payload(header.type, header.v, frames[2])
+            except (HilError, ValueError, IndexError):
+                with self._lock:
+                    self._c["bad"] += 1
+                continue
+            with self._lock:
+                self._c["received"] += 1
+                if topic.startswith("/glider/") and topic.endswith("/state"):
+                    gid = int(topic.split("/")[2])
+                    self._poses[gid] = (msg.x, msg.y, msg.z, msg.heading, msg.bank, msg.alive)
+                    trail = self._trails.setdefault(gid, deque(maxlen=self.trail_points))
+                    if not trail or math.dist(trail[-1], (msg.x, msg.y, msg.z)) > 0.05:
+                        trail.append((msg.x, msg.y, msg.z))
+                elif topic == "/thermals":
+                    self._thermals, self._thermals_dirty = msg, True
+                elif topic == "/forest/points":
+                    self._forest = msg
+                elif topic.startswith("/sonar/") and topic.endswith("/echo"):
+                    self._echo_count += 1
+                    if (self._echo_count - 1) % self.echo_every == 0:
+                        self._send_echo(topic, msg)
+
+    # ------------------------------------------------------------------ foxglove side
+
+    def _send_echo(self, topic: str, msg: Any) -> None:
+        import foxglove
+
+        key = "echo" + topic[len("/sonar"):-len("/echo")]
+        channel = self._channels.get(key)
+        if channel is None:
+            channel = self._channels[key] = foxglove.Channel(
+                f"/live/echo/{key[5:]}", message_encoding="json", context=self._ctx
+            )
+        samples = np.asarray(msg.samples, dtype=np.float64).reshape(-1, msg.samples.shape[-1])[0]
+        step = max(1, math.ceil(samples.size / self.echo_points))
+        n = samples.size // step
+        env = np.abs(samples[: n * step]).reshape(n, step).max(axis=1)
+        range_m = (np.arange(n) * step / msg.fs * 340.0 / 2.0)
+        channel.log({
+            "ping_seq": int(msg.ping_seq), "leaves_in_beam": int(msg.leaves_in_beam),
+            "range_m": range_m.round(4).tolist(), "amplitude": env.tolist(),
+        })
+        self._c["echoes_sent"] += 1
+
+    def _send_loop(self) -> None:
+        from foxglove.messages import (
+            ArrowPrimitive,
+            Color,
+            CylinderPrimitive,
+            LinePrimitive,
+            PackedElementField,
+            PackedElementFieldNumericType,
+            Point3,
+            PointCloud,
+            Pose,
+            Quaternion,
+            SceneEntity,
+            SceneUpdate,
+            Vector3,
+        )
+
+        forest_sent: Any = None
+        resend_every = max(1, round(2.0 / self.period_s))  # latched data again every ~2 s
+        tick = 0
+        next_t = time.monotonic()
+        while not self._stop.wait(max(0.0, next_t - time.monotonic())):
+            next_t += self.period_s
+            tick += 1
+            if tick % resend_every == 0:  # so a viewer that connects later gets them too
+                forest_sent = None
+                with self._lock:
+                    self._thermals_dirty = self._thermals is not None
+            with self._lock:
+                poses = dict(self._poses)
+                trails = {g: list(t) for g, t in self._trails.items()}
+                thermals = self._thermals if self._thermals_dirty else None
+                self._thermals_dirty = False
+                forest = self._forest
+            arrows = []
+            for gid, (x, y, z, heading, bank, alive) in sorted(poses.items()):
+                qx, qy, qz, qw = _quaternion(heading, bank)
+                color = Color(r=0.1, g=0.5, b=0.9, a=1.0) if alive else Color(r=0.5, g=0.5,
+                                                                                b=0.5, a=0.6)
+                arrows.append(SceneEntity(
+                    frame_id="world", id=f"glider/{gid}", arrows=[ArrowPrimitive(
+                        pose=Pose(position=Vector3(x=x, y=y, z=z),
+                                  orientation=Quaternion(x=qx, y=qy, z=qz, w=qw)),
+                        shaft_length=3.0, shaft_diameter=0.6, head_length=1.5,
+                        head_diameter=1.5, color=color)],
+                ))
+            self._channels["gliders"].log(SceneUpdate(entities=arrows))
+            lines = [
+                SceneEntity(frame_id="world", id=f"trail/{gid}", lines=[LinePrimitive(
+                    thickness=2.0, scale_invariant=True, color=Color(r=1.0, g=0.6, b=0.1, a=0.8),
+                    points=[Point3(x=p[0], y=p[1], z=p[2]) for p in pts])])
+                for gid, pts in sorted(trails.items()) if len(pts) >= 2
+            ]
+            self._channels["trails"].log(SceneUpdate(entities=lines))
+            with self._lock:
+                self._c["scene_updates"] += 1
+            if thermals is not None:
+                cylinders = [
+                    CylinderPrimitive(
+                        pose=Pose(position=Vector3(x=float(x), y=float(y), z=100.0)),
+                        size=Vector3(x=2 * float(r), y=2 * float(r), z=200.0),
+                        bottom_scale=1.0, top_scale=1.0, color=Color(r=1.0, g=0.4, b=0.0, a=0.2))
+                    for x, y, r in zip(thermals.x, thermals.y, thermals.radius, strict=True)
+                ]
+                self._channels["thermals"].log(SceneUpdate(entities=[
+                    SceneEntity(frame_id="world", id="thermals", cylinders=cylinders)]))
+                with self._lock:
+                    self._c["thermals_sent"] += 1
+            if forest is not None and forest is not forest_sent:
+                pts = np.ascontiguousarray(forest.points, dtype=np.float32)
+                self._channels["forest"].log(PointCloud(
+                    frame_id="world", pose=Pose(position=Vector3(), orientation=Quaternion(w=1.0)),
+                    point_stride=12, data=pts.tobytes(),
+                    fields=[PackedElementField(name=n, offset=4 * i,
+                                               type=PackedElementFieldNumericType.Float32)
+                            for i, n in enumerate("xyz")],
+                ))
+                forest_sent = forest
+                with self._lock:
+                    self._c["forest_sent"] += 1

@@ -1,0 +1,57 @@
+"""The Foxglove live view starts on loopback, serves the WebSocket protocol, and stops."""
+
+from __future__ import annotations
+
+import base64
+import os
+import socket
+
+import pytest
+
+from hil_bridge.live import LiveView
+from hil_bridge.server import SimServer
+
+
+def _handshake(port: int) -> bytes:
+    key = base64.b64encode(os.urandom(16)).decode()
+    request = (
+        f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+        f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+        "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+    )
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+        sock.sendall(request.encode())
+        data = b""
+        while b"\r\n\r\n" not in data:
+            chunk = sock.recv(4096)
+            if not chunk:
+                break
+            data += chunk
+    return data
+
+
+def test_live_view_serves_on_loopback_and_stops() -> None:
+    bus = "mem://live_view"
+    srv = SimServer("server", bus=bus, scene={
+        "swarm": {"overrides": {"numAgents": 3}}, "clock": {"mode": "fast"}}, stop_after_s=2.0)
+    view = LiveView("live", bus=bus, port=0, rate_hz=50.0)
+    view.start()
+    srv.start()
+    try:
+        assert srv.wait_done(timeout=30)
+        port = view.port
+        assert port is not None and port > 0
+        reply = _handshake(port)
+        assert reply.startswith(b"HTTP/1.1 101"), reply[:200]
+    finally:
+        srv.stop()
+        view.stop()
+    st = view.stats()
+    assert st["received"] > 0 and st["vehicles"] == 3
+    with pytest.raises(OSError):
+        socket.create_connection(("127.0.0.1", port), timeout=2).close()
+
+
+def test_live_view_refuses_a_non_loopback_host() -> None:
+    with pytest.raises(ValueError, match="loopback only"):
+        LiveView("live", bus="mem://live_bad", host="0.0.0.0")
