@@ -4,7 +4,9 @@
 
 - ``mem://NAME[?depth=N]`` — in-process channel for tests (:mod:`hil_bridge.transport.mem`);
 - ``tcp://HOST:PORT[?sub=URL&hwm=N&curve_server=F&curve_client=F]`` and ``ipc://PATH[?...]`` —
-  ZeroMQ through the XSUB/XPUB proxy (:mod:`hil_bridge.transport.zmq`).
+  ZeroMQ through the XSUB/XPUB proxy (:mod:`hil_bridge.transport.zmq`);
+- ``replay://PATH.mcap[?rate=R&loop=1]`` — a recording played as a read-only bus
+  (:mod:`hil_bridge.transport.replay`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ BACKENDS: dict[str, str] = {
     "mem": "hil_bridge.transport.mem:MemTransport",
     "tcp": "hil_bridge.transport.zmq:ZmqTransport",
     "ipc": "hil_bridge.transport.zmq:ZmqTransport",
+    "replay": "hil_bridge.transport.replay:ReplayTransport",
 }
 
 

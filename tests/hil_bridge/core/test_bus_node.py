@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
-from collections.abc import Callable
 
 import pytest
 
@@ -14,6 +12,7 @@ from hil_bridge.messages import Clock, Diagnostics, GliderCmd, GliderState
 from hil_bridge.node import Node
 from hil_bridge.qos import COMMAND, LATCHED, SENSOR, QoSProfile
 from hil_bridge.transport import open_transport
+from tests.hil_bridge.core.bus_test_util import poll_until
 
 WAIT = 10.0
 
@@ -118,17 +117,6 @@ def test_command_without_subscriber_fails_after_timeout(bus_url: str) -> None:
         assert not pub.wait_for_ack(seq, timeout=WAIT)
         assert pub.pending == 0
         assert a.stats()["topics"]["/glider/0/cmd"]["ack_failed"] == 1
-
-
-def poll_until(pred: Callable[[], bool], timeout: float = WAIT) -> bool:
-    """Poll a real condition every few ms until true or ``timeout`` s."""
-    deadline = time.monotonic() + timeout
-    tick = threading.Event()
-    while not pred():
-        if time.monotonic() > deadline:
-            return False
-        tick.wait(0.005)
-    return True
 
 
 def test_slow_callback_never_blocks_publisher_and_drops_are_counted(bus_url: str) -> None:
