@@ -331,16 +331,15 @@ class _StopFlag:
             self.event.set()
 
 
-def _instantiate(spec: LaunchSpec) -> list[tuple[str, Any]]:
-    nodes: list[tuple[str, Any]] = []
+def _instantiate(spec: LaunchSpec, made: list[tuple[str, Any]]) -> None:
+    """Construct every node into ``made`` (so the caller can stop those built before a failure)."""
     for i, node in enumerate(spec.nodes):
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry")
         try:
             obj = cls(node.name, bus=spec.bus, **node.params)
         except TypeError as exc:
             raise ConfigError(f"nodes[{i}] ({node.name}).params: {exc}") from None
-        nodes.append((node.name, obj))
-    return nodes
+        made.append((node.name, obj))
 
 
 def run(
@@ -363,8 +362,8 @@ def run(
     ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every topic to MCAP with
     :class:`hil_bridge.bag.Recorder`. ``live`` starts the Foxglove view (:mod:`hil_bridge.live`).
     ``bus`` replaces the file's bus URL.
-    ``on_started(spec)`` is called once every node runs. A node that fails to start stops the
-    ones already started and re-raises.
+    ``on_started(spec)`` is called once every node runs. A node that fails to construct or
+    start stops every node already constructed (reverse order) and re-raises.
     """
     spec = path if isinstance(path, LaunchSpec) else load(path, params_overrides=params_overrides)
     if bus is not None:
@@ -383,7 +382,7 @@ def run(
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, _on_signal)
 
-    started: list[tuple[str, Any]] = []
+    made: list[tuple[str, Any]] = []
     extras: list[Any] = []
     t0 = time.monotonic()
     try:
@@ -397,9 +396,9 @@ def run(
             recorder = Recorder(record_path, bus=spec.bus)
             recorder.start()
             extras.append(recorder)
-        for name, obj in _instantiate(spec):
+        _instantiate(spec, made)
+        for _, obj in made:
             obj.start()
-            started.append((name, obj))
         if want_live:
             from hil_bridge.live import LiveView
 
@@ -420,7 +419,7 @@ def run(
             flag.event.wait(0.05 if remaining is None else min(0.05, remaining))
     finally:
         node_stats: dict[str, dict[str, Any]] = {}
-        for name, obj in reversed(started):
+        for name, obj in reversed(made):
             obj.stop()
             node_stats[name] = obj.stats()
         monitor_stats: dict[str, Any] = {}
@@ -433,7 +432,7 @@ def run(
     return RunSummary(
         wall_s=time.monotonic() - t0,
         stopped_by=flag.reason,
-        nodes={name: node_stats[name] for name, _ in started},
+        nodes={name: node_stats[name] for name, _ in made},
         monitor=monitor_stats,
         record=record_path,
     )
