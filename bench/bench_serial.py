@@ -10,6 +10,7 @@ chunk received. The baseline in the same run is the pure wire time of the echo's
 from __future__ import annotations
 
 import itertools
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -146,7 +147,12 @@ def _fuzz(seconds: float) -> list[list[Any]]:
 
 
 def run(out_dir: Path) -> str:
-    out: list[str] = [__doc__.split("\n\n", 1)[1].strip(), ""]
+    load = os.getloadavg()[0]
+    out: list[str] = [__doc__.split("\n\n", 1)[1].strip(), "",
+                      f"Load average at the start: {load:.1f} on {os.cpu_count()} cores. "
+                      "The mock, adapter and bus are Python threads; at 88 % link utilisation a "
+                      "CPU stall of another process queues echoes, which the 12 % slack then "
+                      "drains slowly, so the 20 pings/s latencies rise with machine load.", ""]
 
     # 1. latency per baud and encoding (rate = half what the budget allows, at most 10 Hz)
     n_samples = 24000
