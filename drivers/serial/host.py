@@ -205,9 +205,9 @@ class SonarHeadHost:
         return data
 
     def send(self, msg_type: MsgType, payload: bytes, stamp_ns: int = 0) -> bool:
-        with self._tx_lock:
+        with self._tx_lock:  # also serialises the sending threads' counter updates
             ok = self.link.send(self._frame(msg_type, payload, stamp_ns))
-        self.counts["frames_out" if ok else "frames_out_dropped"] += 1
+            self.counts["frames_out" if ok else "frames_out_dropped"] += 1
         return ok
 
     def requested_encoding(self, ping_seq: int) -> Encoding:
@@ -232,12 +232,12 @@ class SonarHeadHost:
         with self._tx_lock:
             blob = b"".join(self._frame(MsgType.ECHO, c.pack(), stamp_ns) for c in chunks)
             ok = self.link.send(blob)
-        if not ok:
-            self.counts["echoes_dropped"] += 1
-            return 0
-        self.counts["frames_out"] += len(chunks)
-        self.counts["echoes_out"] += 1
-        self.counts["echo_bytes_out"] += len(blob)
+            if not ok:
+                self.counts["echoes_dropped"] += 1
+                return 0
+            self.counts["frames_out"] += len(chunks)
+            self.counts["echoes_out"] += 1
+            self.counts["echo_bytes_out"] += len(blob)
         return len(chunks)
 
     def update_state(self) -> LinkState:

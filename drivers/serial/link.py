@@ -292,14 +292,16 @@ class Link:
                 self._tx_queued -= len(data)
             ser = self._ser
             if ser is None:
-                self.tx_dropped_bytes += len(data)
+                with self._tx_cv:
+                    self.tx_dropped_bytes += len(data)
                 continue
             try:
                 n = ser.write(data)
             except PORT_ERRORS as exc:
                 # a port closed under us (unplug) or by the reader's reconnect
-                self.write_errors += 1
-                self.tx_dropped_bytes += len(data)
+                with self._tx_cv:
+                    self.write_errors += 1
+                    self.tx_dropped_bytes += len(data)
                 self.last_error = exc
                 continue
             written = len(data) if n is None else int(n)
