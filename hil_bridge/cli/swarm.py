@@ -53,8 +53,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
     s.add_argument("--scheduler", metavar="ADDRESS",
                    help="dask.distributed scheduler address, e.g. tcp://10.0.0.5:8786")
-    s.add_argument("--batch-size", type=int, default=32,
-                   help="runs stepped together in one vectorised batch (default 32)")
+    s.add_argument("--batch-size", type=int, default=64,
+                   help="runs stepped together in one vectorised batch (default 64)")
     s.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     return parser
 

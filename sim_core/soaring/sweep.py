@@ -178,7 +178,7 @@ def sweep(
     *,
     workers: int = 1,
     scheduler: str | None = None,
-    batch_size: int = 32,
+    batch_size: int = 64,
     progress: bool = True,
     on_rows: Callable[[list[dict[str, Any]]], None] | None = None,
 ) -> SweepSummary:
