@@ -49,7 +49,7 @@ def test_realtime_under_budget_equals_fast_quality_and_over_budget_bounds_its_er
     roomy = synthesize(leaves, BEAM, EchoParams(budget_s=1.0), fidelity="realtime")
     assert roomy.leaves_in_beam == ref.leaves_in_beam
     assert rel_l2(roomy.samples, ref.samples) <= roomy.error_bound  # type: ignore[operator]
-    tight = Realtime(overhead_s=0.0, per_leaf_s=1e-6)
+    tight = Realtime(overhead_s=0.0, per_leaf_s=1e-6)  # 1000 leaves per ms
     params = EchoParams(budget_s=1e-3)  # room for 1000 leaves
     echo = synthesize(leaves, BEAM, params, fidelity=tight)
     assert tight.capacity(params) == 1000
