@@ -350,34 +350,39 @@ def interpret(
         elif c == "*":
             kinds[j] = _LEAF
     tok_kind = kinds[seq]
-    keep = tok_kind > 0
-    ids = seq[keep]
-    kind = tok_kind[keep]
-    n = ids.size
+    ids = seq[tok_kind > 0]
+    kind = kinds[ids]
+    axis = axes[ids]
+    val = values[ids]  # signed angle (rad) of a rotation, length of a move
+    jitter = noisy[ids]
+    if jitter.any():
+        z = np.clip(rng.standard_normal(int(jitter.sum())), -2.0, 2.0)
+        val[jitter] *= 1.0 + angle_noise * z
+    is_draw = np.asarray([c in "Ff" for c, _ in table], dtype=bool)[ids]
+    # consecutive rotations about the same local axis compose by adding angles (exact)
+    rot = kind == _ROT
+    merge = np.zeros(kind.size, dtype=bool)
+    merge[1:] = rot[1:] & rot[:-1] & (axis[1:] == axis[:-1])
+    if merge.any():
+        starts = np.flatnonzero(~merge)
+        val = np.add.reduceat(val, starts)
+        kind, axis, is_draw, rot = kind[starts], axis[starts], is_draw[starts], rot[starts]
+    n = kind.size
     is_open = kind == _OPEN
     is_close = kind == _CLOSE
     step = is_open.astype(np.int64) - is_close
     level = np.cumsum(step) - step  # bracket depth before each token
-    draws = np.asarray([c in "Ff" for c, _ in table], dtype=bool)
-    is_draw = draws[ids]
 
     # local transforms: unit quaternion q (4, n) and translation t (3, n) in the turtle frame
     # (columns right, heading, right × heading); every command right-multiplies the frame
     q = np.zeros((4, n))
     q[0] = 1.0
     t = np.zeros((3, n))
-    rot = kind == _ROT
-    ang = values[ids[rot]]
-    jitter = noisy[ids[rot]]
-    if jitter.any():
-        z = np.clip(rng.standard_normal(int(jitter.sum())), -2.0, 2.0)
-        ang = ang.copy()
-        ang[jitter] *= 1.0 + angle_noise * z
-    ridx = np.nonzero(rot)[0]
-    q[0, ridx] = np.cos(ang / 2.0)
-    q[1 + axes[ids[rot]], ridx] = np.sin(ang / 2.0)
+    ridx = np.flatnonzero(rot)
+    q[0, ridx] = np.cos(val[ridx] / 2.0)
+    q[1 + axis[ridx], ridx] = np.sin(val[ridx] / 2.0)
     mv = kind == _MOVE
-    t[1, mv] = values[ids[mv]]
+    t[1, mv] = val[mv]
 
     # segment (enclosing '[') of every token that is not ']'; tokens grouped by bracket level
     pos = np.arange(n)
