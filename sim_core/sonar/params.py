@@ -16,6 +16,8 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = ["Beam", "Call", "Ear", "Echo", "EchoParams", "FrequencyGrid"]
 
+#: relative slack on f*N/fs being an integer (floating-point band edges such as fs/N)
+BIN_TOLERANCE = 1e-12
 #: 10^(-3/20): the one-way -3 dB level that defines the beamwidth.
 MINUS_3DB = 0.7079
 #: BW/2 = SIGMA_FACTOR * sigma for a Gaussian beam (sqrt(2 ln(1/0.7079))).
@@ -229,13 +231,15 @@ class FrequencyGrid:
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"EchoParams.{name} must be a finite number > 0, got {value!r}")
             ratio = Fraction(value) * n / Fraction(p.fs)
-            if ratio.denominator != 1:
+            index = round(ratio)
+            # exact in rationals; a float band edge like fs/N itself is off by an ulp
+            if abs(ratio - index) > BIN_TOLERANCE * max(1, index):
                 raise ValueError(
                     f"EchoParams.{name}={value!r} is not a multiple of the bin spacing "
                     f"fs/N = {p.fs / n!r} Hz (f*N/fs = {float(ratio)!r}); choose N or the band "
                     "so both band edges fall on bins"
                 )
-            edges.append(int(ratio))
+            edges.append(int(index))
         m0, m1 = edges
         if not m0 < m1:
             raise ValueError(f"EchoParams band must satisfy f_lo < f_hi, got {p.f_lo}, {p.f_hi}")

@@ -170,3 +170,16 @@ def test_leaf_touching_the_sonar_and_a_to_zero() -> None:
         assert np.all(np.isfinite(echo.samples)) and echo.samples.any()
     ref = synthesize(leaf, ON_AXIS, fidelity="reference").samples
     assert rel_l2(synthesize(leaf, ON_AXIS, fidelity="fast").samples, ref) < 1e-3
+
+
+def test_band_edges_at_first_bin_and_nyquist() -> None:
+    leaves = cone_cloud(200, seed=7)
+    wide = EchoParams(f_lo=FS / 24000, f_hi=FS / 2)  # bin 1 .. Nyquist bin
+    ref = synthesize(leaves, ON_AXIS, wide, fidelity="reference")
+    fast = synthesize(leaves, ON_AXIS, wide, fidelity="fast")
+    assert np.all(np.isfinite(ref.samples)) and np.abs(ref.samples).max() > 0
+    assert fast.error_bound is not None
+    assert rel_l2(fast.samples, ref.samples) <= max(fast.error_bound, 1e-3)
+    narrow = EchoParams(f_lo=70e3, f_hi=70e3 + FS / 24000)  # two bins
+    two = synthesize(leaves, ON_AXIS, narrow, fidelity="reference").samples
+    assert rel_l2(synthesize(leaves, ON_AXIS, narrow, fidelity="fast").samples, two) < 1e-3
