@@ -302,7 +302,7 @@ def decode_payload(type_name: str, version: int, frame: bytes) -> Message:
             kwargs[name] = value
     try:
         return cls(**kwargs)
-    except (TypeError, ValueError) as exc:
+    except Exception as exc:  # any constructor check failing means the frame is bad
         raise CodecError(f"{type_name} payload does not fit the message: {exc}") from None
 
 

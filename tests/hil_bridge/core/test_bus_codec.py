@@ -249,3 +249,42 @@ def test_message_class_lookup_and_nan_equality() -> None:
                   leaves_in_beam=0,
                   fidelity="x")
     assert a == codec.decode(codec.encode("/e", a, seq=0, pub_ns=0)).msg
+
+
+_ANY = st.recursive(
+    st.none() | st.booleans() | st.integers(-(2**63), 2**64 - 1) | st.floats()
+    | st.text(max_size=5) | st.binary(max_size=20),
+    lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=8), c, max_size=5),
+    max_leaves=15,
+)
+_ARRAYISH = st.fixed_dictionaries({
+    "dtype": st.text(max_size=6) | st.sampled_from(["<f4", "<i4", "|b1", "<c8", "V8", "<U3", "O"]),
+    "shape": st.lists(st.integers(-2, 2**40), max_size=3) | _ANY,
+    "data": st.binary(max_size=16) | _ANY,
+})
+_FIELDS = st.sampled_from(["stamp_ns", "samples", "ping_seq", "fs", "fidelity", "leaves_in_beam",
+                           "ids", "x", "counters", "node", "points", "intensity"])
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    type_name=st.sampled_from(sorted(REGISTRY)),
+    version=st.integers(-3, 3),
+    seq=_ANY,
+    payload=st.dictionaries(_FIELDS, _ANY | _ARRAYISH),
+    garbage=st.binary(max_size=30),
+    which=st.integers(0, 2),
+)
+def test_corrupt_frames_only_ever_raise_codec_error(
+    type_name: str, version: int, seq: object, payload: dict[str, object], garbage: bytes,
+    which: int,
+) -> None:
+    header = msgpack.packb({"type": type_name, "v": version, "seq": seq, "stamp_ns": 0,
+                            "pub_ns": 0, "frame_id": ""}, use_bin_type=True)
+    frames = [b"/a\0", header, msgpack.packb(payload, use_bin_type=True)]
+    if which:
+        frames[which] = garbage
+    try:
+        codec.decode(frames)
+    except CodecError:
+        pass

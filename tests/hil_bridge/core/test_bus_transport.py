@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from hil_bridge.codec import decode, encode, encode_header
 from hil_bridge.errors import TransportClosed
@@ -177,3 +181,48 @@ def test_ipc_bus_and_proxy_for(tmp_path: object) -> None:
         assert frames is not None and decode(frames).header.seq == 3
     proxy.stop()
     assert not proxy.running
+
+
+@given(
+    host=st.sampled_from(["127.0.0.1", "localhost", "10.0.0.7", "[::1]", "bus.lan"]),
+    port=st.integers(1, 65534),
+    sub_port=st.none() | st.integers(1, 65535),
+    hwm=st.none() | st.integers(1, 10**6),
+)
+def test_zmq_url_parsing_properties(
+    host: str, port: int, sub_port: int | None, hwm: int | None
+) -> None:
+    query = []
+    if sub_port is not None:
+        query.append(f"sub=tcp://{host}:{sub_port}")
+    if hwm is not None:
+        query.append(f"hwm={hwm}")
+    url = f"tcp://{host}:{port}" + ("?" + "&".join(query) if query else "")
+    ends = parse_zmq_url(url)
+    assert ends.pub == f"tcp://{host}:{port}"
+    assert ends.sub == f"tcp://{host}:{port + 1 if sub_port is None else sub_port}"
+    assert ends.hwm == (1000 if hwm is None else hwm)
+
+
+def test_publish_from_many_threads_loses_and_reorders_nothing(bus_url: str) -> None:
+    n_threads, per_thread = 4, 200
+    with open_transport(bus_url) as pub, open_transport(bus_url) as sub:
+        sub.subscribe(b"/m\0")
+        assert pub.wait_for_subscriber("/m", timeout=10.0)
+
+        def send(k: int) -> None:
+            for i in range(per_thread):
+                pub.publish(encode("/m", Clock(stamp_ns=i), seq=i, pub_ns=0, src=f"t{k}"))
+
+        threads = [threading.Thread(target=send, args=(k,)) for k in range(n_threads)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        per_src: dict[str, list[int]] = {}
+        for _ in range(n_threads * per_thread):
+            frames = sub.recv(timeout=10.0)
+            assert frames is not None
+            h = decode(frames).header
+            per_src.setdefault(h.src, []).append(h.seq)
+        assert per_src == {f"t{k}": list(range(per_thread)) for k in range(n_threads)}
