@@ -294,6 +294,7 @@ class SwarmSim:
         self._waggle_left = np.zeros((B, n))
         self._nb_idx = np.zeros((self._width, B, n), dtype=np.intp)
         self._nb_valid = np.zeros((self._width, B, n), dtype=bool)
+        self._pending: tuple[NDArray[np.intp], B8] | None = None
         self._owner = np.zeros(0, dtype=np.intp)
         self._other = np.zeros(0, dtype=np.intp)
         self._pair_params: dict[str, NDArray[Any]] = {}
@@ -357,19 +358,31 @@ class SwarmSim:
         pts = np.asarray(xy, dtype=np.float64)
         return _updraft_xy(pts[..., 0], pts[..., 1], self._thermals)
 
+    def _refreshes(self, step: int) -> bool:
+        return step == 1 or step % self._nfs == 0
+
+    def _lists_for(self, step: int) -> tuple[NDArray[np.intp], B8]:
+        """Neighbour lists (K, B, N) that step ``step`` (the next one) uses; a refresh is
+        computed from the current state once and reused by :meth:`step`."""
+        if not self._refreshes(step):
+            return self._nb_idx, self._nb_valid
+        if self._pending is None:
+            s = self._state
+            self._pending = find_neighbors(s.x, s.y, s.z, s.heading, s.alive, self.P,
+                                           width=self._width)
+        return self._pending
+
     def neighbors(self, i: int, run: int = 0) -> list[int]:
-        """Neighbour list of glider i (seed's KNN in radius and FOV), nearest first, as used by
-        the last step (refreshed every neighborFrameSkip steps from saved state); before the
-        first step, the list the first step will use."""
+        """Neighbour list of glider i (the seed's KNN in radius and FOV), nearest first: the
+        list the *next* step will use, i.e. rebuilt from the current (to-be-saved) state when
+        that step refreshes (step 1 and every neighborFrameSkip-th), else the stale list.
+        A dead glider may stay in a list until the next refresh, as in the seed."""
         n = self._state.x.shape[1]
         if not 0 <= i < n:
             raise ValueError(f"glider index {i} out of range 0..{n - 1}")
-        if self.step_count == 0:
-            s = self._state
-            idx, valid = find_neighbors(s.x, s.y, s.z, s.heading, s.alive, self.P,
-                                        width=self._width)
-        else:
-            idx, valid = self._nb_idx, self._nb_valid
+        if not 0 <= run < self.batch:
+            raise ValueError(f"run index {run} out of range 0..{self.batch - 1}")
+        idx, valid = self._lists_for(self.step_count + 1)
         return [int(j) for j, ok in zip(idx[:, run, i], valid[:, run, i], strict=True) if ok]
 
     def metrics(self, run: int = 0) -> Metrics:
@@ -404,8 +417,9 @@ class SwarmSim:
         fade_step(th, by_time=P["fade_by_time"], rate=P["fade_rate"], top=P["fade_top"],
                   bottom=P["fade_bottom"], dt=self.dt)
         B, n = s.x.shape
-        if step == 1 or step % self._nfs == 0:
-            idx, valid = find_neighbors(s.x, s.y, s.z, s.heading, s.alive, P, width=self._width)
+        if self._refreshes(step):
+            idx, valid = self._lists_for(step)
+            self._pending = None
             self._nb_idx, self._nb_valid = idx, valid
             self._owner, self._other = neighbor_pairs(idx, valid)
             self._pair_params = P.per_pair(self._owner // max(n, 1))
@@ -554,6 +568,7 @@ class SwarmSim:
         self._waggle_rngs = [self._waggle_rngs[r] for r in runs]
         self._waggle_sign = self._waggle_sign[runs]
         self._waggle_left = self._waggle_left[runs]
+        self._pending = None
         self._nb_idx = self._nb_idx[:, runs]
         self._nb_valid = self._nb_valid[:, runs]
         self._owner, self._other = neighbor_pairs(self._nb_idx, self._nb_valid)
