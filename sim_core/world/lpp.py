@@ -398,9 +398,25 @@ def interpret(
         if at.size:
             seg[at] = opens[np.searchsorted(opens, at, side="right") - 1]
 
-    # segmented inclusive scan (log-step) of the local transforms inside every bracket level
+    # a leaf changes nothing: it takes the state of the last non-leaf token before it in its
+    # bracket level, or of the '[' opening the level (-1: the start state); leaves skip the scan
+    leaf = kind == _LEAF
     members = pos[body]
-    order = members[np.argsort(seg[members], kind="stable")]
+    order_all = members[np.argsort(seg[members], kind="stable")]
+    seg_sorted = seg[order_all]
+    idx = np.arange(order_all.size)
+    starts_seg = np.ones(order_all.size, dtype=bool)
+    starts_seg[1:] = seg_sorted[1:] != seg_sorted[:-1]
+    head_all = np.maximum.accumulate(np.where(starts_seg, idx, 0))
+    leaf_sorted = leaf[order_all]
+    last_state = np.maximum.accumulate(np.where(leaf_sorted, -1, idx))[leaf_sorted]
+    within = last_state >= head_all[leaf_sorted]
+    leaf_ref = np.where(
+        within, order_all[np.maximum(last_state, 0)], seg_sorted[leaf_sorted]
+    )[np.argsort(order_all[leaf_sorted])]  # back to command order
+
+    # segmented inclusive scan (log-step) of the local transforms inside every bracket level
+    order = order_all[~leaf_sorted]
     draw = is_draw & mv
     draw_len = t[1, draw].copy()
     qs, ts = q[:, order], t[:, order]
@@ -423,7 +439,8 @@ def interpret(
     del qs, ts
 
     # resolve nesting: world = world('[' that opens the level) ∘ prefix inside the level
-    for level_tokens in groups[1:]:
+    for level_all in groups[1:]:
+        level_tokens = level_all[~leaf[level_all]]
         for blk in range(0, level_tokens.size, _CHUNK):
             at = level_tokens[blk : blk + _CHUNK]
             parent = seg[at]
@@ -432,13 +449,15 @@ def interpret(
             Wq[:, at] = _qmul(pq, Wq[:, at])
 
     yhat = np.array([[0.0], [1.0], [0.0]])
-    leaf = kind == _LEAF
-    leaf_dir = _qrot(Wq[:, leaf], np.broadcast_to(yhat, (3, int(leaf.sum())))).T
+    # column -1 of the extended arrays is the start state (identity at the origin)
+    leaf_q = np.concatenate([Wq, [[1.0], [0.0], [0.0], [0.0]]], axis=1)[:, leaf_ref]
+    leaf_t = np.concatenate([Wt, np.zeros((3, 1))], axis=1)[:, leaf_ref]
+    leaf_dir = _qrot(leaf_q, np.broadcast_to(yhat, (3, leaf_ref.size))).T
     heading = _qrot(Wq[:, draw], np.broadcast_to(yhat, (3, int(draw.sum())))).T
     seg_end = Wt[:, draw].T
     seg_start = seg_end - heading * draw_len[:, None]
     return TurtleResult(
-        leaf_pos=Wt[:, leaf].T.copy(),
+        leaf_pos=leaf_t.T.copy(),
         leaf_dir=leaf_dir / np.linalg.norm(leaf_dir, axis=1, keepdims=True),
         seg_start=seg_start,
         seg_end=seg_end,

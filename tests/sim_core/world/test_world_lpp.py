@@ -170,3 +170,14 @@ def test_expansion_cap_fails_clearly() -> None:
     g = parse_grammar("30\n15\n60\nA\nA=AA\n")
     with pytest.raises(ValueError, match=r"exceeds \d+ symbols; lower the growth level"):
         expand(g, 30, np.random.default_rng(0))
+
+
+def test_turtle_edge_cases_match_sequential_turtle() -> None:
+    # leaves before any move, at the start of brackets, right after ']' and runs of one axis
+    g = parse_grammar("0\n15\n60\n**[*[*]^*]*f[&*]*\\\\\\\\/f*[[[*]]]+(30)-(10)ff*\n")
+    seq, table = expand(g, 0, np.random.default_rng(0))
+    out = interpret(seq, table, g.default_angle_deg, np.random.default_rng(0), angle_noise=0.0)
+    pos, dirs = _reference_turtle(seq, table, g.default_angle_deg)
+    assert pos.shape == (11, 3)
+    np.testing.assert_allclose(out.leaf_pos, pos, atol=1e-12)
+    np.testing.assert_allclose(out.leaf_dir, dirs, atol=1e-12)
