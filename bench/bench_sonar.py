@@ -119,7 +119,7 @@ def _table1() -> str:
     return (
         "Table 1 of seed 000 (setup I: total time of all pings on the circle, BW 10°; setup "
         "II: one ping, fixed position). Seed numbers are MATLAB on a 2.1 GHz Xeon E5-2683v4; "
-        "ours exclude forest building (k-d tree prebuilt).\n\n" + md
+        "ours exclude forest building.\n\n" + md
         + "\n\nIn the paper's shape (fast):\n\n" + table1_markdown(fast_s, "fast")
     )
 

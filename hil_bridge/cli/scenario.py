@@ -36,9 +36,7 @@ __all__ = ["main", "run_pings", "table1_markdown", "time_table1"]
 def run_pings(
     leaves: Leaves, pings: list[Ping], params: EchoParams, fidelity: str
 ) -> tuple[list[Echo], list[float]]:
-    """Echo and wall-clock seconds of each ping (the leaves' k-d tree is built beforehand)."""
-    if len(leaves):
-        leaves.query_ball(leaves.centers[0], 1.0)
+    """Echo and wall-clock seconds of each ping."""
     echoes, seconds = [], []
     for ping in pings:
         t0 = time.perf_counter()

@@ -152,10 +152,18 @@ def _ear_geometry(beam: Beam, params: EchoParams) -> list[tuple[F64, F64, float]
     return out
 
 
-def _candidates(leaves: object, beam: Beam, reach: float) -> NDArray[np.intp] | None:
-    """Indices within ``reach`` of the sonar from the leaves' own spatial index, if it has one."""
+#: leaf sets at least this large are culled through their own ``query_ball`` (a k-d tree that
+#: pays for its construction only when a large set is reused across pings); smaller sets, such
+#: as the per-ping ``TiledForest.leaves_near`` result, are culled by the vectorised cone test
+INDEX_MIN_LEAVES = 200_000
+
+
+def _candidates(
+    leaves: object, count: int, beam: Beam, reach: float
+) -> NDArray[np.intp] | None:
+    """Indices within ``reach`` of the sonar from the leaves' own spatial index, if worth it."""
     query = getattr(leaves, "query_ball", None)
-    if query is None:
+    if query is None or count < INDEX_MIN_LEAVES:
         return None
     return np.asarray(query(beam.position, reach), dtype=np.intp)
 
@@ -167,13 +175,14 @@ def prepare(
 
     Guards: leaves with a non-finite centre/normal/radius, a zero normal or r < r_min are dropped
     and counted; if the window cannot hold the farthest kept leaf (max delay + call length >=
-    N / fs) a ValueError names the numbers. Uses ``leaves.query_ball(point, r)`` when present.
+    N / fs) a ValueError names the numbers. For INDEX_MIN_LEAVES or more leaves with a
+    ``query_ball(point, r)`` method (``sim_core.world.Leaves``) only that ball is examined.
     """
     c, n, a = _leaf_arrays(leaves)
     v = params.speed
     r0 = params.selection_radius
     a0 = params.peak_amplitude
-    cand = _candidates(leaves, beam, r0 * max(a0, 1.0))
+    cand = _candidates(leaves, c.shape[0], beam, r0 * max(a0, 1.0))
     if cand is not None:
         c, n, a = c[cand], n[cand], a[cand]
     ones = np.ones(3)

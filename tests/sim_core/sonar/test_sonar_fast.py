@@ -89,3 +89,15 @@ def test_fast_validates_its_options() -> None:
         Fast(order=0)
     with pytest.raises(ValueError, match="eps"):
         Fast(eps=0.5)
+
+
+def test_large_world_leaves_are_culled_through_their_index_with_the_same_echo() -> None:
+    from sim_core.sonar.model import INDEX_MIN_LEAVES
+    from sim_core.world import Leaves
+
+    c, n, a = cone_cloud(INDEX_MIN_LEAVES, seed=4, half_angle_deg=90.0, r_lo=0.0, r_hi=40.0)
+    world = Leaves(c, n, a, np.zeros(len(a), dtype=np.int32))
+    via_index = synthesize(world, BEAM)
+    plain = synthesize((c, n, a), BEAM)
+    assert via_index.leaves_in_beam == plain.leaves_in_beam > 0
+    np.testing.assert_array_equal(via_index.samples, plain.samples)
