@@ -283,12 +283,12 @@ _R = 0.025 / 1.4
 
 #: named tree models (species presets)
 TREE_MODELS: dict[str, TreeModel] = {
-    # seed 000 "maple" branching: 6-level forest variant, ~10-13 m tall
+    # seed 000 "maple" branching: 6-level forest variant, 14-21 m tall
     "maple": GMT3Tree(),
     # seed 000 single-tree variant (Fig 5a/b first-level branches), 1 unit = 2 m
     "maple-single": GMT3Tree(variant="single", unit_m=2.0, nodes=8, leaves_per_node=6),
     # stand-in for the missing hazelnut CAD (spec §2A.4): a short-stemmed, round GMT3 shrub,
-    # ~3-4 m tall and ~3 m wide
+    # ~3 m tall and ~3 m wide
     "hazelnut-bush": GMT3Tree(
         levels=5,
         trunk=0.25,
