@@ -59,9 +59,6 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown benchmark(s) {unknown}; expected some of {names}")
     selected = args.only or names
-    doc = DOC.read_text(encoding="utf-8") if DOC.exists() else HEADER
-    if not doc.startswith("# Benchmarks"):
-        doc = HEADER + "\n" + doc
     FIG_DIR.mkdir(parents=True, exist_ok=True)
     for name in selected:
         module = importlib.import_module(f"bench.bench_{name}")
@@ -74,8 +71,11 @@ def main(argv: list[str] | None = None) -> int:
             f"## {module.TITLE}\n\n_Run {stamp} on {_machine()}; "
             f"section took {elapsed:.0f} s (`python -m bench {name}`)._\n\n{body.strip()}\n"
         )
-        doc = _splice(doc, name, section)
-        DOC.write_text(doc, encoding="utf-8")
+        # re-read just before writing, so sections run concurrently do not erase each other
+        doc = DOC.read_text(encoding="utf-8") if DOC.exists() else HEADER
+        if not doc.startswith("# Benchmarks"):
+            doc = HEADER + "\n" + doc
+        DOC.write_text(_splice(doc, name, section), encoding="utf-8")
         print(f"[bench] {name}: done in {elapsed:.1f} s", file=sys.stderr, flush=True)
     return 0
 
