@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -72,6 +72,7 @@ class LawParams:
 
     p: dict[str, NDArray[np.generic]]
     dt: float
+    _distinct: dict[str, list[float]] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> NDArray[Any]:
         return self.p[name]
@@ -84,8 +85,12 @@ class LawParams:
         return LawParams({k: v[runs] for k, v in self.p.items()}, self.dt)
 
     def values(self, name: str) -> list[float]:
-        """Distinct values of a per-run parameter in this batch."""
-        return [float(v) for v in np.unique(self.p[name])]
+        """Distinct values of a per-run parameter in this batch (cached)."""
+        vals = self._distinct.get(name)
+        if vals is None:
+            vals = [float(v) for v in np.unique(self.p[name])]
+            self._distinct[name] = vals
+        return vals
 
     def per_pair(self, run: NDArray[np.intp]) -> dict[str, NDArray[Any]]:
         """The per-run parameters the controller needs per neighbour pair, shape (V,)."""

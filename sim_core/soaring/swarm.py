@@ -368,8 +368,10 @@ class SwarmSim:
             return self._nb_idx, self._nb_valid
         if self._pending is None:
             s = self._state
-            self._pending = find_neighbors(s.x, s.y, s.z, s.heading, s.alive, self.P,
-                                           width=self._width)
+            idx, valid = find_neighbors(s.x, s.y, s.z, s.heading, s.alive, self.P,
+                                        width=self._width)
+            # a dead glider flies no more: it needs no list (it can still be in others' lists)
+            self._pending = (idx, valid & s.alive[None])
         return self._pending
 
     def neighbors(self, i: int, run: int = 0) -> list[int]:
