@@ -45,7 +45,7 @@ MAX_ORDER = 24
 #: batched mode is slower there); smaller groups use one batched call
 LOOP_MIN_LEAVES = 20_000
 #: leaves sampled (evenly) for the per-echo a-posteriori interpolation error
-CHECK_SAMPLE = 256
+CHECK_SAMPLE = 128
 #: minimum Chebyshev nodes with the frequency-dependent (incident_freq) beamwidth
 INCIDENT_FREQ_ORDER = 12
 #: NUFFT tolerances at or above this run in single precision (float32 delays: the phase of mode
@@ -181,10 +181,12 @@ class Fast(Fidelity):
             np.multiply(w, rot[blk], out=strengths[:, blk])
         x = ((np.mod(cycles + 0.5, 1.0) - 0.5) * (2.0 * np.pi)).astype(strengths.real.dtype)
         if M < LOOP_MIN_LEAVES:
-            modes = finufft.nufft1d1(x, strengths, B, eps=self.eps, isign=-1, nthreads=1)
+            plan = _plan(B, self.eps, single, P)
+            plan.setpts(x)
+            modes = plan.execute(strengths)
         else:
             modes = np.empty((P, B), dtype=cdt)
-            plan = _plan(B, self.eps, single)
+            plan = _plan(B, self.eps, single, 1)
             plan.setpts(x)
             for p in range(P):
                 plan.execute(strengths[p], out=modes[p])
@@ -258,7 +260,7 @@ def _interpolation_error(
         scene.select(pick), ch, 0.5 * (f_lo + f_hi) + 0.5 * (f_hi - f_lo) * check, params
     )
     w = (strengths[:, pick] / rot[pick]).T
-    approx = w @ _check_basis(nodes.shape[0])
+    approx = np.einsum("mp,pc->mc", w, _check_basis(nodes.shape[0]).astype(w.real.dtype))
     amp = np.abs(exact).max(axis=1)
     total = float(amp.sum())
     if total == 0.0:
@@ -270,14 +272,14 @@ def _interpolation_error(
 _PLANS = threading.local()
 
 
-def _plan(modes: int, eps: float, single: bool) -> Any:
-    """A per-thread cached finufft type-1 plan (one transform; points unsorted: the fine grid
-    of a few thousand points fits in cache, so sorting only costs)."""
-    cache: dict[tuple[int, float, bool], Any] = _PLANS.__dict__.setdefault("plans", {})
-    key = (modes, eps, single)
+def _plan(modes: int, eps: float, single: bool, n_trans: int) -> Any:
+    """A per-thread cached finufft type-1 plan for ``n_trans`` transforms (points unsorted: the
+    fine grid of a few thousand points fits in cache, so sorting only costs)."""
+    cache: dict[tuple[int, float, bool, int], Any] = _PLANS.__dict__.setdefault("plans", {})
+    key = (modes, eps, single, n_trans)
     if key not in cache:
         cache[key] = finufft.Plan(
-            1, (modes,), n_trans=1, eps=eps, isign=-1, nthreads=1, spread_sort=0,
+            1, (modes,), n_trans=n_trans, eps=eps, isign=-1, nthreads=1, spread_sort=0,
             dtype="complex64" if single else "complex128",
         )
     return cache[key]

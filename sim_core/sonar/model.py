@@ -124,10 +124,15 @@ def _leaf_arrays(
     return c, n, a
 
 
+def _rowdot(x: F64, v: F64) -> F64:
+    """x @ v for x (M,3), v (3,) without BLAS (OpenBLAS threads spin on a shared machine)."""
+    return np.einsum("ij,j->i", x, v)
+
+
 def _theta2(u: F64, axis: F64, seed2020: bool) -> F64:
     """Squared off-axis angle, rad^2, shape (M,): arccos(u.b)^2, or (seed2020) daz^2 + del^2."""
     if not seed2020:
-        return np.arccos(np.clip(u @ axis, -1.0, 1.0)) ** 2
+        return np.arccos(np.clip(_rowdot(u, axis), -1.0, 1.0)) ** 2
     az = np.arctan2(u[:, 1], u[:, 0])
     el = np.arcsin(np.clip(u[:, 2], -1.0, 1.0))
     az0 = math.atan2(float(axis[1]), float(axis[0]))
@@ -188,7 +193,7 @@ def prepare(
     ones = np.ones(3)
     d = c - beam.position
     with np.errstate(invalid="ignore", over="ignore"):
-        finite = np.isfinite(d @ ones + n @ ones + a)
+        finite = np.isfinite(_rowdot(d, ones) + _rowdot(n, ones) + a)
     nn2 = np.einsum("ij,ij->i", n, n)
     r2 = np.einsum("ij,ij->i", d, d)
     valid = finite & (nn2 > 0.0) & (r2 >= params.r_min**2)
@@ -196,7 +201,7 @@ def prepare(
     # Pre-cull before any transcendental: S1 >= r/r0 >= r_min/r0 bounds the off-axis angle.
     sigma = beam.sigma
     reach_angle = sigma * math.sqrt(2.0 * math.log(max(a0 * r0 / params.r_min, 1.0 + 1e-12)))
-    proj = d @ beam.boresight
+    proj = _rowdot(d, beam.boresight)
     cand_mask = valid & (r2 <= (r0 * a0) ** 2)
     if not params.seed2020 and reach_angle < math.pi:
         with np.errstate(invalid="ignore"):
@@ -278,14 +283,14 @@ def prepare(
         if params.moving:
             q = dr - vel * t1[:, None]
             qq = np.einsum("ij,ij->i", q, q)
-            qv = q @ vel
+            qv = _rowdot(q, vel)
             vv = float(vel @ vel)
             s = qq / (qv + np.sqrt(qv * qv + (v * v - vv) * qq))
             tau[ch] = t1 + s
             if doppler:
                 u_rx = (q - vel * s[:, None]) / (v * s)[:, None]
-                leaf_ratio[ch] = v / (v - u @ vel)
-                eta[ch] = leaf_ratio[ch] * (v + u_rx @ vel) / v
+                leaf_ratio[ch] = v / (v - _rowdot(u, vel))
+                eta[ch] = leaf_ratio[ch] * (v + _rowdot(u_rx, vel)) / v
         else:
             tau[ch] = (r + rr) / v
     if m:
