@@ -28,12 +28,13 @@ swarm's stepping. Commands for path vehicles are counted in ``cmd_ignored``.
 **Echoes.** Each ping is answered at the pose of its sonar's vehicle when the ping *arrives*
 (the latest published state), with the beam boresight at world azimuth ``heading + az`` and
 elevation ``el`` (bank and pitch are not applied). Pings wait in a bounded queue (``echo_queue``;
-when full the oldest waiting ping is dropped and counted) served by an echo thread. With
-``echo_worker: process`` (default) the echo thread hands each ping to a spawned worker process
-that holds its own copy of the scene (forest tile cache included): tile building and synthesis
-then never hold this process's GIL, so a slow echo cannot delay the state stream.
-``echo_worker: thread`` computes in the echo thread itself (no extra process; the tick loop
-then shares the GIL with the synthesis).
+when full the oldest waiting ping is dropped and counted) served by an echo thread, off the tick
+loop, so a slow echo never delays the state stream (the synthesis and the k-d tree queries
+release the GIL in their heavy numpy/finufft calls; ``bench/bench_server.py`` measures the state
+stream with and without echoes). ``echo_worker: process`` instead hands each ping to a spawned
+worker process holding its own copy of the scene and tile cache, for scenes whose tile building
+or fidelity holds the GIL for long; the launching script must then be import-safe (an
+``if __name__ == "__main__"`` guard, as ``echoloop`` has).
 
 **Time.** The server ticks at ``state_rate_hz`` of sim time. The swarm steps every ``law.dt`` of
 sim time (zero-order hold of its state between steps); path vehicles are sampled at each tick.
@@ -106,7 +107,7 @@ class ServerParams:
     stop_after_s: float | None = None
     publish_thermals: bool = True
     forest_points: int = 20000
-    echo_worker: Literal["process", "thread"] = "process"
+    echo_worker: Literal["thread", "process"] = "thread"
 
     def __post_init__(self) -> None:
         if not isinstance(self.scene, str | Mapping | Path):
@@ -243,7 +244,7 @@ class SimServer:
 
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
-    publish_thermals=True, forest_points=20000, echo_worker="process")``. ``scene`` is a
+    publish_thermals=True, forest_points=20000, echo_worker="thread")``. ``scene`` is a
     scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and ``state_rate_hz``
     override the scene's.
     ``stop_after_s``: stop ticking at that sim time (the node keeps answering pings).
