@@ -8,6 +8,7 @@ the ``reference`` echo of the same scene computed in the same run.
 from __future__ import annotations
 
 import math
+import os
 import time
 from functools import partial
 from pathlib import Path
@@ -60,7 +61,7 @@ def _fidelity_table(out_dir: Path) -> tuple[str, list[tuple[str, float, float]]]
     return md + "\n\n" + note, pareto
 
 
-def _sweeps() -> tuple[str, list[tuple[str, float, float]]]:
+def _sweeps() -> tuple[str, list[tuple[str, float, float]], list[tuple[str, float, float]]]:
     leaves = leaf_cone(10_000, derive_rng(2, "bench", "sonar", "sweep"),
                        half_angle_rad=math.radians(30.0), r_hi=9.5)
     beam = Beam([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], math.radians(40.0))
@@ -78,6 +79,7 @@ def _sweeps() -> tuple[str, list[tuple[str, float, float]]]:
     md_opts = table(["Chebyshev nodes P (no adaptation)", "NUFFT eps", "time / echo",
                      "error vs reference", "reported bound"], rows)
     rows = []
+    cut_points: list[tuple[str, float, float]] = []
     for cut in (20.0, 23.0, 26.0, 30.0, 35.0, 40.0):
         params = EchoParams(threshold_db=cut)
         echo = synthesize(leaves, beam, params, fidelity="fast")
@@ -85,7 +87,7 @@ def _sweeps() -> tuple[str, list[tuple[str, float, float]]]:
         err = _err(echo.samples, ref.samples)
         rows.append([f"{cut:.0f} dB", echo.leaves_in_beam, fmt_s(t), f"{err:.1e}",
                      f"{10 ** (-(cut - 20) / 20):.2f}"])
-        pareto.append((f"fast G={cut:.0f} dB", t, err))
+        cut_points.append((f"fast G={cut:.0f} dB", t, err))
     md_cut = table(["selection threshold G", "leaves kept", "time / echo (fast)",
                     "error vs reference at G = 20 dB", "r_max / r_max(20 dB)"], rows)
     return (
@@ -93,7 +95,7 @@ def _sweeps() -> tuple[str, list[tuple[str, float, float]]]:
         f"Error vs expansion order and NUFFT tolerance:\n\n{md_opts}\n\n"
         f"Error vs beam cut-off (raising G drops the leaves with S1/r below "
         f"10^(-(G-20)/20) / 10 m; `realtime` uses exactly this):\n\n{md_cut}"
-    ), pareto
+    ), pareto, cut_points
 
 
 def _table1() -> str:
@@ -137,38 +139,46 @@ def _baseband() -> str:
                   "rel. L2 error of the reconstruction"], rows)
 
 
-def _plot_pareto(points: list[tuple[str, float, float]], path: Path) -> None:
+def _plot_pareto(groups: dict[str, list[tuple[str, float, float]]], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 5))
-    for label, t, err in points:
-        ax.scatter(t * 1e3, max(err, 1e-12), s=14)
-        ax.annotate(label, (t * 1e3, max(err, 1e-12)), fontsize=6, xytext=(3, 2),
-                    textcoords="offset points")
+    for (group, points), marker in zip(groups.items(), "os^", strict=False):
+        ts = [t * 1e3 for _, t, _ in points]
+        errs = [max(e, 1e-12) for _, _, e in points]
+        ax.scatter(ts, errs, s=18, marker=marker, label=group)
+        if group == "fidelities":
+            for (label, _, _), t, e in zip(points, ts, errs, strict=True):
+                ax.annotate(label, (t, e), fontsize=7, xytext=(3, 2), textcoords="offset points")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.axhline(1e-3, color="grey", lw=0.6, ls="--")
-    ax.set_xlabel("time per echo (ms)")
+    ax.set_xlabel("time per echo (ms, median)")
     ax.set_ylabel("relative L2 error vs reference")
     ax.set_title("sim_core.sonar: speed / accuracy")
     ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
 def run(out_dir: Path) -> str:
+    load = os.getloadavg()[0]
     fid_md, pareto = _fidelity_table(out_dir)
-    sweep_md, pareto2 = _sweeps()
+    sweep_md, sweep_points, cut_points = _sweeps()
     png = out_dir / "sonar_pareto.png"
-    _plot_pareto(pareto + pareto2, png)
+    _plot_pareto({"fidelities": pareto, "fast: nodes x NUFFT eps (1e4 scene)": sweep_points,
+                  "fast: raised cut-off G (1e4 scene)": cut_points}, png)
     realtime = Realtime()
     return "\n\n".join([
         "Every leaf of each scene is in a 30° beam (synthetic cone, ranges 1–8 m, seed 000 "
-        "leaf sizes); one core (finufft nthreads=1).",
+        f"leaf sizes); one core (finufft nthreads=1). Load average at the start: {load:.1f} on "
+        f"{os.cpu_count()} cores — on a shared machine absolute times vary from run to run; "
+        "the ratios compare figures of the same run.",
         fid_md,
         f"![speed/accuracy](figures/bench/{png.name})",
         "### Options of `fast`\n\n" + sweep_md,
