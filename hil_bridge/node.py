@@ -1,15 +1,21 @@
 """Nodes: rclpy-shaped publishers, subscriptions and timers over one bus transport.
 
 A :class:`Node` opens its transport when constructed (so publishers and subscriptions made in
-``__init__`` are live at once) and runs two threads after :meth:`Node.start`:
+``__init__`` are live at once) and runs two worker threads after :meth:`Node.start`, in a
+leader/follower pattern:
 
-- ``<name>-rx`` receives, decodes, deduplicates, acknowledges ``COMMAND`` messages and queues
-  each message on its subscription's keep-last queue (depth from the QoS profile; overflow is
-  dropped and counted; reliable subscriptions never drop an acknowledged message). It never
-  runs user code, so a slow callback cannot stall reception.
-- ``<name>-exec`` runs subscription callbacks, timers (on the node's :class:`SimClock`),
-  ``COMMAND`` retransmissions and the periodic ``/diagnostics`` publication, one at a time (like
-  rclpy's single-threaded executor).
+- at any time one worker is the *leader*: it alone receives, decodes, deduplicates and
+  acknowledges ``COMMAND`` messages, in arrival order;
+- at most one worker holds the *executor* role: it runs subscription callbacks, timers (on the
+  node's :class:`SimClock`), ``COMMAND`` retransmissions and the periodic ``/diagnostics``, one at
+  a time (like rclpy's single-threaded executor).
+
+A leader that receives a message while the executor role is free and nothing is queued hands
+leadership to the other worker and runs the callback itself (no thread hand-off on the latency
+path). Otherwise the message goes to its subscription's keep-last queue (depth from the QoS
+profile; overflow dropped and counted; reliable subscriptions never drop an acknowledged
+message). Since a callback always leaves the other worker free to lead, a slow callback costs
+drops on its own queue, never stalled reception.
 
 A frame that does not decode (unknown type, newer version, wrong type for the topic, corrupt)
 is dropped and counted as ``decode_errors``; an exception in a callback is logged and counted as
@@ -279,6 +285,11 @@ class Node:
         self._lock = threading.RLock()
         self._exec_cond = threading.Condition()
         self._ready: deque[Subscription[Any]] = deque()
+        self._leading = False
+        self._exec_busy = False
+        self._next_housekeeping = 0.0
+        self._next_service = 0.0
+        self._next_diag = 0.0
         self._stopping = False
         self._stopped = False
         self._threads: list[threading.Thread] = []
@@ -389,9 +400,10 @@ class Node:
                 return self
             if self.diagnostics_period_s > 0 and self._diag_pub is None:
                 self._diag_pub = self.create_publisher(Diagnostics, "/diagnostics")
+            self._next_diag = time.monotonic() + self.diagnostics_period_s
             self._threads = [
-                threading.Thread(target=self._rx_loop, name=f"{self.name}-rx", daemon=True),
-                threading.Thread(target=self._exec_loop, name=f"{self.name}-exec", daemon=True),
+                threading.Thread(target=self._worker, name=f"{self.name}-w{k}", daemon=True)
+                for k in range(2)
             ]
             for thread in self._threads:
                 thread.start()
@@ -457,8 +469,11 @@ class Node:
 
     # -- internals ---------------------------------------------------------------------------
     def _wake_exec(self) -> None:
+        """Something time-driven changed (clock step, new timer, reliable publish): let an idle
+        worker run housekeeping now."""
         with self._exec_cond:
-            self._exec_cond.notify()
+            self._next_housekeeping = 0.0
+            self._exec_cond.notify_all()
 
     def _on_remote_subscribe(self, prefix: bytes) -> None:
         with self._lock:
@@ -478,31 +493,101 @@ class Node:
         self._topic(topic)["decode_errors"] += 1
         log.debug("%s: dropped a message on %r: %s", self.name, topic, exc)
 
-    def _rx_loop(self) -> None:
-        transport = self.transport
-        next_service = 0.0
-        while not self._stopping:
-            now = time.monotonic()
-            if now >= next_service:
-                transport.service(0.0)
-                next_service = now + _RX_SLICE_S
-            frames = transport.recv(timeout=_RX_SLICE_S)
-            if frames is None or self._stopping:
-                continue
-            subs = self._subs.get(frames[0])
-            if not subs:
-                continue
-            try:
-                header = decode_header(frames[1])
-            except CodecError as exc:
-                self._decode_error(frames[0], exc)
-                continue
-            self._dispatch(subs, frames, header)
+    def _worker(self) -> None:
+        """One of the node's two workers (leader/follower): at any time at most one of them
+        receives (the leader) and at most one runs user code (the executor role)."""
+        cond = self._exec_cond
+        while True:
+            job: tuple[Subscription[Any], Envelope] | None = None
+            with cond:
+                while True:
+                    if self._stopping:
+                        return
+                    if not self._exec_busy and self._ready:
+                        job = self._pop_ready()
+                        if job is not None:
+                            self._exec_busy = True
+                            mode = "callback"
+                            break
+                        continue
+                    if not self._leading:
+                        self._leading = True
+                        mode = "lead"
+                        break
+                    wait = self._next_housekeeping - time.monotonic()
+                    if not self._exec_busy and wait <= 0:
+                        self._exec_busy = True
+                        mode = "housekeeping"
+                        break
+                    cond.wait(wait if wait > 0 else None)
+            if mode == "lead":
+                inline = self._lead()
+                if inline is not None:
+                    self._run_callback(*inline)
+                    self._release_exec()
+            elif mode == "callback" and job is not None:
+                self._run_callback(*job)
+                self._release_exec()
+            else:
+                wait = self._housekeeping()
+                with cond:
+                    self._next_housekeeping = time.monotonic() + wait
+                self._release_exec()
 
-    def _dispatch(self, subs: list[Subscription[Any]], frames: list[bytes], header: Header) -> None:
+    def _pop_ready(self) -> tuple[Subscription[Any], Envelope] | None:
+        sub = self._ready.popleft()
+        return (sub, sub.queue.popleft()) if sub.queue else None
+
+    def _release_exec(self) -> None:
+        with self._exec_cond:
+            self._exec_busy = False
+            self._exec_cond.notify_all()
+
+    def _lead(self) -> tuple[Subscription[Any], Envelope] | None:
+        """Receive and process one message as the leader, then hand leadership on. Returns the
+        delivery to run inline (the executor role is then reserved for it), if any."""
+        deliveries: list[tuple[Subscription[Any], Envelope]] = []
+        try:
+            now = time.monotonic()
+            if now >= self._next_service:
+                self.transport.service(0.0)
+                self._next_service = now + _RX_SLICE_S
+            frames = self.transport.recv(timeout=_RX_SLICE_S)
+            if frames is not None and not self._stopping:
+                subs = self._subs.get(frames[0])
+                if subs:
+                    deliveries = self._process(subs, frames)
+        except Exception:  # never let one message end reception
+            log.exception("%s: receiving failed", self.name)
+        with self._exec_cond:
+            self._leading = False
+            inline = None
+            if len(deliveries) == 1 and not self._exec_busy and not self._ready:
+                self._exec_busy = True
+                inline = deliveries[0]
+            else:
+                for sub, envelope in deliveries:
+                    if len(sub.queue) >= sub.qos.depth and not sub.qos.reliable:
+                        sub.queue.popleft()
+                        sub._counters["dropped"] += 1
+                    sub.queue.append(envelope)
+                    self._ready.append(sub)
+            self._exec_cond.notify_all()
+        return inline
+
+    def _process(
+        self, subs: list[Subscription[Any]], frames: list[bytes]
+    ) -> list[tuple[Subscription[Any], Envelope]]:
+        """Decode, deduplicate, acknowledge; return what to deliver (in arrival order)."""
+        try:
+            header = decode_header(frames[1])
+        except CodecError as exc:
+            self._decode_error(frames[0], exc)
+            return []
         decoded: Message | None = None
         topic = subs[0].topic
         payload = frames[2]
+        out: list[tuple[Subscription[Any], Envelope]] = []
         for sub in subs:
             counters = sub._counters
             if header.type != sub.msg_type.TYPE:
@@ -516,21 +601,15 @@ class Node:
                     decoded = decode_payload(header.type, header.v, payload)
                 except CodecError as exc:
                     self._decode_error(frames[0], exc)
-                    return
+                    return []
             if sub.qos.reliable:
                 self._send_ack(topic, header)
             if sub._is_duplicate(header):
                 counters["duplicates"] += 1
                 continue
             counters["received"] += 1
-            envelope = Envelope(topic, header, decoded, payload)
-            with self._exec_cond:
-                if len(sub.queue) >= sub.qos.depth and not sub.qos.reliable:
-                    sub.queue.popleft()
-                    counters["dropped"] += 1
-                sub.queue.append(envelope)
-                self._ready.append(sub)
-                self._exec_cond.notify()
+            out.append((sub, Envelope(topic, header, decoded, payload)))
+        return out
 
     def _send_ack(self, topic: str, header: Header) -> None:
         pub = self._ack_pubs.get(topic)
@@ -545,30 +624,6 @@ class Node:
                 )
             )
 
-    def _exec_loop(self) -> None:
-        next_diag = time.monotonic() + self.diagnostics_period_s
-        while True:
-            with self._exec_cond:
-                if self._stopping:
-                    return
-                work: Subscription[Any] | None = self._ready.popleft() if self._ready else None
-                envelope = work.queue.popleft() if work is not None and work.queue else None
-            if envelope is not None and work is not None:
-                self._run_callback(work, envelope)
-                continue
-            if work is not None:
-                continue
-            wait = self._service_timers_and_retries()
-            if self.diagnostics_period_s > 0:
-                now = time.monotonic()
-                if now >= next_diag:
-                    self._publish_diagnostics()
-                    next_diag = now + self.diagnostics_period_s
-                wait = min(wait, max(0.0, next_diag - time.monotonic()))
-            with self._exec_cond:
-                if not self._ready and not self._stopping and wait > 0:
-                    self._exec_cond.wait(wait)
-
     def _run_callback(self, sub: Subscription[Any], envelope: Envelope) -> None:
         try:
             sub.callback(envelope if sub.envelope else envelope.msg)
@@ -576,9 +631,15 @@ class Node:
             sub._counters["callback_errors"] += 1
             log.exception("%s: callback on %r raised", self.name, sub.topic)
 
-    def _service_timers_and_retries(self) -> float:
-        """Fire due timers and retransmissions; return wall seconds until the next one."""
+    def _housekeeping(self) -> float:
+        """Fire due timers, retransmissions and diagnostics; return wall s until the next."""
         wait = 1.0
+        if self.diagnostics_period_s > 0:
+            now = time.monotonic()
+            if now >= self._next_diag:
+                self._publish_diagnostics()
+                self._next_diag = now + self.diagnostics_period_s
+            wait = min(wait, max(0.0, self._next_diag - time.monotonic()))
         with self._lock:
             timers = [t for t in self._timers if not t.cancelled]
             self._timers = timers
