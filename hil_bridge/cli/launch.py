@@ -186,7 +186,8 @@ def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
         ax.plot(a[:, 0], a[:, 1], "k-", lw=1.2, label=f"sonar vehicle {mount}")
         ax.plot(a[-1, 0], a[-1, 1], "r^", ms=6)
     ax.set(title="sonar vehicle in the forest", xlabel="x [m]", ylabel="y [m]", aspect="equal")
-    ax.legend(loc="upper right", fontsize=8)
+    if ax.get_legend_handles_labels()[1]:
+        ax.legend(loc="upper right", fontsize=8)
     ax = axes[2]
     if echo is not None:
         samples = np.asarray(echo.samples, dtype=np.float64).reshape(-1, echo.samples.shape[-1])
