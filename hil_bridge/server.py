@@ -360,13 +360,14 @@ class SimServer:
                 SonarPing, f"/sonar/{sonar.id}/ping", self._make_ping_callback(sonar.id),
                 qos=SENSOR,
             )
-        node.start()
-        # build what the tick loop needs before the first tick (lazy parts stay lazy)
+        # what the tick loop and the first ping need, before any callback can run
+        # (lazy parts stay lazy)
         swarm = self.scene.swarm
         if self._vehicle_ids:
             _ = self.scene.trajectories
         self._step_vehicles(0, 0.0)
         self._update_poses(None if swarm is None else swarm.state)
+        node.start()
         self._threads = [
             threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),
         ]
