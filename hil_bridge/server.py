@@ -275,7 +275,7 @@ class SimServer:
             (
                 "ticks", "physics_steps", "states_published", "neighbors_published",
                 "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
-                "cmd_ignored", "pings_received", "pings_dropped", "pings_unknown_sonar",
+                "cmd_ignored", "pings_received", "pings_dropped",
                 "echoes_published", "echo_errors", "stalls", "stalled_steps", "late_ticks",
                 "lockstep_released", "diagnostics_published", "external_steps",
             ),
