@@ -189,7 +189,7 @@ class Publisher(Generic[M]):
 
 class Subscription(Generic[M]):
     """Made by :meth:`Node.create_subscription`; ``callback(msg)`` (or ``callback(envelope)``
-    with ``envelope=True``) runs on the node's executor thread."""
+    with ``envelope=True``) runs on a node worker, one callback at a time."""
 
     def __init__(
         self,
@@ -392,7 +392,7 @@ class Node:
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> Node:
-        """Start the receive and executor threads (non-blocking; idempotent)."""
+        """Start the two worker threads (non-blocking; idempotent)."""
         with self._lock:
             if self._threads or self._stopped:
                 if self._stopped:
