@@ -283,7 +283,7 @@ def run(out_dir: Path) -> str:
         f"counted {int(bridge['dropped'])} dropped. Of the added p50, the proxy hop that the "
         f"spec's topology requires accounts for {via['p50_ms'] - raw['p50_ms']:.3f} ms (raw "
         "pyzmq through the same kind of proxy); the rest is the bridge's own Python path "
-        "(codec, locks, the receive → executor thread hand-off).",
+        "(codec, locks, GIL hand-overs with the load thread).",
         "",
         "### Recorder throughput (in-process bus → MCAP, zstd, 64 KiB chunks)",
         "",
