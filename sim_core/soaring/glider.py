@@ -52,7 +52,7 @@ def accel_to_command(
     thermalBankFactor·w·sign(atan(a_c/g)). Limits are applied by :func:`glider_step`.
     ``cos_sin``: (cos ψ, sin ψ) if the caller has them already.
     """
-    norm = np.sqrt(ax * ax + ay * ay)
+    norm = np.hypot(ax, ay)
     big = norm > A_MAX
     if big.any():
         scale = np.where(big, A_MAX / np.where(big, norm, 1.0), 1.0)
