@@ -236,3 +236,16 @@ def test_bad_arguments_are_rejected(bus_url: str) -> None:
             pub.publish(_state(0))  # type: ignore[arg-type]
         with pytest.raises(ValueError, match="period"):
             a.create_timer(0.0, lambda: None)
+
+
+def test_timers_follow_a_realtime_clock_with_a_rate() -> None:
+    clock = SimClock("realtime", rate=100.0)  # 0.1 s of sim time per 1 ms of wall time
+    fired = Collector()
+    with Node("rt", bus="mem://rt_timer", clock=clock) as node:
+        node.start()
+        t0 = clock.now_ns()
+        node.create_timer(0.1, lambda: fired(clock.now_ns()))
+        assert fired.wait_for(5)
+    # fixed-rate: the k-th firing is never before t0 + k periods (late ones do not shift the grid)
+    due = [t0 + k * 100_000_000 for k in range(1, 6)]
+    assert all(stamp >= d for stamp, d in zip(fired.items[:5], due, strict=True))  # type: ignore[operator]
