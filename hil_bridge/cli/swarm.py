@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -56,6 +57,21 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--batch-size", type=int, default=64,
                    help="runs stepped together in one vectorised batch (default 64)")
     s.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+    p = sub.add_parser("plot", help="figures from a trace (.npz) or a sweep table")
+    p.add_argument("--out", required=True, metavar="FILE.png", help="the PNG to write")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--trace", metavar="FILE.npz",
+                     help="paths coloured by time and vertical speed (Figs 3-4), or with "
+                          "--agents their height, vertical speed and cohesion (Figs 7, 9, 10)")
+    src.add_argument("--table", metavar="FILE",
+                     help="sweep results (.csv/.parquet): histograms split by --by (Figs 11-14)")
+    p.add_argument("--agents", metavar="I,J,...", help="glider ids for the time series")
+    p.add_argument("--from", dest="t0", type=float, default=None, help="series start time, s")
+    p.add_argument("--to", dest="t1", type=float, default=None, help="series end time, s")
+    p.add_argument("--by", metavar="PARAM", help="table column to split the histograms by")
+    p.add_argument("--metric", default="survivingPercent",
+                   help="table column to histogram (default survivingPercent)")
     return parser
 
 
@@ -65,6 +81,8 @@ def _overrides(items: list[str]) -> dict[str, Any]:
 
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
+    if args.action == "plot":
+        return _plot(args)
     from sim_core.soaring.law import Law
 
     law = Law.from_yaml(args.law, _overrides(args.overrides))
@@ -112,4 +130,33 @@ def _sweep(law: Any, args: argparse.Namespace) -> int:
         f"in {summary.out}",
         file=sys.stdout,
     )
+    return 0
+
+
+def _plot(args: argparse.Namespace) -> int:
+    from sim_core.soaring import plots
+
+    if args.table is not None:
+        if not args.by:
+            raise ValueError("--table needs --by PARAM (the column to split the histograms by)")
+        from sim_core.soaring.sweep import read_table
+
+        out = plots.plot_survival_histograms(read_table(args.table), args.by, args.out,
+                                             metric=args.metric)
+    else:
+        from sim_core.soaring.trace import Trace
+
+        trace = Trace.load_npz(args.trace)
+        if args.agents:
+            try:
+                ids = [int(a) for a in args.agents.split(",")]
+            except ValueError:
+                msg = f"--agents: expected ids like 3,7,19, got {args.agents!r}"
+                raise ValueError(msg) from None
+            lo = -math.inf if args.t0 is None else args.t0
+            hi = math.inf if args.t1 is None else args.t1
+            out = plots.plot_agent_series(trace, ids, args.out, t_range=(lo, hi))
+        else:
+            out = plots.plot_paths(trace, args.out)
+    print(f"wrote {out}")
     return 0

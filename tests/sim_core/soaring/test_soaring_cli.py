@@ -79,3 +79,27 @@ def test_sweep_cli(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     grid.write_text("rngSeed: []\n")
     assert main(args) == 1
     assert "empty" in capsys.readouterr().err
+
+
+def test_plot_cli(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    npz = tmp_path / "t.npz"
+    assert main(["swarm", "run", "--law", "default", "--set", "totalTime=20", "--set",
+                 "numAgents=3", "--trace", str(npz)]) == 0
+    series = tmp_path / "s.png"
+    assert main(["swarm", "plot", "--trace", str(npz), "--agents", "0,2", "--from", "5",
+                 "--out", str(series)]) == 0
+    assert series.read_bytes()[:4] == b"\x89PNG"
+    table = tmp_path / "r.csv"
+    grid = tmp_path / "g.yaml"
+    grid.write_text("rngSeed: [1, 2]\nnumThermals: [3, 9]\n")
+    assert main(["swarm", "sweep", "--law", "default", "--grid", str(grid), "--out", str(table),
+                 "--set", "totalTime=20", "--set", "numAgents=3", "--no-progress"]) == 0
+    hist = tmp_path / "h.png"
+    assert main(["swarm", "plot", "--table", str(table), "--by", "numThermals", "--out",
+                 str(hist)]) == 0
+    assert hist.exists()
+    capsys.readouterr()
+    assert main(["swarm", "plot", "--table", str(table), "--out", str(hist)]) == 1
+    assert "--by" in capsys.readouterr().err
+    assert main(["swarm", "plot", "--trace", str(npz), "--agents", "0,x", "--out",
+                 str(series)]) == 1
