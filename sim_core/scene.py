@@ -4,11 +4,11 @@ A scene is what the simulation server owns: an optional forest, sonars mounted o
 an optional thermal-soaring swarm (thermals + gliders from a seed 002 law) and vehicles that
 follow kinematic paths. Example (every key optional except where noted)::
 
-    seed: 0
     state_rate_hz: 50            # state stream (and server tick) rate
     clock: {mode: realtime, rate: 1.0, lockstep_timeout_s: 0.2}
     forest:
       preset: seed000-fig5d      # or  spec: {...ForestSpec fields...}
+      seed: 0
       tiled: true                # TiledForest (tiles built only near a sonar) or one-shot forest
       tile_size_m: 20.0
       query_radius_m: 10.5       # leaves gathered around a sonar for each echo
@@ -20,8 +20,11 @@ follow kinematic paths. Example (every key optional except where noted)::
       first_id: 0                # glider ids first_id .. first_id + numAgents - 1
     vehicles:
       - id: 100
-        path: {kind: figure_eight, speed_mps: 5.0}     # or {kind: csv, file: run.csv, id: 3}
-        z_m: 2.0                                       # optional altitude override
+        path:                    # or {kind: file, file: run.csv, id: 3} / {kind: points, ...}
+          kind: figure_eight     # sim_core.sonar.scenarios.figure_eight_path(**params)
+          speed_mps: 3.0
+          params: {center: [8, 7], half_length: 7, half_width: 5, altitude: 2, count: 400}
+        z_m: 2.0                 # optional altitude override
 
 Validation is eager and cheap (unknown keys, ids, EchoParams, Law and ForestSpec are checked
 when the scene is loaded); the heavy parts are built lazily and only when needed:
@@ -440,14 +443,12 @@ def unicycle_step(
 class SceneSpec:
     """A whole scene (see the module docstring)."""
 
-    seed: int = 0
     state_rate_hz: float = 50.0
     clock: ClockSpec = field(default_factory=ClockSpec)
     forest: ForestSceneSpec | None = None
     sonars: tuple[SonarSpec, ...] = ()
     swarm: SwarmSceneSpec | None = None
     vehicles: tuple[VehicleSpec, ...] = ()
-    live: bool = False
 
     def __post_init__(self) -> None:
         if not 0 < self.state_rate_hz <= 2000:

@@ -60,6 +60,8 @@ def test_replay_of_a_csv_reaches_the_expected_poses(tmp_path: Path) -> None:
         expected = (3.0 + 0.05 * t + math.pi) % (2 * math.pi) - math.pi
         assert msg.heading == pytest.approx(expected, abs=1e-9)
         assert msg.vz == pytest.approx(1.0)
+    stamps = [m.stamp_ns for m in states]
+    assert stamps == sorted(set(stamps))  # monotonic sim stamps, one state per tick
     last = states[-1]
     assert (last.stamp_ns, last.x, last.y) == (10_000_000_000, pytest.approx(100.0),
                                                pytest.approx(-20.0))

@@ -98,6 +98,36 @@ def test_state_stream_keeps_ticking_while_an_echo_computes() -> None:
     assert st["echoes_published"] == 1
 
 
+def test_scene_pins_thermals_and_gliders_through_law_overrides() -> None:
+    scene = load_scene({"swarm": {"first_id": 10, "overrides": {
+        "agents": [{"x": 0.0, "y": 0.0, "z": 500.0, "heading": 0.5, "speed": 10.0},
+                   {"x": 100.0, "y": 0.0, "z": 500.0}],
+        "thermals": [{"x": 50.0, "y": 0.0, "radius": 300.0, "strength": 5.0}]}}})
+    assert scene.glider_ids == (10, 11)
+    np.testing.assert_array_equal(scene.swarm.state.x, [[0.0, 100.0]])
+    np.testing.assert_array_equal(scene.swarm.thermals.x, [[50.0]])
+
+
+def test_scene_errors_name_the_key() -> None:
+    from sim_core.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"unknown key\(s\) \['colour'\]"):
+        load_scene({"colour": 1})
+    with pytest.raises(ConfigError, match="a sonar needs a 'forest'"):
+        load_scene({"sonars": [{"id": 0, "mount": 1}]})
+    with pytest.raises(ConfigError, match=r"sonars\[0\]\.mount: no vehicle or glider with id 5"):
+        load_scene({"forest": {"preset": "seed000-fig5d"}, "sonars": [{"id": 0, "mount": 5}]})
+    with pytest.raises(ConfigError, match=r"collide with swarm glider ids"):
+        load_scene({"swarm": {"overrides": {"numAgents": 2}}, "vehicles": [
+            {"id": 1, "path": {"kind": "points", "points": [[0, 0, 1], [1, 0, 1]]}}]})
+    with pytest.raises(ConfigError, match="fidelity"):
+        load_scene({"forest": {"preset": "seed000-fig5d"}, "sonars": [
+            {"id": 0, "mount": 1, "fidelity": "nope"}], "vehicles": [
+            {"id": 1, "path": {"kind": "points", "points": [[0, 0, 1], [1, 0, 1]]}}]})
+    with pytest.raises(ConfigError, match="state_rate_hz"):
+        load_scene({"state_rate_hz": 0})
+
+
 def test_scene_builds_only_what_it_needs() -> None:
     no_sonar = load_scene({
         "forest": {"preset": "seed000-fig5d"},
