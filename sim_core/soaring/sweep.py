@@ -200,14 +200,14 @@ def sweep(
     sink = _CsvSink(sink_path, columns)
     if parquet and out_path.exists():
         sink.done |= {str(r["runKey"]) for r in read_table(out_path)}
-    todo: list[tuple[str, dict[str, Any], dict[str, Any]]] = []
+    todo: list[tuple[str, dict[str, Any], Law]] = []
     seen: set[str] = set()
     for inputs, law in points:
         key = run_key(law)
         if key in sink.done or key in seen:
             continue
         seen.add(key)
-        todo.append((key, inputs, law.to_dict()))
+        todo.append((key, inputs, law))
     skipped = len(points) - len(todo)
     chunks = list(_chunks(todo, batch_size))
     from tqdm import tqdm
@@ -228,14 +228,15 @@ def sweep(
 
 
 def _chunks(
-    todo: list[tuple[str, dict[str, Any], dict[str, Any]]], size: int
+    todo: list[tuple[str, dict[str, Any], Law]], size: int
 ) -> Iterator[list[tuple[str, dict[str, Any], dict[str, Any]]]]:
-    groups: dict[tuple[Any, ...], list[tuple[str, dict[str, Any], dict[str, Any]]]] = {}
+    """Batches of at most ``size`` runs sharing a batch key, as plain data for the workers."""
+    groups: dict[tuple[Any, ...], list[tuple[str, dict[str, Any], Law]]] = {}
     for item in todo:
-        groups.setdefault(batch_key(Law.from_dict(item[2])), []).append(item)
+        groups.setdefault(batch_key(item[2]), []).append(item)
     for items in groups.values():
         for i in range(0, len(items), size):
-            yield items[i : i + size]
+            yield [(key, inputs, law.to_dict()) for key, inputs, law in items[i : i + size]]
 
 
 def _execute(
