@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sim_core.scene import Trajectory, load_trajectory
 
@@ -95,3 +97,29 @@ def test_npz_and_missing_columns(tmp_path: Path) -> None:
         load_trajectory(path)
     np.savez(path, **cols, airspeed=np.array([3.0, 4.0]))
     assert float(load_trajectory(path).sample(0.5)["airspeed"]) == pytest.approx(3.5)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    steps=st.lists(st.floats(0.01, 10.0), min_size=1, max_size=20),
+    turns=st.lists(st.floats(-3.1, 3.1), min_size=21, max_size=21),
+    start=st.floats(-1e4, 1e4),
+)
+def test_sampling_hits_the_samples_and_heading_stays_on_the_short_arc(
+    steps: list[float], turns: list[float], start: float
+) -> None:
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    k = t.size
+    heading = start + np.cumsum(turns[:k])  # consecutive samples less than pi apart
+    xyz = np.stack([t * 3.0, -t, np.full(k, 5.0)], axis=1)
+    traj = Trajectory(t, xyz, heading, np.zeros(k), np.full(k, 8.0))
+    s = traj.sample(t)
+    np.testing.assert_allclose(s["x"], xyz[:, 0], atol=1e-9)
+    wrapped = (heading + np.pi) % (2 * np.pi) - np.pi
+    diff = (s["heading"] - wrapped + np.pi) % (2 * np.pi) - np.pi
+    np.testing.assert_allclose(diff, 0.0, atol=1e-7)
+    # midway between two samples the heading is within the short arc between them
+    mid = traj.sample((t[:-1] + t[1:]) / 2)["heading"]
+    arc = np.abs(np.asarray(turns[1:k]))
+    off = np.abs((mid - wrapped[:-1] + np.pi) % (2 * np.pi) - np.pi)
+    assert np.all(off <= arc / 2 + 1e-7)
