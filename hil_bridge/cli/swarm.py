@@ -1,4 +1,4 @@
-"""``echoloop swarm run|sweep``: fly seed 002 thermal-soaring swarms and sweep parameter grids.
+"""``echoloop swarm run|sweep|plot``: seed 002 thermal-soaring swarms, grids, figures.
 
 ``--law`` takes a YAML law file or ``default`` (the packaged Law_40SurvivorsExample).
 ``--set KEY=VALUE`` overrides a law parameter (VALUE in YAML syntax); overrides beat the file.
