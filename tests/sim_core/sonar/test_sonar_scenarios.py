@@ -87,7 +87,11 @@ def test_baseband_iq_reconstructs_the_band_exactly_and_measures_out_of_band_loss
     assert rel_l2(back, echo) == pytest.approx(expected, rel=1e-2)
     with pytest.raises(ValueError, match="decimation"):
         to_baseband(echo, FS, 70e3, 0)
-    with pytest.raises(ValueError, match="divide"):
-        to_baseband(echo, FS, 70e3, 7)
+    iq7, fs7 = to_baseband(echo, FS, 70e3, 7)  # any decimation: ceil(N / 7) samples
+    iq1, _ = to_baseband(echo, FS, 70e3, 1)
+    assert iq7.shape == (math.ceil(24000 / 7),) and fs7 == FS / 7
+    np.testing.assert_allclose(iq7, iq1[::7], atol=1e-15)
+    with pytest.raises(ValueError, match="dividing"):
+        from_baseband(iq7, fs7, 70e3, 7, 24000)
     with pytest.raises(ValueError, match="f_center"):
         to_baseband(echo, FS, 300e3, 4)
