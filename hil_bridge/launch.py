@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import math
 import signal
 import sys
 import threading
@@ -186,21 +185,6 @@ def load(
     return spec
 
 
-def _percentiles(values: Sequence[float]) -> dict[str, float]:
-    if not values:
-        return {"n": 0, "p50": math.nan, "p90": math.nan, "p99": math.nan, "max": math.nan}
-    ordered = sorted(values)
-
-    def pct(q: float) -> float:
-        pos = q * (len(ordered) - 1)
-        lo = math.floor(pos)
-        hi = min(lo + 1, len(ordered) - 1)
-        return ordered[lo] + (ordered[hi] - ordered[lo]) * (pos - lo)
-
-    return {"n": len(ordered), "p50": pct(0.5), "p90": pct(0.9), "p99": pct(0.99),
-            "max": ordered[-1]}
-
-
 class BusMonitor:
     """Launchable bus-level observer behind the run summary (one raw subscription to all).
 
@@ -289,6 +273,8 @@ class BusMonitor:
                         self._ping_echo_ms.append((now - t_ping) / 1e6)
 
     def stats(self) -> dict[str, Any]:
+        from hil_bridge.server import percentiles
+
         with self._lock:
             topics = {}
             for topic, n in self._counts.items():
@@ -299,8 +285,8 @@ class BusMonitor:
                 "messages": sum(self._counts.values()),
                 "seq_gaps": self._gaps,
                 "bad": self._bad,
-                "state_latency_ms": _percentiles(list(self._state_ms)),
-                "ping_echo_ms": _percentiles(list(self._ping_echo_ms)),
+                "state_latency_ms": percentiles(list(self._state_ms)),
+                "ping_echo_ms": percentiles(list(self._ping_echo_ms)),
             }
 
 
