@@ -292,13 +292,15 @@ class BusMonitor:
 
 @dataclass(slots=True)
 class RunSummary:
-    """What a run produced: wall time, why it stopped, per-node stats, bus-level monitor counts."""
+    """What a run produced: wall time, why it stopped, per-node stats, bus-level monitor counts,
+    and the stats of the recorder / live view when they ran (``extras``, by name)."""
 
     wall_s: float
     stopped_by: str
     nodes: dict[str, dict[str, Any]]
     monitor: dict[str, Any] = field(default_factory=dict)
     record: str | None = None
+    extras: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -343,11 +345,10 @@ def run(
     """Start every node of a launch file in order, wait, stop them in reverse order.
 
     The run ends ``duration`` seconds after every node started (argument, else the file's;
-    ``None`` = until a signal),
-    on SIGINT/SIGTERM (handlers installed only when called from the main thread and
-    ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every topic to MCAP with
-    :class:`hil_bridge.bag.Recorder`. ``live`` starts the Foxglove view (:mod:`hil_bridge.live`).
-    ``bus`` replaces the file's bus URL.
+    ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
+    main thread and ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every
+    topic to MCAP with :class:`hil_bridge.bag.Recorder`. ``live`` starts the Foxglove view
+    (:mod:`hil_bridge.live`). ``bus`` replaces the file's bus URL.
     ``on_started(spec)`` is called once every node runs. A node that fails to construct or
     start stops every node already constructed (reverse order) and re-raises.
     """
@@ -409,10 +410,13 @@ def run(
             obj.stop()
             node_stats[name] = obj.stats()
         monitor_stats: dict[str, Any] = {}
+        extra_stats: dict[str, dict[str, Any]] = {}
         for extra in reversed(extras):
             extra.stop()
             if isinstance(extra, BusMonitor):
                 monitor_stats = extra.stats()
+            else:
+                extra_stats[extra.name] = extra.stats()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return RunSummary(
@@ -421,6 +425,7 @@ def run(
         nodes={name: node_stats[name] for name, _ in made},
         monitor=monitor_stats,
         record=record_path,
+        extras=extra_stats,
     )
 
 
