@@ -12,6 +12,8 @@ result does not depend on the batch it is stepped in. Per-run parameters are (B,
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -366,6 +368,17 @@ class GliderObs:
 _OBS_KEYS = ("x", "y", "z", "heading", "speed", "vz")
 
 
+@functools.lru_cache(maxsize=32)
+def _single_params(law: Law, controller: str) -> LawParams:
+    """B = 1 parameters of ``law`` flown with ``controller`` (cached: an autopilot calls
+    :func:`controller_command` every control period with the same law)."""
+    if controller not in CONTROLLERS:
+        raise ValueError(f"controller must be one of {list(CONTROLLERS)}, got {controller!r}")
+    if controller != law.controller:
+        law = dataclasses.replace(law, controller=controller)  # type: ignore[arg-type]
+    return law_params([law])
+
+
 def controller_command(
     own: GliderObs,
     neighbours: Sequence[GliderObs] | NDArray[np.floating],
@@ -384,8 +397,6 @@ def controller_command(
     A neighbour within collisionKillDistance would kill the glider in the swarm; here it is
     only part of the sum.
     """
-    if controller is not None and controller != law.controller:
-        law = law.replace(controller=controller)
     if isinstance(neighbours, np.ndarray):
         arr = np.asarray(neighbours, dtype=np.float64)
         if arr.size == 0:
@@ -396,7 +407,7 @@ def controller_command(
         arr = np.array(
             [[getattr(o, k) for k in _OBS_KEYS] for o in neighbours], dtype=np.float64
         ).reshape(-1, 6)
-    P = law_params([law])
+    P = _single_params(law, law.controller if controller is None else controller)
     own_d = {k: np.array([[float(getattr(own, k))]]) for k in _OBS_KEYS}
     K = arr.shape[0]
     cols = {k: arr[:, j].reshape(K, 1, 1).copy() for j, k in enumerate(_OBS_KEYS)}

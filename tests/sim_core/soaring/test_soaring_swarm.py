@@ -107,6 +107,10 @@ def test_controller_command_accepts_arrays_and_controller_choice() -> None:
     assert math.isfinite(b0) and math.isfinite(v0)
     with pytest.raises(ValueError, match="shape"):
         controller_command(own, np.zeros((2, 5)), SHORT)
+    with pytest.raises(ValueError, match="controller"):
+        controller_command(own, nb, SHORT, controller="boids")  # type: ignore[arg-type]
+    # the baseline law flown directly equals the unified law told to fly baseline
+    assert controller_command(own, nb, SHORT.replace(controller="baseline"))[0] == b3
 
 
 @pytest.mark.parametrize("dt", [1e-3, 0.05, 0.5, 5.0], ids=lambda d: f"dt{d}")
