@@ -4,11 +4,12 @@ A scene is what the simulation server owns: an optional forest, sonars mounted o
 an optional thermal-soaring swarm (thermals + gliders from a seed 002 law) and vehicles that
 follow kinematic paths. Example (every key optional except where noted)::
 
+    seed: 0                      # default seed of the forest and the swarm
     state_rate_hz: 50            # state stream (and server tick) rate
     clock: {mode: realtime, rate: 1.0, lockstep_timeout_s: 0.2}
     forest:
       preset: seed000-fig5d      # or  spec: {...ForestSpec fields...}
-      seed: 0
+      seed: null                 # null: the scene's seed
       tiled: true                # TiledForest (tiles built only near a sonar) or one-shot forest
       tile_size_m: 20.0
       query_radius_m: 10.5       # leaves gathered around a sonar for each echo
@@ -310,7 +311,7 @@ class ForestSceneSpec:
 
     preset: str | None = None
     spec: dict[str, Any] | None = None
-    seed: int = 0
+    seed: int | None = None
     tiled: bool = True
     tile_size_m: float = 20.0
     max_cache_bytes: int = 256 * 2**20
@@ -319,7 +320,7 @@ class ForestSceneSpec:
     def __post_init__(self) -> None:
         if (self.preset is None) == (self.spec is None):
             raise ValueError("forest: give exactly one of 'preset' (a name) or 'spec' (fields)")
-        if self.seed < 0:
+        if self.seed is not None and self.seed < 0:
             raise ValueError(f"seed: expected >= 0, got {self.seed}")
         if not self.tile_size_m > 0:
             raise ValueError(f"tile_size_m: expected > 0, got {self.tile_size_m}")
@@ -349,11 +350,11 @@ class SwarmSceneSpec:
 
     law: str = "default"
     overrides: dict[str, Any] = field(default_factory=dict)
-    seed: int = 0
+    seed: int | None = None
     first_id: int = 0
 
     def __post_init__(self) -> None:
-        if self.seed < 0:
+        if self.seed is not None and self.seed < 0:
             raise ValueError(f"seed: expected >= 0, got {self.seed}")
         if self.first_id < 0:
             raise ValueError(f"first_id: expected >= 0, got {self.first_id}")
@@ -443,6 +444,7 @@ def unicycle_step(
 class SceneSpec:
     """A whole scene (see the module docstring)."""
 
+    seed: int = 0
     state_rate_hz: float = 50.0
     clock: ClockSpec = field(default_factory=ClockSpec)
     forest: ForestSceneSpec | None = None
@@ -451,6 +453,8 @@ class SceneSpec:
     vehicles: tuple[VehicleSpec, ...] = ()
 
     def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ValueError(f"seed: expected >= 0, got {self.seed}")
         if not 0 < self.state_rate_hz <= 2000:
             raise ValueError(f"state_rate_hz: expected 0 < rate <= 2000, got {self.state_rate_hz}")
         vids = [v.id for v in self.vehicles]
@@ -602,7 +606,8 @@ class Scene:
         from sim_core.soaring import SwarmSim
 
         self.built.add("swarm")
-        return SwarmSim(self.law, seed=self.spec.swarm.seed, batch=1)
+        seed = self.spec.swarm.seed
+        return SwarmSim(self.law, seed=self.spec.seed if seed is None else seed, batch=1)
 
     @cached_property
     def forest_source(self) -> Any:
@@ -611,18 +616,19 @@ class Scene:
         if f is None or not self.spec.sonars:
             return None
         forest_spec = self._forest_spec()
+        seed = self.spec.seed if f.seed is None else f.seed
         if f.tiled:
             from sim_core.world import TiledForest
 
             self.built.add("forest_tiles")
             return TiledForest(
-                forest_spec, seed=f.seed, tile_size_m=f.tile_size_m,
+                forest_spec, seed=seed, tile_size_m=f.tile_size_m,
                 max_cache_bytes=f.max_cache_bytes,
             )
         from sim_core.world import build_forest
 
         self.built.add("forest")
-        return build_forest(forest_spec, seed=f.seed).leaves
+        return build_forest(forest_spec, seed=seed).leaves
 
     def echo_range_m(self, sonar_id: int) -> float:
         """Farthest range sonar ``sonar_id``'s echo window holds: ``samples / fs * c / 2`` m."""
