@@ -204,8 +204,9 @@ def load_trajectory(path: str | Path, *, vehicle_id: int | None = None) -> Traje
     """Read a trajectory from CSV (header row) or NPZ (one array per column).
 
     Columns: ``t, x, y, z, heading, bank, airspeed`` (s, m ENU, rad, rad, m/s); extra columns
-    are ignored. A multi-vehicle file (the swarm trace format ``t, id, x, y, z, heading, bank,
-    airspeed, vz, alive``) needs ``vehicle_id``; rows with ``alive == 0`` are dropped.
+    are ignored. A multi-vehicle file needs ``vehicle_id``: the swarm trace CSV (``t, id, x, y, z,
+    heading, bank, airspeed, vz, alive``, rows per vehicle) or the swarm trace NPZ (``t`` (T,),
+    the others (T, N); the id is the column). Rows with ``alive == 0`` are dropped.
     """
     p = Path(path)
     cols: dict[str, NDArray[Any]]
@@ -222,6 +223,9 @@ def load_trajectory(path: str | Path, *, vehicle_id: int | None = None) -> Traje
     missing = [c for c in TRAJECTORY_COLUMNS if c not in cols]
     if missing:
         raise ValueError(f"{p}: missing column(s) {missing}; expected {list(TRAJECTORY_COLUMNS)}")
+    if np.asarray(cols["x"]).ndim == 2:
+        cols = _wide_columns(p, cols, vehicle_id)
+        vehicle_id = None
     mask = np.ones(np.asarray(cols["t"]).shape, dtype=bool)
     if "id" in cols:
         ids = np.asarray(cols["id"]).astype(np.int64)
@@ -245,6 +249,26 @@ def load_trajectory(path: str | Path, *, vehicle_id: int | None = None) -> Traje
         )
     except ValueError as exc:
         raise ValueError(f"{p}: {exc}") from None
+
+
+def _wide_columns(
+    p: Path, cols: dict[str, NDArray[Any]], vehicle_id: int | None
+) -> dict[str, NDArray[Any]]:
+    """Column ``vehicle_id`` of a wide NPZ trace (``t`` (T,), the others (T, N), as written by
+    ``sim_core.soaring.Trace.save_npz``)."""
+    n = np.asarray(cols["x"]).shape[1]
+    if vehicle_id is None:
+        if n > 1:
+            raise ValueError(f"{p}: holds vehicles {list(range(n))}; choose one with an id")
+        vehicle_id = 0
+    if not 0 <= vehicle_id < n:
+        raise ValueError(f"{p}: no vehicle {vehicle_id}; ids present: {list(range(n))}")
+    out = {"t": np.asarray(cols["t"])}
+    for name in (*TRAJECTORY_COLUMNS[1:], "alive"):
+        if name in cols:
+            arr = np.asarray(cols[name])
+            out[name] = arr[:, vehicle_id] if arr.ndim == 2 else arr
+    return out
 
 
 def _read_csv_columns(p: Path) -> dict[str, NDArray[Any]]:
