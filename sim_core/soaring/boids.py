@@ -55,6 +55,9 @@ _PER_RUN = (
 )
 
 
+#: Cap of a neighbour's distance weight (d/R)^p, reached only as d → 0 with p < 0.
+W_MAX = 1e100
+
 #: Per-run parameters used per neighbour pair by :func:`boids_accel`.
 _PAIR_PARAMS = (
     "neighborRadius", "collisionKillDistance", "cohesionAscensionIgnore", "cohesionAscensionMax",
@@ -294,13 +297,16 @@ def boids_accel(
     weight = np.where(unified, height.ravel()[owner] * asc, 1.0)
     abs_rz = np.abs(rz)
     R = pp["neighborRadius"]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         ndxy = dxy / R
         coh_w = np.where(flat, weight * power(ndxy, pp["cohPower"], P.values("cohPower")), 0.0)
         seen_s = flat & (~unified | (abs_rz < pp["separationHeightWidth"] / 2))
         seen_a = flat & (~unified | (abs_rz < pp["alignmentHeightWidth"] / 2))
         sep_w = np.where(seen_s, power(d3 / R, pp["sepPower"], P.values("sepPower")), 0.0)
         ali_w = np.where(seen_a, power(ndxy, pp["aliPower"], P.values("aliPower")), 0.0)
+    # a distance → 0 under a negative power: cap the weight (4 m at R = 1000 gives 6e4)
+    for w in (coh_w, sep_w, ali_w):
+        np.minimum(w, W_MAX, out=w)
 
     def total(w: F8) -> F8:
         return np.bincount(owner, weights=w, minlength=M).reshape(B, N).astype(np.float64)

@@ -19,8 +19,8 @@ __all__ = ["GliderStep", "accel_to_command", "glider_step", "sink_rate"]
 F8 = NDArray[np.float64]
 ArrayLike = F8 | float
 
-#: |a| above this (m/s²) is rescaled to it, so that ‖a‖² cannot overflow (never hit in the seed's
-#: runs, whose |a| stays below 1e6; only a near-zero neighbour distance gets here).
+#: Acceleration components beyond ±A_MAX (m/s², or infinite) are clipped to it, so ‖a‖² cannot
+#: overflow (never hit in the seed's runs, whose |a| stays below 1e6).
 A_MAX = 1e100
 
 
@@ -53,10 +53,10 @@ def accel_to_command(
     ``cos_sin``: (cos ψ, sin ψ) if the caller has them already.
     """
     norm = np.hypot(ax, ay)
-    big = norm > A_MAX
-    if big.any():
-        scale = np.where(big, A_MAX / np.where(big, norm, 1.0), 1.0)
-        ax, ay, norm = ax * scale, ay * scale, np.where(big, A_MAX, norm)
+    if not (norm <= A_MAX).all():
+        ax = np.clip(np.nan_to_num(ax, posinf=A_MAX, neginf=-A_MAX), -A_MAX, A_MAX)
+        ay = np.clip(np.nan_to_num(ay, posinf=A_MAX, neginf=-A_MAX), -A_MAX, A_MAX)
+        norm = np.hypot(ax, ay)
     fx, fy = (np.cos(heading), np.sin(heading)) if cos_sin is None else cos_sin
     a_f = ax * fx + ay * fy
     small = norm - np.abs(a_f) < 1e-6
