@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from sim_core.config import ConfigError, load_yaml
+from sim_core.config import ConfigError, from_dict, load_yaml
 from sim_core.rng import make_rng
-from sim_core.scene import load_trajectory
+from sim_core.scene import SceneSpec, load_trajectory
 
 __all__ = ["DEFAULT_REPLAY_SCENE", "Pinger", "build_replay_launch"]
 
@@ -183,8 +183,8 @@ def build_replay_launch(
 ) -> tuple[dict[str, Any], float]:
     """Launch mapping (for :func:`hil_bridge.launch.run`) replaying ``trajectory``, and its length.
 
-    ``scene``: a scene YAML path or mapping whose forest (and anything else but ``vehicles`` and
-    ``sonars``) is used; default :data:`DEFAULT_REPLAY_SCENE`. The replayed vehicle gets id
+    ``scene``: a scene YAML path or mapping (validated) whose ``forest`` and ``seed`` are used,
+    the rest is replaced; default :data:`DEFAULT_REPLAY_SCENE`. The replayed vehicle gets id
     ``vehicle_id`` (default 0, or the file's id) and sonar 0 is mounted on it with ``sonar``
     settings (``fidelity``, ``echo`` overrides). ``sonar_rate_hz`` None: no built-in pinger;
     ``pinger``: extra :class:`Pinger` params (default beamwidths U(30°, 65°) as seed 000).
@@ -192,16 +192,23 @@ def build_replay_launch(
     Returns ``(launch mapping, trajectory duration in wall seconds at rate)``.
     """
     traj = load_trajectory(trajectory, vehicle_id=vehicle_id)
-    base: dict[str, Any]
+    source: Mapping[str, Any]
     if scene is None:
-        base = dict(DEFAULT_REPLAY_SCENE)
+        source = DEFAULT_REPLAY_SCENE
     elif isinstance(scene, Mapping):
-        base = dict(scene)
+        source = scene
     else:
         loaded = load_yaml(scene)
+        if loaded is None:
+            loaded = {}
         if not isinstance(loaded, Mapping):
             raise ConfigError(f"{scene}: expected a scene mapping, got {loaded!r}")
-        base = dict(loaded)
+        source = loaded
+    try:
+        from_dict(SceneSpec, source, path="scene")
+    except ConfigError as exc:
+        raise ConfigError(f"{scene}: {exc}") from None
+    base: dict[str, Any] = {k: source[k] for k in ("seed", "forest") if k in source}
     vid = 0 if vehicle_id is None else int(vehicle_id)
     path: dict[str, Any] = {"kind": "file", "file": str(trajectory), "loop": False}
     if vehicle_id is not None:
@@ -212,7 +219,7 @@ def build_replay_launch(
     else:
         base.pop("sonars", None)
     base["state_rate_hz"] = state_rate_hz
-    base["clock"] = {**dict(base.get("clock") or {}), "mode": clock_mode, "rate": rate}
+    base["clock"] = {"mode": clock_mode, "rate": rate}
     nodes: list[dict[str, Any]] = [
         {"name": "server", "entry": "hil_bridge.server:SimServer",
          "params": {"scene": base, "stop_after_s": traj.duration}},

@@ -35,7 +35,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=1.0, help="real-time factor (default 1)")
     p.add_argument("--fast", action="store_true", help="step as fast as possible (no pacing)")
     p.add_argument("--scene", default=None, metavar="FILE.yaml",
-                   help="scene whose forest is used (default: the seed 000 Fig 5(d) forest)")
+                   help="scene file whose forest is used (default: the seed 000 Fig 5(d) "
+                        "forest)")
     p.add_argument("--state-rate", type=float, default=50.0, metavar="HZ",
                    help="state stream rate (default 50)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
