@@ -17,8 +17,11 @@ import pytest
 from hil_bridge.launch import load, parse_param_overrides, run
 from hil_bridge.messages import GliderCmd
 from hil_bridge.node import Node
+from hil_bridge.qos import QoSProfile
 
 ROOT = Path(__file__).resolve().parents[2]
+#: the observer must see every command the server may have flown
+KEEP_ALL = QoSProfile("observer", depth=100_000)
 
 
 def test_closed_loop_echoes_complete_and_commands_fly_the_gliders(tmp_path: Path) -> None:
@@ -41,7 +44,7 @@ def test_closed_loop_echoes_complete_and_commands_fly_the_gliders(tmp_path: Path
             with lock:
                 observed.setdefault(gid, []).append(msg.bank_cmd)
 
-        observer.create_subscription(GliderCmd, f"/glider/{gid}/cmd", on_cmd)
+        observer.create_subscription(GliderCmd, f"/glider/{gid}/cmd", on_cmd, KEEP_ALL)
     observer.start()
     try:
         summary = run(spec, duration=6.0, bus=bus, handle_signals=False)
