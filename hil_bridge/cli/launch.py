@@ -106,6 +106,13 @@ def format_summary(summary: RunSummary, *, verbose: bool = False) -> str:
         width = max(map(len, topics))
         for topic, row in sorted(topics.items()):
             lines.append(f"  {topic:<{width}}  {row['count']:>7d}  ({row['rate_hz']:.1f} Hz)")
+    if mon:
+        dropped = sum(int(st.get("dropped", 0)) for st in summary.nodes.values()
+                      if isinstance(st.get("dropped", 0), int))
+        lines.append(
+            f"bus: {mon.get('messages', 0)} messages seen, {mon.get('seq_gaps', 0)} lost "
+            f"(sequence gaps), {mon.get('bad', 0)} undecodable; nodes dropped {dropped}"
+        )
     for key, label in (("ping_echo_ms", "ping -> echo"), ("state_latency_ms", "state pub -> recv")):
         pct = mon.get(key)
         if pct and pct.get("n"):
