@@ -13,6 +13,7 @@ Precedence wherever several sources meet (CLI > environment > file) is applied b
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -116,6 +117,11 @@ def _convert(value: Any, tp: Any, path: str) -> Any:
     raise TypeError(f"{path}: unsupported field type {tp!r}")
 
 
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return get_type_hints(cls)
+
+
 def from_dict(cls: type[T], data: Any, *, path: str = "") -> T:
     """Build dataclass ``cls`` from mapping ``data``; unknown keys and bad types raise.
 
@@ -135,7 +141,7 @@ def from_dict(cls: type[T], data: Any, *, path: str = "") -> T:
         raise ConfigError(
             f"{where}: unknown key(s) {unknown}; expected some of {sorted(fields)}"
         )
-    hints = get_type_hints(cls)
+    hints = _hints(cls)
     kwargs: dict[str, Any] = {}
     for name, field in fields.items():
         key_path = f"{path}.{name}" if path else name

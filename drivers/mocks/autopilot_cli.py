@@ -75,7 +75,7 @@ def main(argv: list[str]) -> int:
     mock.start()
     done = threading.Event()
     try:
-        print(f"mock autopilot on {args.interface}:{args.channel}, nodes {list(mock.nodes)}, "  # noqa: T201
+        print(f"mock autopilot on {args.interface}:{args.channel}, nodes {list(mock.nodes)}, "
               f"controller {args.controller}, {mock.rate_hz:g} Hz", flush=True)
         t_end = None if args.duration is None else time.monotonic() + args.duration
         while True:
@@ -86,11 +86,11 @@ def main(argv: list[str]) -> int:
             done.wait(step if left is None else min(step, left))
             if args.every > 0:
                 st = mock.stats()
-                print("  ".join(f"{k}={_fmt(st.get(k, 0))}" for k in _STATUS_KEYS), flush=True)  # noqa: T201
+                print("  ".join(f"{k}={_fmt(st.get(k, 0))}" for k in _STATUS_KEYS), flush=True)
     except KeyboardInterrupt:
         pass
     finally:
         mock.stop()
     st = mock.stats()
-    print("summary: " + ", ".join(f"{k}={_fmt(v)}" for k, v in sorted(st.items())))  # noqa: T201
+    print("summary: " + ", ".join(f"{k}={_fmt(v)}" for k, v in sorted(st.items())))
     return 0
