@@ -14,6 +14,7 @@ map, scaled to its number of trees, so a real site can be mimicked).
 from __future__ import annotations
 
 import csv
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,15 +41,16 @@ Box = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax (metres)
 IntensityFn = Callable[[F64, F64], ArrayLike]
 
 
-class Intensity:
+class Intensity(ABC):
     """Base of the provided intensities: ``__call__(x, y)`` plus ``upper_bound(box)``."""
 
+    @abstractmethod
     def __call__(self, x: F64, y: F64) -> F64:
-        raise NotImplementedError
+        """λ at the points (x, y) (trees/m²), same shape as x."""
 
+    @abstractmethod
     def upper_bound(self, box: Box | None) -> float:
         """A λ* with λ ≤ λ* on ``box`` (``None``: the whole plane)."""
-        raise NotImplementedError
 
 
 @dataclass(frozen=True)
