@@ -156,8 +156,8 @@ class LiveView:
     # ------------------------------------------------------------------ bus side
 
     def _rx_loop(self) -> None:
-        from hil_bridge.codec import decode_header, decode_payload, topic_from_frame
-        from hil_bridge.errors import HilError
+        from hil_bridge.codec import decode
+        from hil_bridge.errors import CodecError, HilError
 
         while not self._stop.is_set():
             try:
@@ -167,13 +167,13 @@ class LiveView:
             if frames is None:
                 continue
             try:
-                topic = topic_from_frame(frames[0])
-                header = decode_header(frames[1])
-                msg: Any = decode_payload(header.type, header.v, frames[2])
-            except (HilError, ValueError, IndexError):
+                envelope = decode(frames)
+            except CodecError:
                 with self._lock:
                     self._c["bad"] += 1
                 continue
+            topic = envelope.topic
+            msg: Any = envelope.msg
             with self._lock:
                 self._c["received"] += 1
                 if topic.startswith("/glider/") and topic.endswith("/state"):
