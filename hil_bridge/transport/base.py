@@ -112,9 +112,6 @@ class Transport(ABC):
         if callback is not None:
             callback(prefix)
 
-    def _count(self, name: str, n: int = 1) -> None:
-        self._counters[name] = self._counters.get(name, 0) + n
-
     def _check_open(self) -> None:
         if self._closed:
             raise TransportClosed(f"transport {self.url!r} is closed")
