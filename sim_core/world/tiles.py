@@ -169,10 +169,6 @@ class TiledForest:
         self._evict()
         return Leaves.concat(parts)
 
-    def build_area(self, box: Box) -> Forest:
-        """All trees with base in ``box`` built at once (no tiles), in merge-priority order."""
-        return self.engine.assemble(self.engine.kept_in(box))
-
     def trees_in_tiles(self, tiles: list[tuple[int, int]]) -> Forest:
         """The trees owned by ``tiles`` assembled tile by tile (through the cache)."""
         xy, sp, hs, parts = [], [], [], []
