@@ -102,6 +102,10 @@ class SignalSpec:
     signed: bool
     unit: str
 
+    def clamp(self, value: float) -> float:
+        """``value`` limited to the DBC range [minimum, maximum] (NaN passes through)."""
+        return min(max(value, self.minimum), self.maximum)
+
 
 @dataclass(frozen=True, slots=True)
 class DecodedFrame:
@@ -194,13 +198,9 @@ class GliderCanCodec:
                 raise ValueError(f"{name}: signal {sig.name!r} is NaN")
             if sig.name in ANGLE_SIGNALS and math.isfinite(value):
                 value = _normalise_angle(value)
-            if value < sig.minimum:
-                value = sig.minimum
+            clamped[sig.name] = sig.clamp(value)
+            if clamped[sig.name] != value:
                 saturated.append(sig.name)
-            elif value > sig.maximum:
-                value = sig.maximum
-                saturated.append(sig.name)
-            clamped[sig.name] = value
         extra = set(values) - set(clamped)
         if extra:
             raise ValueError(f"{name}: unknown signal(s) {sorted(extra)}")
@@ -247,13 +247,9 @@ class GliderCanCodec:
         saturated: list[str] = []
         for sig in spec.signals:
             value = float(cast(float, decoded[sig.name]))
-            if value < sig.minimum:
-                value = sig.minimum
+            signals[sig.name] = sig.clamp(value)
+            if signals[sig.name] != value:
                 saturated.append(sig.name)
-            elif value > sig.maximum:
-                value = sig.maximum
-                saturated.append(sig.name)
-            signals[sig.name] = value
         if saturated:
             with self._lock:
                 self._rx_saturated.update(saturated)
