@@ -395,6 +395,8 @@ class Recorder:
                 if frames is not None:
                     recv_ns = wall0 + (time.monotonic_ns() - mono0)
                     try:
+                        if len(frames) != 3:  # a foreign ZeroMQ publisher on the proxy
+                            raise CodecError(f"{len(frames)} frames, expected 3")
                         topic = topic_from_frame(frames[0])
                         header = decode_header(frames[1])
                     except CodecError:

@@ -579,6 +579,9 @@ class Node:
         self, subs: list[Subscription[Any]], frames: list[bytes]
     ) -> list[tuple[Subscription[Any], Envelope]]:
         """Decode, deduplicate, acknowledge; return what to deliver (in arrival order)."""
+        if len(frames) != 3:  # a foreign ZeroMQ publisher on the proxy
+            self._decode_error(frames[0], CodecError(f"{len(frames)} frames, expected 3"))
+            return []
         try:
             header = decode_header(frames[1])
         except CodecError as exc:

@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import pytest
+import zmq
 
+from hil_bridge.bag import Recorder
 from hil_bridge.clock import SimClock
 from hil_bridge.codec import Envelope, encode
 from hil_bridge.messages import Clock, Diagnostics, GliderCmd, GliderState
 from hil_bridge.node import Node
+from hil_bridge.proxy import Proxy
 from hil_bridge.qos import COMMAND, LATCHED, SENSOR, QoSProfile
 from hil_bridge.transport import open_transport
 from tests.hil_bridge.core.bus_test_util import poll_until
@@ -249,3 +253,33 @@ def test_timers_follow_a_realtime_clock_with_a_rate() -> None:
     # fixed-rate: the k-th firing is never before t0 + k periods (late ones do not shift the grid)
     due = [t0 + k * 100_000_000 for k in range(1, 6)]
     assert all(stamp >= d for stamp, d in zip(fired.items[:5], due, strict=True))  # type: ignore[operator]
+
+
+def test_foreign_messages_with_a_wrong_frame_count_are_counted_not_fatal(
+    tmp_path: Path,
+) -> None:
+    """A raw ZeroMQ publisher on the proxy may send any number of frames: nodes and the
+    recorder drop such messages as decode errors and keep receiving."""
+    got = Collector()
+    with Proxy("tcp://127.0.0.1:0", "tcp://127.0.0.1:0") as proxy, \
+            Node("victim", bus=proxy.url) as node, \
+            zmq.Context.instance().socket(zmq.PUB) as raw:
+        rec = Recorder(tmp_path / "r.mcap", ["/clock"], bus=proxy.url)
+        rec.start()
+        try:
+            node.create_subscription(Clock, "/clock", got)
+            node.start()
+            raw.connect(proxy.pub_endpoint)
+            good = encode("/clock", Clock(stamp_ns=1), seq=0, pub_ns=0, src="raw")
+
+            def dropped_by_both() -> bool:
+                raw.send_multipart(good[:2])
+                return (node.stats()["topics"]["/clock"]["decode_errors"] > 0
+                        and rec.stats()["decode_errors"] > 0)
+
+            assert poll_until(dropped_by_both)
+            raw.send_multipart(good)
+            assert got.wait_for(1) and rec.wait_for(1, WAIT)
+            assert got.items == [Clock(stamp_ns=1)] and rec.error is None
+        finally:
+            rec.stop()
