@@ -216,8 +216,6 @@ def build_replay_launch(
     base["vehicles"] = [{"id": vid, "path": path, "time_offset_s": -float(traj.t[0])}]
     if "forest" in base:
         base["sonars"] = [{"id": 0, "mount": vid, **dict(sonar or {})}]
-    else:
-        base.pop("sonars", None)
     base["state_rate_hz"] = state_rate_hz
     base["clock"] = {"mode": clock_mode, "rate": rate}
     nodes: list[dict[str, Any]] = [
