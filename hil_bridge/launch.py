@@ -42,6 +42,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, Protocol, runtime_checkable
 
+from hil_bridge.transport import DEFAULT_BUS
 from sim_core.config import ConfigError, apply_overrides, from_dict, load_yaml, parse_override
 
 __all__ = [
@@ -56,8 +57,6 @@ __all__ = [
     "resolve_entry",
     "run",
 ]
-
-DEFAULT_BUS = "tcp://127.0.0.1:7400"
 
 
 @runtime_checkable

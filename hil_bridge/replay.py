@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from hil_bridge.transport import DEFAULT_BUS
 from sim_core.config import ConfigError, from_dict, load_yaml
 from sim_core.rng import make_rng
 from sim_core.scene import SceneSpec, load_trajectory
@@ -178,7 +179,7 @@ def build_replay_launch(
     pinger: Mapping[str, Any] | None = None,
     rate: float = 1.0,
     state_rate_hz: float = 50.0,
-    bus: str = "tcp://127.0.0.1:7400",
+    bus: str = DEFAULT_BUS,
     clock_mode: str = "realtime",
 ) -> tuple[dict[str, Any], float]:
     """Launch mapping (for :func:`hil_bridge.launch.run`) replaying ``trajectory``, and its length.

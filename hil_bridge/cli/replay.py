@@ -17,6 +17,7 @@ import sys
 from hil_bridge.cli.launch import _announce, _jsonable, format_summary
 from hil_bridge.launch import run
 from hil_bridge.replay import build_replay_launch
+from hil_bridge.transport import DEFAULT_BUS
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -41,7 +42,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="state stream rate (default 50)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="wall seconds to run (default: the trajectory's length / rate)")
-    p.add_argument("--bus", default="tcp://127.0.0.1:7400", metavar="URL", help="bus URL")
+    p.add_argument("--bus", default=DEFAULT_BUS, metavar="URL", help="bus URL")
     p.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic")
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     return p
