@@ -42,13 +42,12 @@ from mcap.writer import CompressionType, Writer
 
 from hil_bridge.codec import (
     Header,
-    decode_header,
     decode_payload,
+    decode_topic_header,
     encode,
     pack_header,
     payload_to_jsonable,
     topic_frame,
-    topic_from_frame,
     validate_topic,
 )
 from hil_bridge.errors import CodecError
@@ -395,10 +394,7 @@ class Recorder:
                 if frames is not None:
                     recv_ns = wall0 + (time.monotonic_ns() - mono0)
                     try:
-                        if len(frames) != 3:  # a foreign ZeroMQ publisher on the proxy
-                            raise CodecError(f"{len(frames)} frames, expected 3")
-                        topic = topic_from_frame(frames[0])
-                        header = decode_header(frames[1])
+                        topic, header = decode_topic_header(frames)
                     except CodecError:
                         self._counters["decode_errors"] += 1
                         continue

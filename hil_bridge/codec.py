@@ -39,6 +39,7 @@ __all__ = [
     "decode",
     "decode_header",
     "decode_payload",
+    "decode_topic_header",
     "encode",
     "encode_header",
     "encode_payload",
@@ -306,12 +307,17 @@ def decode_payload(type_name: str, version: int, frame: bytes) -> Message:
         raise CodecError(f"{type_name} payload does not fit the message: {exc}") from None
 
 
-def decode(frames: Sequence[bytes]) -> Envelope:
-    """Three frames → :class:`Envelope`; ``CodecError`` on any problem."""
+def decode_topic_header(frames: Sequence[bytes]) -> tuple[str, Header]:
+    """Topic and header of a three-frame message, payload left undecoded (recorders, monitors);
+    ``CodecError`` on any problem, including a foreign message with another frame count."""
     if len(frames) != 3:
         raise CodecError(f"expected 3 frames [topic, header, payload], got {len(frames)}")
-    topic = topic_from_frame(frames[0])
-    header = decode_header(frames[1])
+    return topic_from_frame(frames[0]), decode_header(frames[1])
+
+
+def decode(frames: Sequence[bytes]) -> Envelope:
+    """Three frames → :class:`Envelope`; ``CodecError`` on any problem."""
+    topic, header = decode_topic_header(frames)
     payload = bytes(frames[2])
     return Envelope(topic, header, decode_payload(header.type, header.v, payload), payload)
 

@@ -229,7 +229,7 @@ class BusMonitor:
             self._transport.close()
 
     def _loop(self) -> None:
-        from hil_bridge.codec import decode_header, decode_payload, topic_from_frame
+        from hil_bridge.codec import decode_payload, decode_topic_header
         from hil_bridge.errors import HilError
 
         while not self._stop.is_set():
@@ -241,13 +241,12 @@ class BusMonitor:
                 continue
             now = time.monotonic_ns()
             try:
-                topic = topic_from_frame(frames[0])
-                header = decode_header(frames[1])
+                topic, header = decode_topic_header(frames)
                 ping_key: tuple[str, int] | None = None
                 if topic.startswith("/sonar/") and topic.endswith(("/ping", "/echo")):
                     msg = decode_payload(header.type, header.v, frames[2])
                     ping_key = (topic.rsplit("/", 1)[0], int(getattr(msg, "ping_seq", -1)))
-            except (HilError, ValueError, IndexError):
+            except (HilError, ValueError):
                 with self._lock:
                     self._bad += 1
                 continue

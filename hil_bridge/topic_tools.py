@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hil_bridge.codec import Header, decode_header, topic_from_frame
+from hil_bridge.codec import Header, decode_topic_header
 from hil_bridge.errors import CodecError
 from hil_bridge.transport import Frames, open_transport
 
@@ -157,8 +157,7 @@ class TopicMonitor:
                 if frames is None:
                     continue
                 try:
-                    topic = topic_from_frame(frames[0])
-                    header = decode_header(frames[1])
+                    topic, header = decode_topic_header(frames)
                 except CodecError:
                     self.decode_errors += 1
                     continue

@@ -216,6 +216,10 @@ def test_bad_header_and_frame_count() -> None:
         codec.decode([topic, msgpack.packb({"type": "echoloop/Clock", "v": 1}), payload])
     with pytest.raises(CodecError, match="3 frames"):
         codec.decode([topic, payload])
+    with pytest.raises(CodecError, match="3 frames"):
+        codec.decode_topic_header([topic, _frames()[1]])
+    name, header = codec.decode_topic_header(_frames())
+    assert name == "/clock" and header.type == "echoloop/Clock" and header.stamp_ns == 5
     with pytest.raises(CodecError, match="NUL"):
         codec.decode([b"/clock", _frames()[1], payload])
 
