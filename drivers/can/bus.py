@@ -72,8 +72,11 @@ class CanBusConfig:
     faults: CanFaultConfig | None = None
 
     def __post_init__(self) -> None:
-        if not self.interface:
-            raise ValueError("interface: expected a python-can interface name, e.g. 'virtual'")
+        if self.interface not in can.interfaces.BACKENDS:
+            raise ValueError(
+                f"interface: unknown python-can interface {self.interface!r}; "
+                f"expected one of {sorted(can.interfaces.BACKENDS)}"
+            )
         if self.bitrate is not None and not 0 < self.bitrate <= 8_000_000:
             raise ValueError(f"bitrate: expected bits/s in (0, 8e6], got {self.bitrate}")
 
@@ -119,10 +122,6 @@ class LinkPolicy:
             )
 
 
-def _known_interfaces() -> list[str]:
-    return sorted(can.interfaces.BACKENDS)
-
-
 class CanLink:
     """A resilient python-can bus (see the module docstring for the contracts)."""
 
@@ -134,11 +133,6 @@ class CanLink:
         log_path: str | Path | None = None,
         stop_event: threading.Event | None = None,
     ) -> None:
-        if config.interface not in can.interfaces.BACKENDS:
-            raise ValueError(
-                f"interface: unknown python-can interface {config.interface!r}; "
-                f"expected one of {_known_interfaces()}"
-            )
         self.config = config
         self.policy = policy if policy is not None else LinkPolicy()
         self._stop = stop_event if stop_event is not None else threading.Event()

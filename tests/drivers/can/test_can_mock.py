@@ -212,7 +212,8 @@ def test_mock_commands_only_with_fresh_state(
     ("params", "match"),
     [({"controller": "pid"}, "controller"), ({"gliders": [16]}, "0..15"),
      ({"gliders": "0,0"}, "unique"), ({"rate_hz": -1.0}, "rate_hz"),
-     ({"faults": {"drop_rate": 2}}, "drop_rate")],
+     ({"faults": {"drop_rate": 2}}, "drop_rate"),
+     ({"interface": "nope"}, "unknown python-can interface")],
 )
 def test_mock_rejects_bad_params(params: dict[str, Any], match: str) -> None:
     with pytest.raises(ValueError, match=match):
