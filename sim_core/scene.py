@@ -542,10 +542,7 @@ class Scene:
                     f"sonars[{i}].fidelity: expected one of {sorted(FIDELITIES)}, "
                     f"got {s.fidelity!r}"
                 )
-        glider_ids: list[int] = []
-        if spec.swarm is not None:
-            law = self.law
-            glider_ids = [spec.swarm.first_id + i for i in range(int(law.n_agents))]
+        glider_ids = self.glider_ids
         clash = sorted(set(glider_ids) & {v.id for v in spec.vehicles})
         if clash:
             raise ConfigError(f"vehicles: id(s) {clash} collide with swarm glider ids")
