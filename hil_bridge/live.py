@@ -19,7 +19,6 @@ It reads the bus with one raw prefix subscription per family (``/glider/``, ``/t
 
 from __future__ import annotations
 
-import ipaddress
 import math
 import threading
 import time
@@ -29,15 +28,6 @@ from typing import Any
 import numpy as np
 
 __all__ = ["LiveView"]
-
-
-def _is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def _quaternion(yaw: float, roll: float) -> tuple[float, float, float, float]:
@@ -66,7 +56,9 @@ class LiveView:
         echo_every: int = 1,
         echo_points: int = 2000,
     ) -> None:
-        if not _is_loopback(host):
+        from hil_bridge.security import is_loopback_host
+
+        if not is_loopback_host(host):
             raise ValueError(f"host: the live view binds loopback only, got {host!r}")
         if not 0 <= port <= 65535:
             raise ValueError(f"port: expected 0..65535, got {port}")

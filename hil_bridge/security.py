@@ -32,6 +32,7 @@ __all__ = [
     "check_bind",
     "generate_keys",
     "is_loopback_endpoint",
+    "is_loopback_host",
 ]
 
 
@@ -45,7 +46,11 @@ def is_loopback_endpoint(endpoint: str) -> bool:
         return True
     if parts.scheme != "tcp":
         raise ValueError(f"expected a tcp://, ipc:// or inproc:// endpoint, got {endpoint!r}")
-    host = parts.netloc.rpartition(":")[0].strip("[]")
+    return is_loopback_host(parts.netloc.rpartition(":")[0].strip("[]"))
+
+
+def is_loopback_host(host: str) -> bool:
+    """True for ``localhost`` and loopback IP addresses; other names and wildcards are not."""
     if host == "localhost":
         return True
     try:
