@@ -356,14 +356,15 @@ class Link:
         if was_connected:
             self._call(self._on_disconnect)
 
-    def _call(self, fn: Callable[[], None] | None) -> None:
+    def _call(self, fn: Callable[..., None] | None, *args: Any) -> None:
+        """Run a user callback; what it raises is counted (``callback_errors``) and logged."""
         if fn is None:
             return
         try:
-            fn()
+            fn(*args)
         except Exception:
             self.callback_errors += 1
-            log.exception("%s: link callback failed", self.name)
+            log.exception("%s: link callback %s failed", self.name, getattr(fn, "__name__", fn))
 
     def _read_loop(self) -> None:
         delay = self._backoff[0]
@@ -398,12 +399,7 @@ class Link:
             self.bytes_rx += len(data)
             if self.capture is not None:
                 self.capture.data("rx", data)
-            if self._on_bytes is not None:
-                try:
-                    self._on_bytes(data)
-                except Exception:
-                    self.callback_errors += 1
-                    log.exception("%s: on_bytes callback failed", self.name)
+            self._call(self._on_bytes, data)
 
 
 def open_link(url: str, *, connect_timeout_s: float = 5.0, **kwargs: Any) -> Link:
