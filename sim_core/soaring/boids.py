@@ -22,11 +22,12 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_core.soaring.glider import accel_to_command
+from sim_core.soaring.glider import accel_to_command, scalar_if_uniform
 from sim_core.soaring.law import Law
 
 __all__ = [
     "CONTROLLERS",
+    "AccelKernel",
     "BoidsAccel",
     "GliderObs",
     "LawParams",
@@ -58,7 +59,7 @@ _PER_RUN = (
 #: Cap of a neighbour's distance weight (d/R)^p, reached only as d → 0 with p < 0.
 W_MAX = 1e100
 
-#: Per-run parameters used per neighbour pair by :func:`boids_accel`.
+#: Per-run parameters used per neighbour pair by :class:`AccelKernel`.
 _PAIR_PARAMS = (
     "neighborRadius", "collisionKillDistance", "cohesionAscensionIgnore", "cohesionAscensionMax",
     "ascensionFactorPower", "cohPower", "separationHeightWidth", "sepPower",
@@ -78,6 +79,7 @@ class LawParams:
     p: dict[str, NDArray[np.generic]]
     dt: float
     _distinct: dict[str, list[float]] = field(default_factory=dict)
+    _scalars: dict[str, float | NDArray[np.float64]] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> NDArray[Any]:
         return self.p[name]
@@ -89,6 +91,12 @@ class LawParams:
     def select(self, runs: NDArray[np.intp]) -> LawParams:
         return LawParams({k: v[runs] for k, v in self.p.items()}, self.dt)
 
+    def scalar(self, name: str) -> float | NDArray[np.float64]:
+        """A float parameter as a Python float when all runs share it, else (B, 1) (cached)."""
+        if name not in self._scalars:
+            self._scalars[name] = scalar_if_uniform(self.p[name])
+        return self._scalars[name]
+
     def values(self, name: str) -> list[float]:
         """Distinct values of a per-run parameter in this batch (cached)."""
         vals = self._distinct.get(name)
@@ -97,9 +105,6 @@ class LawParams:
             self._distinct[name] = vals
         return vals
 
-    def per_pair(self, run: NDArray[np.intp]) -> dict[str, NDArray[Any]]:
-        """The per-run parameters the controller needs per neighbour pair, shape (V,)."""
-        return {name: self.p[name][run, 0] for name in _PAIR_PARAMS}
 
 
 def law_params(laws: Sequence[Law]) -> LawParams:
@@ -246,13 +251,173 @@ def velocity_xy(speed: F8, heading: F8) -> tuple[F8, F8]:
     return speed * np.cos(heading), speed * np.sin(heading)
 
 
+#: Rows of the pair-difference array ``D`` (6, V) the kernel reads: neighbour minus owner
+#: (the order of the glider state rows ROW_VX..ROW_VZ of :mod:`sim_core.soaring.glider`).
+PAIR_ROWS = ("vx", "vy", "x", "y", "z", "vz")
+
+
+class AccelKernel:
+    """The Boids controller of one batch (``agentControl_Unified``/``_Baseline``, §3.4), with
+    everything that depends only on the laws computed once.
+
+    :meth:`set_pairs` takes the neighbour pairs of a list refresh; :meth:`accel` then evaluates
+    the controller from the pair differences. Per-run parameters that are equal in every run
+    of the batch are used as scalars, the others per pair; either way each element sees the
+    same float64 operations, so a run's result does not depend on its batch. Work buffers are
+    reused between calls: the arrays :meth:`accel` returns are valid until its next call.
+    """
+
+    def __init__(self, P: LawParams, B: int, N: int) -> None:
+        self.P = P
+        self.B, self.N, self.M = B, N, B * N
+        uni = np.asarray(P["unified"], dtype=bool)
+        self._all_unified = bool(uni.all())
+        self._no_unified = not bool(uni.any())
+        self._uniform = {name: P.scalar(name) for name in _PAIR_PARAMS if name != "unified"}
+        self._ceiling = P.scalar("agentCeiling")
+        self._hfp = P.values("heightFactorPower")
+        self._afp = P.values("ascensionFactorPower")
+        self._coh_p = P.values("cohPower")
+        self._sep_p = P.values("sepPower")
+        self._ali_p = P.values("aliPower")
+        self._mig_p = P.values("migPower")
+        self._target = np.stack([P["target_x"], P["target_y"]])  # (2, B, 1)
+        self._neg_ks = -P.scalar("separation")
+        self._kc, self._ka = P.scalar("cohesion"), P.scalar("alignment")
+        self._km, self._kw = P.scalar("migration"), P.scalar("waggle")
+        self._waggle = bool(np.any(self._kw != 0))  # a zero gain adds only ±0
+        self.set_pairs(np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp))
+
+    def set_pairs(self, owner: NDArray[np.intp], other: NDArray[np.intp]) -> None:
+        """Pairs (V,) of flat glider indices b·N + i, sorted by owner then list slot."""
+        V, M = owner.shape[0], self.M
+        self.owner, self.other, self.V = owner, other, V
+        self.gather = np.concatenate([other, owner])
+        # one bincount sums all eight per-pair rows: row r of glider m goes to bin r·M + m
+        self._bins = (owner[None, :] + M * np.arange(8)[:, None]).ravel()
+        run = owner // max(self.N, 1)
+        pp: dict[str, float | NDArray[Any]] = {}
+        for name, val in self._uniform.items():
+            pp[name] = val if isinstance(val, float) else self.P[name][run, 0]
+        self._unified_pp = self.P["unified"][run, 0]
+        ign, wmax = pp["cohesionAscensionIgnore"], pp["cohesionAscensionMax"]
+        pp["asc_range"] = wmax - ign
+        pp["half_sep"] = pp["separationHeightWidth"] / 2
+        pp["half_ali"] = pp["alignmentHeightWidth"] / 2
+        self.pp = pp
+        self.D = np.empty((6, V))
+        self._gg = np.empty((6, 2 * V))
+        self._sq = np.empty((3, V))
+        self._dd = np.empty((2, V))
+        self._nd = np.empty((2, V))
+        self._inv = np.zeros(V)
+        self._e = np.empty((2, V))
+        self._seen = np.empty((3, V), dtype=bool)
+        self._tmpb = np.empty(V, dtype=bool)
+        self._pw = np.empty((3, V))
+        self._wt = np.empty((8, V))
+        self._wt[6] = 1.0
+
+    def load(self, G: F8) -> F8:
+        """Pair differences D (6, V) (neighbour − owner of the rows :data:`PAIR_ROWS`) from
+        glider rows G (6, B·N) in the same order."""
+        if self.V:
+            np.take(G, self.gather, axis=1, out=self._gg)
+            np.subtract(self._gg[:, : self.V], self._gg[:, self.V :], out=self.D)
+        return self.D
+
+    def accel(
+        self, D: F8, own_z: F8, own_xy: F8, cs: F8, waggle_sign: F8
+    ) -> tuple[F8, B8, F8]:
+        """Desired acceleration A (2, B, N) (ax, ay m/s²), collision (B, N) and the cohesion
+        magnitude ‖K_c·c‖ (B, N), from pair differences D (6, V) (see :meth:`load`), own
+        altitude z (B, N) m, own (x, y) (2, B, N) m, (cos ψ, sin ψ) (2, B, N) and the waggle
+        signs (B, N)."""
+        P, pp, M, B, N = self.P, self.pp, self.M, self.B, self.N
+        sq, dd, nd, seen, pw = self._sq, self._dd, self._nd, self._seen, self._pw
+        np.multiply(D[2:5], D[2:5], out=sq)
+        np.add(sq[0], sq[1], out=dd[0])  # dxy²
+        np.add(dd[0], sq[2], out=dd[1])  # d3²
+        np.sqrt(dd, out=dd)  # dxy, d3
+        dxy, d3 = dd[0], dd[1]
+        flat = seen[0]
+        np.greater(dxy, 0.0, out=flat)
+        inv = self._inv
+        inv.fill(0.0)
+        np.divide(1.0, dxy, out=inv, where=flat)
+        e = self._e
+        np.multiply(D[2:4], inv, out=e)
+        wt = self._wt
+        np.less(d3, pp["collisionKillDistance"], out=self._tmpb)
+        wt[7] = self._tmpb
+
+        # cohesion weight: height factor × relative ascension (unified), 1 (baseline)
+        ign, wmax = pp["cohesionAscensionIgnore"], pp["cohesionAscensionMax"]
+        dwc = np.maximum(np.minimum(D[5], wmax), ign)
+        height = power(np.maximum(1.0 - own_z / self._ceiling, 0.0), P["heightFactorPower"],
+                       self._hfp)
+        asc = power((dwc - ign) / pp["asc_range"], pp["ascensionFactorPower"], self._afp)
+        weight = np.take(height.ravel(), self.owner) * asc
+        if not self._all_unified:
+            weight = np.where(self._unified_pp, weight, 1.0)
+        rzabs = np.abs(D[4])
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            np.divide(dd, pp["neighborRadius"], out=nd)  # dxy/R, d3/R
+            if self._coh_p == [0.0]:
+                pw[0] = weight  # weight · 0 ** 0 == weight
+            else:
+                np.multiply(weight, power(nd[0], pp["cohPower"], self._coh_p), out=pw[0])
+            if self._ali_p == self._sep_p and isinstance(pp["aliPower"], float) \
+                    and pp["aliPower"] == pp["sepPower"]:
+                pw[1:] = power(nd, pp["aliPower"], self._ali_p)
+            else:
+                pw[1] = power(nd[0], pp["aliPower"], self._ali_p)
+                pw[2] = power(nd[1], pp["sepPower"], self._sep_p)
+        np.less(rzabs, pp["half_ali"], out=seen[1])
+        np.less(rzabs, pp["half_sep"], out=seen[2])
+        if not self._all_unified:
+            np.logical_or(seen[1:], ~self._unified_pp, out=seen[1:])
+        np.logical_and(seen[1:], flat, out=seen[1:])
+        w = np.where(seen, pw, 0.0)  # rows: cohesion, alignment, separation weights
+        # a distance → 0 under a negative power: cap the weight (4 m at R = 1000 gives 6e4)
+        np.minimum(w, W_MAX, out=w)
+        np.multiply(e, w[0], out=wt[0:2])
+        np.multiply(e, w[2], out=wt[2:4])
+        np.multiply(D[0:2], w[1], out=wt[4:6])
+        sums = np.bincount(self._bins, weights=wt.ravel(), minlength=8 * M).reshape(8, B, N)
+        inv_n = np.zeros((B, N))
+        np.divide(1.0, sums[6], out=inv_n, where=sums[6] > 0)
+        c = sums[:6] * inv_n  # cohesion, separation (sign flipped below), alignment
+        collision = sums[7] > 0
+
+        t = self._target - own_xy
+        t2 = t * t
+        dist = np.sqrt(t2[0] + t2[1])
+        pos = dist > 0
+        if pos.all():
+            mscale = power(dist, P["migPower"], self._mig_p)
+        else:
+            mscale = np.where(pos, power(np.where(pos, dist, 1.0), P["migPower"], self._mig_p),
+                              0.0)
+        a = c[2:4] * self._neg_ks
+        kcc = c[0:2] * self._kc
+        a += kcc
+        a += c[4:6] * self._ka
+        a += (t * mscale) * self._km
+        if self._waggle:
+            a[0] += (-cs[1] * waggle_sign) * self._kw
+            a[1] += (cs[0] * waggle_sign) * self._kw
+        kcc *= kcc
+        coh_mag = np.sqrt(kcc[0] + kcc[1])
+        return a, collision, coh_mag
+
+
 def boids_accel(
     own: dict[str, F8],
     nb: dict[str, F8],
     owner: NDArray[np.intp],
     P: LawParams,
     waggle_sign: F8,
-    pair_params: dict[str, NDArray[Any]] | None = None,
 ) -> BoidsAccel:
     """Desired acceleration of every glider (``agentControl_Unified``/``_Baseline``, §3.4).
 
@@ -260,85 +425,26 @@ def boids_accel(
     heading, if the caller has them). Neighbour pairs, V of
     them, sorted by owner and then by list slot: nb holds the neighbour's x, y, z, vx, vy, vz
     (velocities from :func:`velocity_xy`), each (V,); ``owner`` (V,) is the owning glider's flat
-    index b·N + i. ``pair_params``: ``P.per_pair(owner // N)`` if cached by the caller.
+    index b·N + i. Evaluated by :class:`AccelKernel` (the swarm's kernel).
     Sums over a glider's neighbours run in slot order (``bincount``), whatever the batch.
     Hazards guarded without changing other results: a neighbour straight above or below
     (dxy = 0) has ê = 0 and adds no cohesion, separation or alignment; a target at distance 0
     adds no migration; a distance of 0 never reaches a negative power.
     """
     B, N = own["x"].shape
-    M = B * N
-    pp = P.per_pair(owner // max(N, 1)) if pair_params is None else pair_params
+    kern = AccelKernel(P, B, N)
+    kern.set_pairs(owner, owner)
     if "cos" in own:
         ch, sh = own["cos"], own["sin"]
     else:
         ch, sh = np.cos(own["heading"]), np.sin(own["heading"])
-    vix, viy = own["speed"] * ch, own["speed"] * sh
-    rx = nb["x"] - own["x"].ravel()[owner]
-    ry = nb["y"] - own["y"].ravel()[owner]
-    rz = nb["z"] - own["z"].ravel()[owner]
-    dxy2 = rx * rx + ry * ry
-    dxy = np.sqrt(dxy2)
-    d3 = np.sqrt(dxy2 + rz * rz)
-    flat = dxy > 0
-    inv = np.divide(1.0, dxy, out=np.zeros_like(dxy), where=flat)
-    ex = rx * inv
-    ey = ry * inv
-    collision = np.zeros(M, dtype=bool)
-    collision[owner[d3 < pp["collisionKillDistance"]]] = True
-
-    unified = pp["unified"]
-    ign, wmax = pp["cohesionAscensionIgnore"], pp["cohesionAscensionMax"]
-    dwc = np.maximum(np.minimum(nb["vz"] - own["vz"].ravel()[owner], wmax), ign)
-    height = power(np.maximum(1.0 - own["z"] / P["agentCeiling"], 0.0), P["heightFactorPower"],
-                   P.values("heightFactorPower"))
-    asc = power((dwc - ign) / (wmax - ign), pp["ascensionFactorPower"],
-                P.values("ascensionFactorPower"))
-    weight = np.where(unified, height.ravel()[owner] * asc, 1.0)
-    abs_rz = np.abs(rz)
-    R = pp["neighborRadius"]
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        ndxy = dxy / R
-        coh_w = np.where(flat, weight * power(ndxy, pp["cohPower"], P.values("cohPower")), 0.0)
-        seen_s = flat & (~unified | (abs_rz < pp["separationHeightWidth"] / 2))
-        seen_a = flat & (~unified | (abs_rz < pp["alignmentHeightWidth"] / 2))
-        sep_w = np.where(seen_s, power(d3 / R, pp["sepPower"], P.values("sepPower")), 0.0)
-        ali_w = np.where(seen_a, power(ndxy, pp["aliPower"], P.values("aliPower")), 0.0)
-    # a distance → 0 under a negative power: cap the weight (4 m at R = 1000 gives 6e4)
-    for w in (coh_w, sep_w, ali_w):
-        np.minimum(w, W_MAX, out=w)
-
-    def total(w: F8) -> F8:
-        return np.bincount(owner, weights=w, minlength=M).reshape(B, N).astype(np.float64)
-
-    n = np.bincount(owner, minlength=M).reshape(B, N)
-    inv_n = np.where(n > 0, 1.0 / np.maximum(n, 1), 0.0)
-    cx = total(coh_w * ex) * inv_n
-    cy = total(coh_w * ey) * inv_n
-    sx = -total(ex * sep_w) * inv_n
-    sy = -total(ey * sep_w) * inv_n
-    alx = total((nb["vx"] - vix.ravel()[owner]) * ali_w) * inv_n
-    aly = total((nb["vy"] - viy.ravel()[owner]) * ali_w) * inv_n
-
-    tx = P["target_x"] - own["x"]
-    ty = P["target_y"] - own["y"]
-    dist = np.sqrt(tx * tx + ty * ty)
-    mscale = np.where(
-        dist > 0,
-        power(np.where(dist > 0, dist, 1.0), P["migPower"], P.values("migPower")),
-        0.0,
+    rows = (own["speed"] * ch, own["speed"] * sh, own["x"], own["y"], own["z"], own["vz"])
+    D = np.stack([nb[k] - o.ravel()[owner] for k, o in zip(PAIR_ROWS, rows, strict=True)])
+    D = D.reshape(6, owner.shape[0])
+    a, collision, coh_mag = kern.accel(
+        D, own["z"], np.stack([own["x"], own["y"]]), np.stack([ch, sh]), waggle_sign
     )
-    mx, my = tx * mscale, ty * mscale
-
-    Ks, Kc, Ka = P["separation"], P["cohesion"], P["alignment"]
-    Km, Kw = P["migration"], P["waggle"]
-    ax = sx * Ks + cx * Kc + alx * Ka + mx * Km
-    ay = sy * Ks + cy * Kc + aly * Ka + my * Km
-    if np.any(Kw != 0):  # a zero gain adds only ±0
-        ax = ax + (-sh * waggle_sign) * Kw
-        ay = ay + (ch * waggle_sign) * Kw
-    coh_mag = np.sqrt((cx * Kc) ** 2 + (cy * Kc) ** 2)
-    return BoidsAccel(ax=ax, ay=ay, collision=collision.reshape(B, N), cohesion_mag=coh_mag)
+    return BoidsAccel(ax=a[0].copy(), ay=a[1].copy(), collision=collision, cohesion_mag=coh_mag)
 
 
 def neighbor_pairs(

@@ -14,10 +14,27 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["GliderStep", "accel_to_command", "glider_step", "sink_rate"]
+__all__ = [
+    "STATE_ROWS",
+    "GliderStep",
+    "accel_to_command",
+    "fly",
+    "glider_step",
+    "scalar_if_uniform",
+    "sink_rate",
+]
 
 F8 = NDArray[np.float64]
 ArrayLike = F8 | float
+
+def scalar_if_uniform(a: NDArray[np.generic]) -> float | F8:
+    """A per-run parameter column (B, 1) as a Python float when every run has the same value
+    (numpy's scalar loops are faster and give the same float64 results), else as is."""
+    arr = np.asarray(a, dtype=np.float64)
+    if arr.size and bool(np.all(arr == arr.flat[0])):
+        return float(arr.flat[0])
+    return arr
+
 
 #: Acceleration components beyond ±A_MAX (m/s², or infinite) are clipped to it, so ‖a‖² cannot
 #: overflow (never hit in the seed's runs, whose |a| stays below 1e6).
@@ -68,6 +85,13 @@ def accel_to_command(
     return bank_cmd, airspeed_cmd
 
 
+#: Rows of a glider state block (R, ...): what :func:`fly` writes and the swarm stores.
+#: Rows VX and VY (horizontal velocity v·cos ψ, v·sin ψ) are derived each step by the swarm;
+#: :func:`fly` leaves them alone. Rows VX..VZ are those the Boids kernel reads per pair.
+ROW_VX, ROW_VY, ROW_X, ROW_Y, ROW_Z, ROW_VZ, ROW_HEADING, ROW_SPEED, ROW_OMEGA, ROW_BANK = range(10)
+STATE_ROWS = 10
+
+
 @dataclass(slots=True)
 class GliderStep:
     """Result of one kinematic step; arrays shaped like the inputs.
@@ -86,6 +110,77 @@ class GliderStep:
     omega: F8
     vz: F8
     ground: NDArray[np.bool_]
+
+
+def _rate_limited(cmd: F8, old: F8, rate_max: ArrayLike | None, dt: float) -> F8:
+    """cmd slewed towards from ``old`` by at most rate_max·dt (``inf``/None: cmd itself)."""
+    if rate_max is None:
+        return cmd
+    lim = np.asarray(rate_max * dt)
+    if np.isinf(lim).all():
+        return cmd
+    step = np.clip(cmd - old, -lim, lim)
+    return np.where(np.isinf(lim), cmd, old + step)
+
+
+def fly(
+    out: F8,
+    xy: F8,
+    z: F8,
+    heading: F8,
+    bank: F8,
+    speed: F8,
+    bank_cmd: F8,
+    airspeed_cmd: F8,
+    updraft: ArrayLike,
+    cos_sin: F8,
+    *,
+    dt: float,
+    g: ArrayLike,
+    speed_min: ArrayLike,
+    speed_max: ArrayLike,
+    bank_min: ArrayLike,
+    bank_max: ArrayLike,
+    sink_abc: tuple[ArrayLike, ArrayLike, ArrayLike],
+    ceiling: ArrayLike,
+    floor: ArrayLike,
+    bank_rate_max: ArrayLike | None = None,
+    speed_rate_max: ArrayLike | None = None,
+) -> NDArray[np.bool_]:
+    """One step of dt seconds (seed §3.3), written into ``out`` (STATE_ROWS, *shape) at the
+    rows ROW_X ... ROW_BANK, *without* the ground rule: where the returned ``ground`` mask is
+    True the caller keeps the old position, heading and speed (see :func:`glider_step`).
+
+    xy (2, *shape) m and cos_sin (2, *shape) = (cos ψ, sin ψ) of the old heading; the other
+    inputs are broadcastable to ``shape``. ``*_rate_max``: None or ``inf`` = no rate limit.
+    """
+    v_cmd = _rate_limited(airspeed_cmd, speed, speed_rate_max, dt)
+    b_cmd = _rate_limited(bank_cmd, bank, bank_rate_max, dt)
+    new_speed, new_bank, omega = out[ROW_SPEED], out[ROW_BANK], out[ROW_OMEGA]
+    new_speed[...] = np.where(
+        v_cmd > speed_max, speed_max, np.where(v_cmd < speed_min, speed_min, v_cmd)
+    )
+    new_bank[...] = np.where(
+        b_cmd > bank_max, bank_max, np.where(b_cmd < bank_min, bank_min, b_cmd)
+    )
+    np.tan(new_bank, out=omega)
+    omega *= g
+    omega /= new_speed
+    A, B, C = sink_abc
+    np.add(sink_rate(new_speed, new_bank, A, B, C), updraft, out=out[ROW_VZ])
+    adv = new_speed * cos_sin
+    adv *= dt
+    np.add(xy, adv, out=out[ROW_X : ROW_Y + 1])
+    nz = out[ROW_Z]
+    np.multiply(out[ROW_VZ], dt, out=nz)
+    np.add(z, nz, out=nz)
+    below = nz < floor
+    ground = below & (nz <= 0)
+    nz[...] = np.where(nz > ceiling, ceiling, np.where(below, floor, nz))
+    nh = out[ROW_HEADING]
+    np.multiply(omega, dt, out=nh)
+    np.add(heading, nh, out=nh)
+    return ground
 
 
 def glider_step(
@@ -112,7 +207,7 @@ def glider_step(
     speed_rate_max: ArrayLike = np.inf,
     cos_sin: tuple[F8, F8] | None = None,
 ) -> GliderStep:
-    """Fly one step of dt seconds from the commands (seed §3.3).
+    """Fly one step of dt seconds from the commands (seed §3.3), via :func:`fly`.
 
     speed ← clip(rate-limited airspeed_cmd, speed_min, speed_max); bank ← clip(rate-limited
     bank_cmd, bank_min, bank_max); ω = g·tan(bank)/speed; vz = sink(speed, bank) + updraft;
@@ -122,40 +217,28 @@ def glider_step(
     (``inf`` = none, the seed). With both limits infinite the result is bit-identical to
     the seed's update. ``cos_sin``: (cos ψ, sin ψ) if the caller has them already.
     """
-    lim_v = np.asarray(speed_rate_max * dt)
-    v_cmd = airspeed_cmd
-    if not np.isinf(lim_v).all():
-        step_v = np.clip(airspeed_cmd - speed, -lim_v, lim_v)
-        v_cmd = np.where(np.isinf(lim_v), airspeed_cmd, speed + step_v)
-    lim_b = np.asarray(bank_rate_max * dt)
-    b_cmd = bank_cmd
-    if not np.isinf(lim_b).all():
-        step_b = np.clip(bank_cmd - bank, -lim_b, lim_b)
-        b_cmd = np.where(np.isinf(lim_b), bank_cmd, bank + step_b)
-    new_speed = np.where(
-        v_cmd > speed_max, speed_max, np.where(v_cmd < speed_min, speed_min, v_cmd)
+    ins = np.broadcast_arrays(
+        *(np.asarray(a, dtype=np.float64)
+          for a in (x, y, z, heading, bank, speed, bank_cmd, airspeed_cmd, updraft))
     )
-    new_bank = np.where(b_cmd > bank_max, bank_max, np.where(b_cmd < bank_min, bank_min, b_cmd))
-    omega = np.tan(new_bank) * g / new_speed
-    A, B, C = sink_abc
-    vz = sink_rate(new_speed, new_bank, A, B, C) + updraft
+    x, y, z, heading, bank, speed = ins[:6]
     ch, sh = (np.cos(heading), np.sin(heading)) if cos_sin is None else cos_sin
-    nx = x + new_speed * ch * dt
-    ny = y + new_speed * sh * dt
-    nz = z + vz * dt
-    below = nz < floor
-    ground = below & (nz <= 0)
-    nz = np.where(nz > ceiling, ceiling, np.where(below, floor, nz))
-    nh = heading + omega * dt
-    keep = ground
+    out = np.zeros((STATE_ROWS, *x.shape))
+    keep = fly(
+        out, np.stack([x, y]), z, heading, bank, speed, ins[6], ins[7], ins[8],
+        np.stack(np.broadcast_arrays(ch, sh)), dt=dt, g=g, speed_min=speed_min,
+        speed_max=speed_max, bank_min=bank_min, bank_max=bank_max, sink_abc=sink_abc,
+        ceiling=ceiling, floor=floor, bank_rate_max=bank_rate_max,
+        speed_rate_max=speed_rate_max,
+    )
     return GliderStep(
-        x=np.where(keep, x, nx),
-        y=np.where(keep, y, ny),
-        z=np.where(keep, z, nz),
-        heading=np.where(keep, heading, nh),
-        bank=new_bank,
-        speed=np.where(keep, speed, new_speed),
-        omega=omega,
-        vz=vz,
-        ground=ground,
+        x=np.where(keep, x, out[ROW_X]),
+        y=np.where(keep, y, out[ROW_Y]),
+        z=np.where(keep, z, out[ROW_Z]),
+        heading=np.where(keep, heading, out[ROW_HEADING]),
+        bank=out[ROW_BANK],
+        speed=np.where(keep, speed, out[ROW_SPEED]),
+        omega=out[ROW_OMEGA],
+        vz=out[ROW_VZ],
+        ground=keep,
     )

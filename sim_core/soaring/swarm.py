@@ -28,18 +28,32 @@ from numpy.typing import NDArray
 
 from sim_core.rng import derive_rng
 from sim_core.soaring.boids import (
+    AccelKernel,
     LawParams,
-    boids_accel,
     find_neighbors,
     law_params,
     neighbor_pairs,
 )
-from sim_core.soaring.glider import accel_to_command, glider_step
+from sim_core.soaring.glider import (
+    ROW_BANK,
+    ROW_HEADING,
+    ROW_OMEGA,
+    ROW_SPEED,
+    ROW_VX,
+    ROW_VY,
+    ROW_VZ,
+    ROW_X,
+    ROW_Y,
+    ROW_Z,
+    STATE_ROWS,
+    accel_to_command,
+    fly,
+)
 from sim_core.soaring.law import Law
 from sim_core.soaring.thermals import (
+    Fader,
     Thermals,
-    _updraft_xy,
-    fade_step,
+    UpdraftField,
     spawn_thermals,
     stack_thermals,
 )
@@ -189,7 +203,8 @@ def _spawn_agents(law: Law, rng: np.random.Generator) -> dict[str, F8]:
 
 @dataclass(slots=True)
 class _Acc:
-    """Metric accumulators, (B,) arrays (visited: (B, res*res))."""
+    """Metric accumulators, (B,) arrays (visited: (B, res*res)). The final heights are
+    computed on demand from the last step's saved altitudes and alive mask."""
 
     n_agents: NDArray[np.int64]
     living: NDArray[np.int64]
@@ -199,9 +214,6 @@ class _Acc:
     visited: B8
     coll: NDArray[np.int64]
     ground: NDArray[np.int64]
-    hmax: F8
-    hmin: F8
-    havg: F8
 
     def select(self, runs: NDArray[np.intp]) -> _Acc:
         return _Acc(*(getattr(self, f)[runs] for f in self.__slots__))
@@ -285,10 +297,13 @@ class SwarmSim:
                 st[f][b, :m] = ag[f]
             alive[b, :m] = True
         self._thermals = stack_thermals(ths)
-        self._state = SwarmState(
-            x=st["x"], y=st["y"], z=st["z"], heading=st["heading"], bank=np.zeros((B, n)),
-            speed=st["speed"], omega=st["omega"], vz=np.zeros((B, n)), alive=alive,
-        )
+        # glider state rows (STATE_ROWS, B, N), updated in place (layout: glider.ROW_*)
+        self._S = np.zeros((STATE_ROWS, B, n))
+        for f, row in (("x", ROW_X), ("y", ROW_Y), ("z", ROW_Z), ("heading", ROW_HEADING),
+                       ("speed", ROW_SPEED), ("omega", ROW_OMEGA)):
+            self._S[row] = st[f]
+        self._alive = alive
+        self._z_saved = self._S[ROW_Z].copy()
         self._waggle_rngs = [derive_rng(s, "soaring", "waggle") for s in seeds]
         self._waggle_sign = np.zeros((B, n))
         self._waggle_left = np.zeros((B, n))
@@ -297,7 +312,7 @@ class SwarmSim:
         self._pending: tuple[NDArray[np.intp], B8] | None = None
         self._owner = np.zeros(0, dtype=np.intp)
         self._other = np.zeros(0, dtype=np.intp)
-        self._pair_params: dict[str, NDArray[Any]] = {}
+        self._setup()
         self.cohesion_mag = np.zeros((B, n))
         self.step_count = 0
         n_agents = np.array([lw.n_agents for lw in laws], dtype=np.int64)
@@ -312,19 +327,44 @@ class SwarmSim:
             visited=np.zeros((B, self._res * self._res), dtype=bool),
             coll=np.zeros(B, dtype=np.int64),
             ground=np.zeros(B, dtype=np.int64),
-            hmax=self.P["agentFloor"][:, 0].copy(),
-            hmin=self.P["agentCeiling"][:, 0].copy(),
-            havg=np.full(B, np.nan),
         )
         self._end_step = np.full(B, -1, dtype=np.int64)
+        self._update_finished()
         self._trace: _TraceBuf | None = _TraceBuf() if trace else None
         if self._trace is not None:
             self._record()
+
+    def _setup(self) -> None:
+        """Everything the step needs that depends only on the laws, the thermal slots and
+        the shapes: kernels, work buffers, flags (at construction and after :meth:`_keep`)."""
+        P, (B, n) = self.P, self._alive.shape
+        self._kernel = AccelKernel(P, B, n)
+        self._kernel.set_pairs(self._owner, self._other)
+        self._updraft = UpdraftField(self._thermals, n)
+        self._fader = Fader(self._thermals, by_time=P["fade_by_time"], rate=P["fade_rate"],
+                            top=P["fade_top"], bottom=P["fade_bottom"], dt=self.dt)
+        self._new = np.zeros((STATE_ROWS, B, n))
+        self._cs = np.empty((2, B, n))
+        self._hbuf = np.empty((B, n + 1))
+        self._waggle_runs = np.flatnonzero(P["waggle"][:, 0] != 0)
+        rates = {}
+        for name in ("bank_rate_max", "speed_rate_max"):
+            rates[name] = None if np.isinf(P[name] * self.dt).all() else P[name]
+        self._rates = rates
 
     # -- read-only views ---------------------------------------------------------------------
     @property
     def batch(self) -> int:
         return len(self.laws)
+
+    @property
+    def _state(self) -> SwarmState:
+        """The glider state as views of the internal rows (not copies)."""
+        S = self._S
+        return SwarmState(
+            x=S[ROW_X], y=S[ROW_Y], z=S[ROW_Z], heading=S[ROW_HEADING], bank=S[ROW_BANK],
+            speed=S[ROW_SPEED], omega=S[ROW_OMEGA], vz=S[ROW_VZ], alive=self._alive,
+        )
 
     @property
     def state(self) -> SwarmState:
@@ -344,19 +384,23 @@ class SwarmSim:
     @property
     def finished(self) -> B8:
         """(B,) True for runs that have ended (all steps, or all dead with stopWhenDead)."""
+        return self._finished.copy()
+
+    def _update_finished(self) -> None:
         out = self.step_count >= self.total_steps
         if self._stop_when_dead:
-            return np.asarray(out | ((self._acc.living == 0) & (self.step_count >= 1)))
-        return np.full(self.batch, out)
+            self._finished = np.asarray(out | ((self._acc.living == 0) & (self.step_count >= 1)))
+        else:
+            self._finished = np.full(self.batch, out)
 
     @property
     def done(self) -> bool:
-        return bool(np.all(self.finished))
+        return bool(self._finished.all())
 
     def updraft_at(self, xy: NDArray[np.floating]) -> F8:
         """w m/s at points xy (B, M, 2) → (B, M) for the current thermals."""
         pts = np.asarray(xy, dtype=np.float64)
-        return _updraft_xy(pts[..., 0], pts[..., 1], self._thermals)
+        return UpdraftField(self._thermals, pts.shape[1])(np.moveaxis(pts, -1, 0))
 
     def _refreshes(self, step: int) -> bool:
         return step == 1 or step % self._nfs == 0
@@ -379,7 +423,7 @@ class SwarmSim:
         list the *next* step will use, i.e. rebuilt from the current (to-be-saved) state when
         that step refreshes (step 1 and every neighborFrameSkip-th), else the stale list.
         A dead glider may stay in a list until the next refresh, as in the seed."""
-        n = self._state.x.shape[1]
+        n = self._alive.shape[1]
         if not 0 <= i < n:
             raise ValueError(f"glider index {i} out of range 0..{n - 1}")
         if not 0 <= run < self.batch:
@@ -393,6 +437,7 @@ class SwarmSim:
         n_agents = int(a.n_agents[run])
         living = int(a.living[run])
         started = self.step_count >= 1
+        hmax, hmin, havg = self._final_heights(run)
         return Metrics(
             surviving=living,
             survivingPercent=100.0 * living / n_agents if n_agents else 0.0,
@@ -402,10 +447,28 @@ class SwarmSim:
             explorationPercent=100.0 * int(a.visited[run].sum()) / self._res**2,
             collisionDeaths=int(a.coll[run]),
             groundDeaths=int(a.ground[run]),
-            finalHeightMax=float(a.hmax[run]),
-            finalHeightMin=float(a.hmin[run]),
-            finalHeightAvg=float(a.havg[run]) if started else math.nan,
+            finalHeightMax=hmax,
+            finalHeightMin=hmin,
+            finalHeightAvg=havg if started else math.nan,
         )
+
+    def _final_heights(self, run: int) -> tuple[float, float, float]:
+        """Max, min and mean altitude, m, of the gliders alive after the last step, at their
+        saved (pre-step) altitudes; max/min start from the floor/ceiling (seed §3.8)."""
+        floor = float(self.P["agentFloor"][run, 0])
+        ceil = float(self.P["agentCeiling"][run, 0])
+        if self.step_count < 1:
+            return floor, ceil, math.nan
+        alive, z = self._alive[run : run + 1], self._z_saved[run : run + 1]
+        if alive.shape[1]:
+            hmax = np.maximum(floor, np.max(np.where(alive, z, -np.inf), axis=1))
+            hmin = np.minimum(ceil, np.min(np.where(alive, z, np.inf), axis=1))
+        else:
+            hmax, hmin = np.array([floor]), np.array([ceil])
+        zsum = _seqsum(np.where(alive, z, 0.0), axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            havg = zsum / alive.sum(axis=1)
+        return float(hmax[0]), float(hmin[0]), float(havg[0])
 
     def all_metrics(self) -> list[Metrics]:
         return [self.metrics(b) for b in range(self.batch)]
@@ -415,75 +478,68 @@ class SwarmSim:
         """Advance every run by one step of dt (see the module docstring for the order)."""
         self.step_count += 1
         step = self.step_count
-        P, s, th = self.P, self._state, self._thermals
-        fade_step(th, by_time=P["fade_by_time"], rate=P["fade_rate"], top=P["fade_top"],
-                  bottom=P["fade_bottom"], dt=self.dt)
-        B, n = s.x.shape
+        P, S, alive = self.P, self._S, self._alive
+        self._fader.step()
+        B, n = alive.shape
         if self._refreshes(step):
             idx, valid = self._lists_for(step)
             self._pending = None
             self._nb_idx, self._nb_valid = idx, valid
             self._owner, self._other = neighbor_pairs(idx, valid)
-            self._pair_params = P.per_pair(self._owner // max(n, 1))
-        ch, sh = np.cos(s.heading), np.sin(s.heading)
-        own = {"x": s.x, "y": s.y, "z": s.z, "heading": s.heading, "speed": s.speed, "vz": s.vz,
-               "cos": ch, "sin": sh}
-        vx, vy = s.speed * ch, s.speed * sh
-        other = self._other
-        nb = {k: v.ravel()[other] for k, v in
-              (("x", s.x), ("y", s.y), ("z", s.z), ("vx", vx), ("vy", vy), ("vz", s.vz))}
-        w_th = _updraft_xy(s.x, s.y, th)
+            self._kernel.set_pairs(self._owner, self._other)
+        heading, speed, z = S[ROW_HEADING], S[ROW_SPEED], S[ROW_Z]
+        cs = self._cs
+        np.cos(heading, out=cs[0])
+        np.sin(heading, out=cs[1])
+        np.multiply(speed, cs, out=S[ROW_VX : ROW_VY + 1])
+        xy = S[ROW_X : ROW_Y + 1]
+        w_th = self._updraft(xy)
         external = (
-            np.broadcast_to(np.asarray(commands.mask, dtype=bool), (B, n))
-            if commands is not None else np.zeros((B, n), dtype=bool)
+            None if commands is None
+            else (np.broadcast_to(np.asarray(commands.mask, dtype=bool), (B, n)), commands)
         )
-        self._update_waggle(s.alive & ~external)
-        acc = boids_accel(own, nb, self._owner, P, self._waggle_sign, self._pair_params)
-        self.cohesion_mag = acc.cohesion_mag
+        if self._waggle_runs.size:
+            self._update_waggle(alive if external is None else alive & ~external[0])
+        kern = self._kernel
+        a, collision, self.cohesion_mag = kern.accel(
+            kern.load(S[: ROW_VZ + 1].reshape(ROW_VZ + 1, B * n)), z, xy, cs, self._waggle_sign
+        )
+        sc = P.scalar
         bank_cmd, speed_cmd = accel_to_command(
-            acc.ax, acc.ay, s.heading, s.speed, dt=self.dt, g=P["g"],
-            thermal_bank_factor=P["thermalBankFactor"], updraft=w_th, cos_sin=(ch, sh),
+            a[0], a[1], heading, speed, dt=self.dt, g=sc("g"),
+            thermal_bank_factor=sc("thermalBankFactor"), updraft=w_th, cos_sin=(cs[0], cs[1]),
         )
-        if commands is not None:
-            bank_cmd = np.where(external, np.asarray(commands.bank_cmd, dtype=np.float64), bank_cmd)
-            speed_cmd = np.where(
-                external, np.asarray(commands.airspeed_cmd, dtype=np.float64), speed_cmd
-            )
-        gs = glider_step(
-            s.x, s.y, s.z, s.heading, s.bank, s.speed, bank_cmd, speed_cmd, w_th,
-            dt=self.dt, g=P["g"], speed_min=P["forwardSpeedMin"], speed_max=P["forwardSpeedMax"],
-            bank_min=P["bankMin"], bank_max=P["bankMax"],
-            sink_abc=(P["Sink_A"], P["Sink_B"], P["Sink_C"]),
-            ceiling=P["agentCeiling"], floor=P["agentFloor"],
-            bank_rate_max=P["bank_rate_max"], speed_rate_max=P["speed_rate_max"],
-            cos_sin=(ch, sh),
+        if external is not None:
+            mask, cmd = external
+            bank_cmd = np.where(mask, np.asarray(cmd.bank_cmd, dtype=np.float64), bank_cmd)
+            speed_cmd = np.where(mask, np.asarray(cmd.airspeed_cmd, dtype=np.float64), speed_cmd)
+        new = self._new
+        ground = fly(
+            new, xy, z, heading, S[ROW_BANK], speed, bank_cmd, speed_cmd, w_th, cs,
+            dt=self.dt, g=sc("g"), speed_min=sc("forwardSpeedMin"),
+            speed_max=sc("forwardSpeedMax"), bank_min=sc("bankMin"), bank_max=sc("bankMax"),
+            sink_abc=(sc("Sink_A"), sc("Sink_B"), sc("Sink_C")),
+            ceiling=sc("agentCeiling"), floor=sc("agentFloor"),
+            bank_rate_max=self._rates["bank_rate_max"],
+            speed_rate_max=self._rates["speed_rate_max"],
         )
-        alive = s.alive
-        collided = alive & acc.collision
+        collided = alive & collision
         flew = alive & ~collided
-        grounded = flew & gs.ground
+        grounded = flew & ground
         moved = flew & ~grounded
-        saved_z, saved_vz = s.z, s.vz
-        self._state = SwarmState(
-            x=np.where(moved, gs.x, s.x),
-            y=np.where(moved, gs.y, s.y),
-            z=np.where(moved, gs.z, s.z),
-            heading=np.where(moved, gs.heading, s.heading),
-            bank=np.where(flew, gs.bank, s.bank),
-            speed=np.where(moved, gs.speed, s.speed),
-            omega=np.where(moved, gs.omega, s.omega),
-            vz=np.where(moved, gs.vz, s.vz),
-            alive=alive & ~collided & ~grounded,
-        )
-        self._update_metrics(step, saved_z, saved_vz, s.x, s.y, collided, grounded)
-        fin = self.finished & (self._end_step < 0)
-        self._end_step[fin] = step
+        self._alive = alive & ~collided & ~grounded
+        self._update_metrics(step, collided, grounded)
+        # the saved state is no longer needed: the gliders that moved take the new state
+        np.copyto(S[ROW_X:ROW_BANK], new[ROW_X:ROW_BANK], where=moved)
+        np.copyto(S[ROW_BANK], new[ROW_BANK], where=flew)
+        self._update_finished()
+        if self._finished.any():
+            self._end_step[self._finished & (self._end_step < 0)] = step
         if self._trace is not None:
             self._record()
 
     def _update_waggle(self, flying: B8) -> None:
-        gains = self.P["waggle"][:, 0]
-        for b in np.flatnonzero(gains != 0):
+        for b in self._waggle_runs:
             due = np.flatnonzero(flying[b] & (self._waggle_left[b] <= 0))
             if due.size:
                 lo, hi = self.laws[b].waggleDurationRange
@@ -493,29 +549,30 @@ class SwarmSim:
             self._waggle_left[b] = np.where(flying[b], self._waggle_left[b] - self.dt,
                                             self._waggle_left[b])
 
-    def _update_metrics(
-        self, step: int, z: F8, vz: F8, x: F8, y: F8, collided: B8, grounded: B8
-    ) -> None:
-        a, alive, dt = self._acc, self._state.alive, self.dt
-        a.coll += collided.sum(axis=1)
-        a.ground += grounded.sum(axis=1)
+    def _update_metrics(self, step: int, collided: B8, grounded: B8) -> None:
+        """Accumulate the metrics of a step from the saved state (still in ``_S``) of the
+        gliders alive after it."""
+        a, alive, dt, S = self._acc, self._alive, self.dt, self._S
+        z = S[ROW_Z]
+        if collided.any():
+            a.coll += collided.sum(axis=1)
+        if grounded.any():
+            a.ground += grounded.sum(axis=1)
         living = alive.sum(axis=1)
         a.living = living
         a.flight = a.flight + living * dt
-        zdt = np.where(alive, z * dt, 0.0)
-        a.height = _seqsum(np.concatenate([a.height[:, None], zdt], axis=1), axis=1)
-        climbing = (alive & (vz > 0)).sum(axis=1)
+        # heightScore: one sequential sum over the steps and, within a step, the gliders
+        h = self._hbuf
+        h[:, 0] = a.height
+        zdt = h[:, 1:]
+        np.multiply(z, dt, out=zdt)
+        np.copyto(zdt, 0.0, where=~alive)
+        a.height = np.cumsum(h, axis=1)[:, -1]
+        climbing = (alive & (S[ROW_VZ] > 0)).sum(axis=1)
         a.thermal = a.thermal + climbing * dt
-        floor, ceil = self.P["agentFloor"][:, 0], self.P["agentCeiling"][:, 0]
-        if alive.shape[1]:
-            a.hmax = np.maximum(floor, np.max(np.where(alive, z, -np.inf), axis=1))
-            a.hmin = np.minimum(ceil, np.min(np.where(alive, z, np.inf), axis=1))
-        else:
-            a.hmax, a.hmin = floor.copy(), ceil.copy()
-        zsum = _seqsum(np.where(alive, z, 0.0), axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            a.havg = zsum / living
+        np.copyto(self._z_saved, z)
         if step == 1 or step % self._mfs == 0:
+            x, y = S[ROW_X], S[ROW_Y]
             ix = np.ceil((x - self._map_min) / self._cell).astype(np.int64)
             iy = np.ceil((y - self._map_min) / self._cell).astype(np.int64)
             res = self._res
@@ -529,10 +586,12 @@ class SwarmSim:
             return
         s = self._state
         buf.t.append(self.step_count * self.dt)
+        # copies: the state and the thermal strengths are updated in place
         buf.rows.append({
-            "x": s.x, "y": s.y, "z": s.z, "heading": s.heading, "bank": s.bank,
-            "airspeed": s.speed, "vz": s.vz, "alive": s.alive, "cohesion": self.cohesion_mag,
-            "thermal_strength": self._thermals.strength,
+            "x": s.x.copy(), "y": s.y.copy(), "z": s.z.copy(), "heading": s.heading.copy(),
+            "bank": s.bank.copy(), "airspeed": s.speed.copy(), "vz": s.vz.copy(),
+            "alive": s.alive, "cohesion": self.cohesion_mag,
+            "thermal_strength": self._thermals.strength.copy(),
         })
 
     def trace(self, run: int = 0) -> Trace:
@@ -566,7 +625,9 @@ class SwarmSim:
         self.run_ids = self.run_ids[runs]
         self.P = self.P.select(runs)
         self._thermals = self._thermals.select(runs)
-        self._state = self._state.select(runs)
+        self._S = self._S[:, runs]
+        self._alive = self._alive[runs]
+        self._z_saved = self._z_saved[runs]
         self._waggle_rngs = [self._waggle_rngs[r] for r in runs]
         self._waggle_sign = self._waggle_sign[runs]
         self._waggle_left = self._waggle_left[runs]
@@ -574,12 +635,13 @@ class SwarmSim:
         self._nb_idx = self._nb_idx[:, runs]
         self._nb_valid = self._nb_valid[:, runs]
         self._owner, self._other = neighbor_pairs(self._nb_idx, self._nb_valid)
-        self._pair_params = self.P.per_pair(self._owner // max(self._state.x.shape[1], 1))
         self.cohesion_mag = self.cohesion_mag[runs]
         self._map_min = self._map_min[runs]
         self._cell = self._cell[runs]
         self._acc = self._acc.select(runs)
         self._end_step = self._end_step[runs]
+        self._finished = self._finished[runs]
+        self._setup()
 
 
 def run(law: Law, *, seed: int | None = None, trace: bool = False) -> RunResult:

@@ -17,9 +17,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sim_core.soaring.glider import scalar_if_uniform
 from sim_core.soaring.law import Law
 
-__all__ = ["Thermals", "fade_step", "spawn_thermals", "stack_thermals", "updraft"]
+__all__ = [
+    "Fader",
+    "Thermals",
+    "UpdraftField",
+    "fade_step",
+    "spawn_thermals",
+    "stack_thermals",
+    "updraft",
+]
 
 F8 = NDArray[np.float64]
 B8 = NDArray[np.bool_]
@@ -186,25 +195,90 @@ def updraft(xy: NDArray[np.floating], thermals: Thermals) -> F8:
 
 def _updraft_xy(x: F8, y: F8, th: Thermals) -> F8:
     """w at points (B, M) for thermals (B, T)."""
-    b, m = x.shape
-    t = th.shape[1]
-    if t == 0 or m == 0:
-        return np.zeros((b, m))
-    dx = x[:, :, None] - th.x[:, None, :]
-    dy = y[:, :, None] - th.y[:, None, :]
-    d2 = dx * dx + dy * dy
-    inside = (d2 < th.radius2[:, None, :]) & th.valid[:, None, :]
-    first = np.argmax(inside, axis=2)
-    flat = (np.arange(b * m) * t + first.ravel()).reshape(b, m)
-    hit = inside.ravel()[flat]
-    dsel = np.sqrt(d2.ravel()[flat])
-    run_t = (np.arange(b)[:, None] * t + first).ravel()
-    rsel = th.radius.ravel()[run_t].reshape(b, m)
-    wsel = th.strength.ravel()[run_t].reshape(b, m)
-    q = 3.0 * dsel / rsel
-    u = q * q
-    w = wsel * np.exp(-u) * (1.0 - u)
-    return np.where(hit, w, 0.0)
+    return UpdraftField(th, x.shape[1])(np.stack([x, y]))
+
+
+class UpdraftField:
+    """The updraft profile of a batch's thermals at M points per run, with the parts that do
+    not change while the thermals only fade (centres, radii, slots) computed once.
+
+    ``field(xy)`` with xy (2, B, M) m → w (B, M) m/s, from the thermals' current strength.
+    """
+
+    def __init__(self, th: Thermals, m: int) -> None:
+        self.th = th
+        b, t = th.shape
+        self.b, self.m, self.t = b, m, t
+        self._txy = np.stack([th.x, th.y])[:, :, None, :]  # (2, B, 1, T)
+        # padding slots never contain a point: d² < −inf is False, as d² < R² & valid was
+        self._r2 = np.where(th.valid, th.radius2, -np.inf)[:, None, :]
+        self._radius = th.radius.ravel()
+        self._dxy = np.empty((2, b, m, t))
+        self._d2 = np.empty((b, m, t))
+        self._inside = np.empty((b, m, t), dtype=bool)
+        self._base = (np.arange(b * m) * t).reshape(b, m)
+        self._run_base = np.arange(b)[:, None] * t
+
+    def __call__(self, xy: F8) -> F8:
+        b, m, t = self.b, self.m, self.t
+        if t == 0 or m == 0:
+            return np.zeros((b, m))
+        dxy, d2, inside = self._dxy, self._d2, self._inside
+        np.subtract(xy[:, :, :, None], self._txy, out=dxy)
+        np.multiply(dxy, dxy, out=dxy)
+        np.add(dxy[0], dxy[1], out=d2)
+        np.less(d2, self._r2, out=inside)
+        first = np.argmax(inside, axis=2)
+        flat = self._base + first
+        hit = np.take(inside.ravel(), flat)
+        dsel = np.sqrt(np.take(d2.ravel(), flat))
+        run_t = self._run_base + first
+        rsel = np.take(self._radius, run_t)
+        wsel = np.take(self.th.strength.ravel(), run_t)
+        q = 3.0 * dsel / rsel
+        u = q * q
+        w = wsel * np.exp(-u) * (1.0 - u)
+        return np.where(hit, w, 0.0)
+
+
+class Fader:
+    """The fade cycle of a batch's thermals (seed ``fadeThermals``, §3.2), advanced in place
+    by :meth:`step`; per-run parameters (B, 1) as in :func:`fade_step`."""
+
+    def __init__(
+        self, th: Thermals, *, by_time: NDArray[Any], rate: F8, top: F8, bottom: F8, dt: float
+    ) -> None:
+        self.th = th
+        self.active = th.fade & th.valid
+        self.any_active = bool(self.active.any())
+        self.rate = scalar_if_uniform(rate)
+        self.incr = scalar_if_uniform(np.where(by_time, dt, 1.0))
+        tol = np.where(by_time, 1e-9, 0.0)
+        self.top_lim = scalar_if_uniform(top - tol)
+        self.bottom_lim = scalar_if_uniform(bottom - tol)
+        self.w_top = th.w_max - 1e-5
+
+    def step(self) -> None:
+        """Advance every active thermal by one step."""
+        if not self.any_active:
+            return
+        th, act = self.th, self.active
+        w, timer, direction = th.strength, th.timer, th.direction
+        at_top = w >= self.w_top
+        # round(w, 1) <= 1e-5 (half away from zero) <=> 10·w + 0.5 < 1: w < 0.05, or w < 0
+        low = w * 10.0
+        low += 0.5
+        at_bottom = (low < 1.0) & ~at_top
+        top_done = at_top & (timer >= self.top_lim) & act
+        bottom_done = at_bottom & (timer >= self.bottom_lim) & act
+        np.copyto(direction, -1.0, where=top_done)
+        np.copyto(direction, 1.0, where=bottom_done)
+        done = top_done | bottom_done
+        edge = at_top | at_bottom
+        moving = (act & ~edge) | done
+        np.copyto(w, w + direction * self.rate, where=moving)
+        np.add(timer, self.incr, out=timer, where=edge & act & ~done)
+        np.copyto(timer, 0.0, where=done)
 
 
 def fade_step(
@@ -216,22 +290,4 @@ def fade_step(
     plateau lengths, in steps (``by_time`` False: the timer counts steps) or seconds (True: the
     timer counts seconds, ``dt`` per step, so the cycle does not depend on dt).
     """
-    active = th.fade & th.valid
-    if not active.any():
-        return
-    w = th.strength
-    at_top = w >= th.w_max - 1e-5
-    rounded = np.sign(w) * np.floor(np.abs(w) * 10.0 + 0.5) / 10.0
-    at_bottom = ~at_top & (rounded <= 1e-5)
-    incr = np.where(by_time, dt, 1.0)
-    tol = np.where(by_time, 1e-9, 0.0)
-    top_done = at_top & (th.timer >= top - tol)
-    bottom_done = at_bottom & (th.timer >= bottom - tol)
-    new_dir = np.where(top_done, -1.0, np.where(bottom_done, 1.0, th.direction))
-    moving = (~at_top & ~at_bottom) | top_done | bottom_done
-    new_w = np.where(moving, w + new_dir * rate, w)
-    plateau = (at_top | at_bottom) & ~(top_done | bottom_done)
-    new_timer = np.where(top_done | bottom_done, 0.0, np.where(plateau, th.timer + incr, th.timer))
-    th.strength = np.where(active, new_w, w)
-    th.direction = np.where(active, new_dir, th.direction)
-    th.timer = np.where(active, new_timer, th.timer)
+    Fader(th, by_time=by_time, rate=rate, top=top, bottom=bottom, dt=dt).step()

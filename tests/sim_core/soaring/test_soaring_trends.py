@@ -9,7 +9,7 @@ from sim_core.soaring import Law, run_batch
 
 BASE = Law().replace(totalTime=1200.0, agentSpawnAltiRange=[400.0, 700.0])
 SEEDS = range(1, 7)
-CASES = {
+CASES: dict[tuple[str, str], dict[str, float]] = {
     ("numAgents", "low"): {"numAgents": 10},
     ("numAgents", "high"): {"numAgents": 40},
     ("numThermals", "low"): {"numThermals": 1},
