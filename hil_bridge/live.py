@@ -150,6 +150,7 @@ class LiveView:
     def _rx_loop(self) -> None:
         from hil_bridge.codec import decode
         from hil_bridge.errors import CodecError, HilError
+        from hil_bridge.messages import GliderState, PointCloud, SonarEcho, ThermalMarkers
 
         while not self._stop.is_set():
             try:
@@ -166,19 +167,23 @@ class LiveView:
                 continue
             topic = envelope.topic
             msg: Any = envelope.msg
+            parts = topic.split("/")
             with self._lock:
                 self._c["received"] += 1
-                if topic.startswith("/glider/") and topic.endswith("/state"):
-                    gid = int(topic.split("/")[2])
+                # a foreign type or non-numeric id under these topics is received, not shown
+                if (isinstance(msg, GliderState) and parts[1] == "glider"
+                        and parts[-1] == "state" and parts[2].isdigit()):
+                    gid = int(parts[2])
                     self._poses[gid] = (msg.x, msg.y, msg.z, msg.heading, msg.bank, msg.alive)
                     trail = self._trails.setdefault(gid, deque(maxlen=self.trail_points))
                     if not trail or math.dist(trail[-1], (msg.x, msg.y, msg.z)) > 0.05:
                         trail.append((msg.x, msg.y, msg.z))
-                elif topic == "/thermals":
+                elif isinstance(msg, ThermalMarkers) and topic == "/thermals":
                     self._thermals, self._thermals_dirty = msg, True
-                elif topic == "/forest/points":
+                elif isinstance(msg, PointCloud) and topic == "/forest/points":
                     self._forest = msg
-                elif topic.startswith("/sonar/") and topic.endswith("/echo"):
+                elif (isinstance(msg, SonarEcho) and parts[1] == "sonar"
+                      and parts[-1] == "echo"):
                     self._echo_count += 1
                     if (self._echo_count - 1) % self.echo_every == 0:
                         self._send_echo(topic, msg)

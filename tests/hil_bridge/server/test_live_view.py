@@ -9,8 +9,12 @@ import time
 
 import pytest
 
+from hil_bridge.codec import encode
 from hil_bridge.live import LiveView
+from hil_bridge.messages import Clock, GliderState
 from hil_bridge.server import SimServer
+from hil_bridge.transport import open_transport
+from tests.hil_bridge.core.bus_test_util import poll_until
 
 
 def _handshake(port: int) -> bytes:
@@ -63,3 +67,23 @@ def test_live_view_serves_on_loopback_and_stops() -> None:
 def test_live_view_refuses_a_non_loopback_host() -> None:
     with pytest.raises(ValueError, match="loopback only"):
         LiveView("live", bus="mem://live_bad", host="0.0.0.0")
+
+
+def test_live_view_survives_foreign_messages_under_its_topics() -> None:
+    bus = "mem://live_foreign"
+    view = LiveView("live", bus=bus, port=0)
+    view.start()
+    try:
+        with open_transport(bus) as raw:
+            state = GliderState(stamp_ns=0, x=1.0, y=2.0, z=3.0, heading=0.0, bank=0.0,
+                                airspeed=9.0, vz=0.0, glider_id=4)
+            raw.publish(encode("/glider/abc/state", state, seq=0, pub_ns=0))
+            raw.publish(encode("/glider/5/state", Clock(stamp_ns=0), seq=0, pub_ns=0))
+            raw.publish(encode("/thermals", Clock(stamp_ns=0), seq=0, pub_ns=0))
+            raw.publish(encode("/sonar/0/echo", Clock(stamp_ns=0), seq=0, pub_ns=0))
+            raw.publish(encode("/glider/4/state", state, seq=1, pub_ns=0))
+            assert poll_until(lambda: view.stats()["received"] == 5), view.stats()
+    finally:
+        view.stop()
+    st = view.stats()
+    assert st["vehicles"] == 1 and st["bad"] == 0 and st["echoes_sent"] == 0
