@@ -1,4 +1,4 @@
-"""Sim time: :class:`SimClock` (integer nanoseconds, never decreasing) and lockstep primitives.
+"""Sim time: :class:`SimClock` (integer nanoseconds, never decreasing).
 
 Modes (``SimClock(mode, rate=1.0, start_ns=0)``):
 
@@ -7,27 +7,22 @@ Modes (``SimClock(mode, rate=1.0, start_ns=0)``):
   :meth:`SimClock.sleep_until`.
 - ``lockstep`` — sim time moves only when the stepping owner calls :meth:`SimClock.advance` /
   :meth:`SimClock.set_ns`; before each step the owner waits for that step's commands from the
-  registered autopilots with :class:`LockstepGate` (timeout → freewheel and count a stall).
+  registered autopilots (:class:`hil_bridge.server.SimServer`: timeout → freewheel and count
+  a stall).
 - ``fast`` — as ``lockstep`` but the owner steps as fast as it can without waiting for anyone.
 
 ``pause()``/``resume()`` and ``set_rate()`` re-base the mapping so :meth:`SimClock.now_ns` stays
 continuous and monotonic. Listeners (:meth:`SimClock.add_listener`) are told of every change, which
-is how node timers on an owner-stepped clock wake up. :class:`ClockPublisher` publishes ``/clock``.
+is how node timers on an owner-stepped clock wake up.
 """
 
 from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterable
-from typing import TYPE_CHECKING
+from collections.abc import Callable
 
-from hil_bridge.messages import Clock
-
-if TYPE_CHECKING:
-    from hil_bridge.node import Node, Publisher
-
-__all__ = ["MODES", "ClockPublisher", "LockstepGate", "SimClock", "default_clock"]
+__all__ = ["MODES", "SimClock", "default_clock"]
 
 MODES = ("realtime", "lockstep", "fast")
 
@@ -195,90 +190,3 @@ def default_clock() -> SimClock:
         if _DEFAULT is None:
             _DEFAULT = SimClock("realtime", start_ns=time.monotonic_ns())
         return _DEFAULT
-
-
-class LockstepGate:
-    """Per-step rendezvous of the stepping owner with the registered participants (autopilots).
-
-    Participants :meth:`report` the step whose command they delivered; the owner calls
-    :meth:`wait` for the step it is about to take. A participant that does not report within the
-    timeout is a *stall*: the step goes ahead without it (freewheel, the last good command
-    holds), never a deadlock. Counters: ``steps``, ``stalls`` and per-participant stalls.
-    """
-
-    def __init__(self, participants: Iterable[str] = ()) -> None:
-        self._cond = threading.Condition()
-        self._reported: dict[str, int] = {name: -1 for name in participants}
-        self._stalls: dict[str, int] = dict.fromkeys(self._reported, 0)
-        self.steps = 0
-        self.stalls = 0
-
-    def register(self, name: str) -> None:
-        with self._cond:
-            self._reported.setdefault(name, -1)
-            self._stalls.setdefault(name, 0)
-
-    def unregister(self, name: str) -> None:
-        with self._cond:
-            self._reported.pop(name, None)
-            self._cond.notify_all()
-
-    @property
-    def participants(self) -> list[str]:
-        with self._cond:
-            return sorted(self._reported)
-
-    def report(self, name: str, step: int) -> None:
-        """Participant ``name`` has delivered its input for ``step`` (unknown names ignored)."""
-        with self._cond:
-            if name in self._reported and step > self._reported[name]:
-                self._reported[name] = step
-                self._cond.notify_all()
-
-    def wait(self, step: int, timeout_s: float) -> list[str]:
-        """Wait until every participant reported ``step`` or ``timeout_s``; return the missing
-        names (empty when all arrived). A non-empty return counts one stall."""
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            self.steps += 1
-
-            def missing() -> list[str]:
-                return sorted(n for n, s in self._reported.items() if s < step)
-
-            late = missing()
-            while late:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    break
-                self._cond.wait(left)
-                late = missing()
-            if late:
-                self.stalls += 1
-                for name in late:
-                    self._stalls[name] += 1
-            return late
-
-    def stats(self) -> dict[str, int]:
-        with self._cond:
-            out = {"steps": self.steps, "stalls": self.stalls}
-            out.update({f"stalls:{n}": c for n, c in sorted(self._stalls.items())})
-            return out
-
-
-class ClockPublisher:
-    """Publishes the node's clock on ``/clock`` (latched, so late joiners get the current time).
-
-    The stepping owner calls :meth:`publish` after each step; nodes following the bus time use
-    :meth:`hil_bridge.node.Node.follow_bus_clock`.
-    """
-
-    def __init__(self, node: Node, topic: str = "/clock") -> None:
-        from hil_bridge.qos import LATCHED
-
-        self._node = node
-        self._pub: Publisher[Clock] = node.create_publisher(Clock, topic, LATCHED)
-
-    def publish(self) -> Clock:
-        msg = Clock(stamp_ns=self._node.clock.now_ns())
-        self._pub.publish(msg)
-        return msg
