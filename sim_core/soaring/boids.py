@@ -293,8 +293,11 @@ class AccelKernel:
         V, M = owner.shape[0], self.M
         self.owner, self.other, self.V = owner, other, V
         self.gather = np.concatenate([other, owner])
-        # one bincount sums all eight per-pair rows: row r of glider m goes to bin r·M + m
-        self._bins = (owner[None, :] + M * np.arange(8)[:, None]).ravel()
+        # one bincount sums all seven per-pair rows: row r of glider m goes to bin r·M + m
+        self._bins = (owner[None, :] + M * np.arange(7)[:, None]).ravel()
+        # 1/n of each glider's n neighbours (0 without any: its sums are then +0.0 anyway)
+        count = np.bincount(owner, minlength=M).reshape(self.B, self.N)
+        self._inv_n = 1.0 / np.maximum(count, 1)
         run = owner // max(self.N, 1)
         pp: dict[str, float | NDArray[Any]] = {}
         for name, val in self._uniform.items():
@@ -315,8 +318,7 @@ class AccelKernel:
         self._seen = np.empty((3, V), dtype=bool)
         self._tmpb = np.empty(V, dtype=bool)
         self._pw = np.empty((3, V))
-        self._wt = np.empty((8, V))
-        self._wt[6] = 1.0
+        self._wt = np.empty((7, V))
 
     def load(self, G: F8) -> F8:
         """Pair differences D (6, V) (neighbour − owner of the rows :data:`PAIR_ROWS`) from
@@ -349,7 +351,7 @@ class AccelKernel:
         np.multiply(D[2:4], inv, out=e)
         wt = self._wt
         np.less(d3, pp["collisionKillDistance"], out=self._tmpb)
-        wt[7] = self._tmpb
+        wt[6] = self._tmpb
 
         # cohesion weight: height factor × relative ascension (unified), 1 (baseline)
         ign, wmax = pp["cohesionAscensionIgnore"], pp["cohesionAscensionMax"]
@@ -384,11 +386,9 @@ class AccelKernel:
         np.multiply(e, w[0], out=wt[0:2])
         np.multiply(e, w[2], out=wt[2:4])
         np.multiply(D[0:2], w[1], out=wt[4:6])
-        sums = np.bincount(self._bins, weights=wt.ravel(), minlength=8 * M).reshape(8, B, N)
-        inv_n = np.zeros((B, N))
-        np.divide(1.0, sums[6], out=inv_n, where=sums[6] > 0)
-        c = sums[:6] * inv_n  # cohesion, separation (sign flipped below), alignment
-        collision = sums[7] > 0
+        sums = np.bincount(self._bins, weights=wt.ravel(), minlength=7 * M).reshape(7, B, N)
+        c = sums[:6] * self._inv_n  # cohesion, separation (sign flipped below), alignment
+        collision = sums[6] > 0
 
         t = self._target - own_xy
         t2 = t * t

@@ -346,6 +346,7 @@ class SwarmSim:
         self._new = np.zeros((STATE_ROWS, B, n))
         self._cs = np.empty((2, B, n))
         self._hbuf = np.empty((B, n + 1))
+        self._dead = ~self._alive
         self._waggle_runs = np.flatnonzero(P["waggle"][:, 0] != 0)
         rates = {}
         for name in ("bank_rate_max", "speed_rate_max"):
@@ -527,12 +528,15 @@ class SwarmSim:
         flew = alive & ~collided
         grounded = flew & ground
         moved = flew & ~grounded
-        self._alive = alive & ~collided & ~grounded
-        self._update_metrics(step, collided, grounded)
+        deaths = bool(collided.any()) or bool(grounded.any())
+        if deaths:
+            self._alive = alive & ~collided & ~grounded
+        self._update_metrics(step, collided, grounded, deaths)
         # the saved state is no longer needed: the gliders that moved take the new state
         np.copyto(S[ROW_X:ROW_BANK], new[ROW_X:ROW_BANK], where=moved)
         np.copyto(S[ROW_BANK], new[ROW_BANK], where=flew)
-        self._update_finished()
+        if deaths or step == 1 or step >= self.total_steps:
+            self._update_finished()
         if self._finished.any():
             self._end_step[self._finished & (self._end_step < 0)] = step
         if self._trace is not None:
@@ -549,24 +553,23 @@ class SwarmSim:
             self._waggle_left[b] = np.where(flying[b], self._waggle_left[b] - self.dt,
                                             self._waggle_left[b])
 
-    def _update_metrics(self, step: int, collided: B8, grounded: B8) -> None:
+    def _update_metrics(self, step: int, collided: B8, grounded: B8, deaths: bool) -> None:
         """Accumulate the metrics of a step from the saved state (still in ``_S``) of the
-        gliders alive after it."""
+        gliders alive after it (``deaths``: whether any glider died in the step)."""
         a, alive, dt, S = self._acc, self._alive, self.dt, self._S
         z = S[ROW_Z]
-        if collided.any():
+        if deaths:
             a.coll += collided.sum(axis=1)
-        if grounded.any():
             a.ground += grounded.sum(axis=1)
-        living = alive.sum(axis=1)
-        a.living = living
-        a.flight = a.flight + living * dt
+            a.living = alive.sum(axis=1)
+            self._dead = ~alive
+        a.flight = a.flight + a.living * dt
         # heightScore: one sequential sum over the steps and, within a step, the gliders
         h = self._hbuf
         h[:, 0] = a.height
         zdt = h[:, 1:]
         np.multiply(z, dt, out=zdt)
-        np.copyto(zdt, 0.0, where=~alive)
+        np.copyto(zdt, 0.0, where=self._dead)
         a.height = np.cumsum(h, axis=1)[:, -1]
         climbing = (alive & (S[ROW_VZ] > 0)).sum(axis=1)
         a.thermal = a.thermal + climbing * dt
