@@ -42,6 +42,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, Protocol, runtime_checkable
 
+from hil_bridge.topic_tools import TopicStats
 from hil_bridge.transport import DEFAULT_BUS
 from sim_core.config import ConfigError, apply_overrides, from_dict, load_yaml, parse_override
 
@@ -187,9 +188,11 @@ def load(
 class BusMonitor:
     """Launchable bus-level observer behind the run summary (one raw subscription to all).
 
-    Counts messages per topic, sequence gaps per (publisher, topic) as drops, the state path
-    latency (receive time minus the header's ``pub_ns``, both ``time.monotonic_ns``) and
-    ping -> echo latency (echo arrival minus ping arrival, matched by sonar and ``ping_seq``).
+    Counts messages per topic and sequence gaps per (publisher, topic) as drops with
+    :class:`hil_bridge.topic_tools.TopicStats` (a retransmission is a duplicate, not a gap);
+    the state path latency (receive time minus the header's ``pub_ns``, both
+    ``time.monotonic_ns``) and ping -> echo latency (echo arrival minus ping arrival, matched
+    by sonar and ``ping_seq``).
     Undecodable messages are counted in ``bad``, never raised.
     """
 
@@ -200,11 +203,7 @@ class BusMonitor:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._lock = threading.Lock()
-        self._counts: dict[str, int] = {}
-        self._first: dict[str, int] = {}
-        self._last: dict[str, int] = {}
-        self._seq: dict[tuple[str, str], int] = {}
-        self._gaps = 0
+        self._topics: dict[str, TopicStats] = {}
         self._bad = 0
         self._state_ms: deque[float] = deque(maxlen=50000)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
@@ -251,14 +250,10 @@ class BusMonitor:
                     self._bad += 1
                 continue
             with self._lock:
-                self._counts[topic] = self._counts.get(topic, 0) + 1
-                self._first.setdefault(topic, now)
-                self._last[topic] = now
-                key = (header.src, topic)
-                prev = self._seq.get(key)
-                if prev is not None and header.seq > prev + 1:
-                    self._gaps += header.seq - prev - 1
-                self._seq[key] = header.seq
+                ts = self._topics.get(topic)
+                if ts is None:
+                    ts = self._topics[topic] = TopicStats(topic)
+                ts.add(header, sum(len(f) for f in frames), now)
                 if topic.startswith("/glider/") and topic.endswith("/state"):
                     self._state_ms.append((now - header.pub_ns) / 1e6)
                 elif ping_key is not None and topic.endswith("/ping"):
@@ -275,13 +270,15 @@ class BusMonitor:
 
         with self._lock:
             topics = {}
-            for topic, n in self._counts.items():
-                span = (self._last[topic] - self._first[topic]) / 1e9
-                topics[topic] = {"count": n, "rate_hz": (n - 1) / span if span > 0 else 0.0}
+            for topic, ts in self._topics.items():
+                span = ((ts.last_recv_ns or 0) - (ts.first_recv_ns or 0)) / 1e9
+                topics[topic] = {"count": ts.count,
+                                 "rate_hz": (ts.count - 1) / span if span > 0 else 0.0}
             return {
                 "topics": topics,
-                "messages": sum(self._counts.values()),
-                "seq_gaps": self._gaps,
+                "messages": sum(ts.count for ts in self._topics.values()),
+                "duplicates": sum(ts.duplicates for ts in self._topics.values()),
+                "seq_gaps": sum(ts.lost for ts in self._topics.values()),
                 "bad": self._bad,
                 "state_latency_ms": percentiles(list(self._state_ms)),
                 "ping_echo_ms": percentiles(list(self._ping_echo_ms)),
