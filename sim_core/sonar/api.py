@@ -52,7 +52,7 @@ def synthesize(
     reason = impl.supports(params)
     if reason is not None:
         raise ValueError(f"fidelity {impl.name!r} cannot run these parameters: {reason}")
-    scene = prepare(leaves, beam, params)
+    scene = prepare(leaves, beam, params, budget=impl.leaf_budget(params))
     band = impl.run(scene, params)
     samples = assemble(band.spectra, band.lo_bin, params)
-    return Echo(samples, params.fs, scene.count, scene.dropped, impl.name, band.error_bound)
+    return Echo(samples, params.fs, scene.in_beam, scene.dropped, impl.name, band.error_bound)

@@ -9,7 +9,9 @@ differ only in how they evaluate sum_i W_ik exp(-j 2 pi f_k tau_i).
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import threading
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -25,7 +27,16 @@ from sim_core.sonar.physics import (
     shading_factor,
 )
 
-__all__ = ["LeafSource", "Scene", "assemble", "leaf_weights", "prepare", "window_at"]
+__all__ = [
+    "Cut",
+    "LeafBudget",
+    "LeafSource",
+    "Scene",
+    "assemble",
+    "leaf_weights",
+    "prepare",
+    "window_at",
+]
 
 F64 = NDArray[np.float64]
 C128 = NDArray[np.complex128]
@@ -50,12 +61,16 @@ class Scene:
     """Kept leaves of one ping, per channel c (C = number of ears, 1 if monostatic).
 
     ``a`` (M,) clamped radius m; ``beta`` (C,M) incidence angle rad; ``beam`` (C,M) the
-    two-way beam gain S = S1(emitter) S1(ear); ``rest`` (C,M) shading / spreading factor;
+    two-way beam gain S = S1(emitter) S1(ear) times ``rest``, the shading / spreading factor,
+    except with ``beam_model="incident_freq"`` (S then depends on f): there ``beam`` is S at
+    the fixed beamwidth and ``rest`` (C,M) that factor, otherwise ``rest`` is all ones;
     ``tau`` (C,M) two-way delay s; ``path`` (C,M) two-way path length m; ``cap`` (C,M)
     near-field cap r/2 m; ``theta2`` (C,2,M) squared off-axis angles of emitter and ear (for
     ``incident_freq``); ``leaf_ratio`` (C,M) leaf-frame / emitted frequency and ``eta`` (C,M)
-    received / emitted frequency (both 1 without Doppler). ``q`` (M,) = S1 / r, the waterdrop
-    metric (keep <=> q >= 1 / r0). ``dropped``: leaves removed by the guards.
+    received / emitted frequency (both 1 without Doppler). ``dropped``: leaves removed by the
+    guards; ``in_beam``: leaves
+    the beam selects (the kept leaves plus ``cut``, those a :class:`LeafBudget` left out; under
+    a range cut the untested candidates are counted, so it is then an upper bound).
     """
 
     a: F64
@@ -68,9 +83,10 @@ class Scene:
     theta2: F64
     leaf_ratio: F64
     eta: F64
-    q: F64
     dropped: int
     speed: float
+    in_beam: int
+    cut: Cut
 
     @property
     def count(self) -> int:
@@ -89,9 +105,10 @@ class Scene:
             theta2=self.theta2[:, :, index],
             leaf_ratio=self.leaf_ratio[:, index],
             eta=self.eta[:, index],
-            q=self.q[index],
             dropped=self.dropped,
             speed=self.speed,
+            in_beam=self.in_beam,
+            cut=self.cut,
         )
 
 
@@ -161,20 +178,311 @@ def _ear_geometry(beam: Beam, params: EchoParams) -> list[tuple[F64, F64, float]
 #: pays for its construction only when a large set is reused across pings); smaller sets, such
 #: as the per-ping ``TiledForest.leaves_near`` result, are culled by the vectorised cone test
 INDEX_MIN_LEAVES = 200_000
+#: above this share of the leaves inside the ball the index is not used (see _candidates)
+INDEX_MAX_SHARE = 0.25
 
 
 def _candidates(
     leaves: object, count: int, beam: Beam, reach: float
 ) -> NDArray[np.intp] | None:
-    """Indices within ``reach`` of the sonar from the leaves' own spatial index, if worth it."""
+    """Indices within ``reach`` of the sonar from the leaves' own spatial index, if worth it.
+
+    With a ``kdtree`` (cKDTree, e.g. ``sim_core.world.Leaves``) the ball is counted first
+    (cheap): if it holds more than INDEX_MAX_SHARE of the leaves, listing it would cost more
+    than the vectorised pre-cull of all of them, which then runs instead.
+    """
     query = getattr(leaves, "query_ball", None)
     if query is None or count < INDEX_MIN_LEAVES:
         return None
+    tree = getattr(leaves, "kdtree", None)
+    if tree is not None:
+        inside = int(tree.query_ball_point(beam.position, reach, return_length=True))
+        if inside > INDEX_MAX_SHARE * count:
+            return None
     return np.asarray(query(beam.position, reach), dtype=np.intp)
 
 
+#: leaves whose selection test lies this close to the boundary are decided with the spec's
+#: exact formula (the fast test uses a logarithm instead of the exponential)
+_SELECTION_SLACK = 1e-9
+#: ``_exp`` refines a float32 exponential in float64 only for arguments down to this value
+#: (the refined error is below 1e-14 there); smaller ones use the float64 exponential
+_EXP_REFINE_MIN = -30.0
+
+
+def _exp(x: F64) -> F64:
+    """exp(x) for x <= 0, float64, relative error < 1e-14 (float32 SIMD exp, refined).
+
+    numpy's float64 exp is scalar libm on machines without AVX-512 (~7 ns per value); the
+    float32 one is vectorised. y0 = exp32(x) = exp(x - e) with e = x - log(y0) <~ 2e-6 (the
+    float32 rounding of x and of the result), so exp(x) = y0 (1 + e + e^2/2) up to e^3/6.
+    """
+    if x.shape[0] == 0 or float(x.min()) < _EXP_REFINE_MIN:
+        return np.exp(x)
+    y0 = np.exp(x.astype(np.float32)).astype(np.float64)
+    e = x - np.log(y0)
+    corr = e * 0.5
+    corr += 1.0
+    corr *= e
+    corr += 1.0
+    corr *= y0
+    return corr
+
+
+@dataclass(frozen=True, slots=True)
+class Cut:
+    """Selected leaves left out of the synthesis by a :class:`LeafBudget` (``realtime``).
+
+    ``count`` leaves; ``amax`` (C,) = sqrt(sum_i max_f |W_i(f)|^2) over them per channel, with
+    max_f |W_i| bounded by g0 P1(k_hi a_i) S_i / (k_lo r_i r_ear,i) (the random-phase norm of
+    their spectrum before the window, see :class:`sim_core.sonar.fast.Realtime`).
+    """
+
+    count: int
+    amax: F64
+
+
+_WORKSPACE = threading.local()
+
+
+def _workspace(name: str, size: int, dtype: type) -> NDArray[Any]:
+    """A per-thread scratch array of at least ``size`` elements, reused between pings.
+
+    For results that do not outlive the call that asks for them (fresh pages for large arrays
+    are slow; reused ones are not).
+    """
+    cache: dict[str, NDArray[Any]] = _WORKSPACE.__dict__.setdefault("arrays", {})
+    buf = cache.get(name)
+    if buf is None or buf.shape[0] < size or buf.dtype != dtype:
+        buf = np.empty(max(size, 1024), dtype=dtype)
+        cache[name] = buf
+    return buf[:size]
+
+
+#: leaves per block of the geometry pass: temporaries of 128 KiB stay in cache and in the
+#: allocator's free lists (whole-array temporaries of 1e5 leaves are fresh pages each time,
+#: which cost more than the arithmetic on them)
+GEOMETRY_BLOCK = 16384
+
+
+@dataclass(frozen=True, slots=True)
+class LeafBudget:
+    """A per-echo time budget and the cost model ``prepare`` plans the geometry with (s).
+
+    An echo costs ``overhead_s`` + ``per_examined_s`` per leaf examined by the range / cone
+    pre-cull + ``per_selected_s`` per leaf given the off-axis angle and waterdrop test +
+    ``per_leaf_s`` per leaf synthesised. If the pre-cull leaves more candidates than the rest of
+    the budget affords, only the nearest are tested (the range cut-off r0 is lowered, i.e. the
+    threshold G raised); if more are selected than can be synthesised, those with the largest
+    S1/r are kept (``Scene.cut`` summarises the others).
+    """
+
+    budget_s: float
+    overhead_s: float
+    per_examined_s: float
+    per_selected_s: float
+    per_leaf_s: float
+
+    def candidates(self, examined: int) -> int:
+        """Leaves the waterdrop test may examine after a pre-cull of ``examined`` leaves."""
+        left = self.budget_s - self.overhead_s - self.per_examined_s * examined
+        return max(0, int(left / (self.per_selected_s + self.per_leaf_s)))
+
+    def synthesised(self, examined: int, selected: int) -> int:
+        """Leaves that can be synthesised after selecting ``selected`` of ``examined``."""
+        left = (
+            self.budget_s
+            - self.overhead_s
+            - self.per_examined_s * examined
+            - self.per_selected_s * selected
+        )
+        return max(0, int(left / self.per_leaf_s))
+
+
+@dataclass(frozen=True, slots=True)
+class _Selection:
+    """Constants of the beam selection of one ping (see :func:`_select`)."""
+
+    pos: F64
+    axis: F64
+    r0: float
+    a0: float
+    sigma: float
+    cone: bool
+    cos_reach: float
+    reach2: float
+    r_min2: float
+
+    @staticmethod
+    def of(beam: Beam, params: EchoParams) -> _Selection:
+        r0 = params.selection_radius
+        a0 = params.peak_amplitude
+        sigma = beam.sigma
+        # S1 >= r/r0 >= r_min/r0 bounds the off-axis angle of any kept leaf
+        reach = sigma * math.sqrt(2.0 * math.log(max(a0 * r0 / params.r_min, 1.0 + 1e-12)))
+        return _Selection(
+            pos=beam.position,
+            axis=beam.boresight,
+            r0=r0,
+            a0=a0,
+            sigma=sigma,
+            cone=not params.seed2020 and reach < math.pi,
+            cos_reach=math.cos(reach) - 1e-12,
+            reach2=(r0 * a0) ** 2,
+            r_min2=params.r_min**2,
+        )
+
+    def precull(
+        self, cb: F64, nb: F64, ab: F64
+    ) -> tuple[NDArray[np.bool_], int, F64, F64, F64, F64, F64, F64]:
+        """Guards, range and cone on a block (no transcendental): (candidates, dropped by the
+        guards, r, r . b, dx, dy, dz, |n|^2)."""
+        pos, axis = self.pos, self.axis
+        dx, dy, dz = cb[:, 0] - pos[0], cb[:, 1] - pos[1], cb[:, 2] - pos[2]
+        nx, ny, nz = nb[:, 0], nb[:, 1], nb[:, 2]
+        with np.errstate(invalid="ignore", over="ignore"):
+            r2 = dx * dx
+            r2 += dy * dy
+            r2 += dz * dz
+            nn2 = nx * nx
+            nn2 += ny * ny
+            nn2 += nz * nz
+            valid = nn2 > 0.0
+            valid &= r2 >= self.r_min2
+            if not math.isfinite(float(r2.sum()) + float(nn2.sum()) + float(ab.sum())):
+                valid &= np.isfinite(dx + dy + dz + (nx + ny + nz) + ab)
+            dropped = ab.shape[0] - int(np.count_nonzero(valid))
+            valid &= r2 <= self.reach2
+            r = np.sqrt(r2, out=r2)
+            proj = dx * axis[0]
+            proj += dy * axis[1]
+            proj += dz * axis[2]
+            if self.cone:
+                valid &= proj >= self.cos_reach * r
+        return valid, dropped, r, proj, dx, dy, dz, nn2
+
+
+def _nearest(
+    c: F64, n: F64, a: F64, sel: _Selection, count: int, params: EchoParams
+) -> tuple[NDArray[np.intp], int, Cut]:
+    """Rows of the ``count`` nearest leaves passing the pre-cull (ties kept), the number
+    dropped by the guards, and the farther candidates left untested (their bound takes the
+    beam gain at its peak A0)."""
+    total = c.shape[0]
+    rows = _workspace("near_rows", total, np.intp)
+    ranges = _workspace("near_r", total, np.float64)
+    found = 0
+    dropped = 0
+    for start in range(0, total, GEOMETRY_BLOCK):
+        stop = min(start + GEOMETRY_BLOCK, total)
+        valid, gone, r = sel.precull(c[start:stop], n[start:stop], a[start:stop])[:3]
+        dropped += gone
+        hit = np.flatnonzero(valid)
+        rows[found : found + hit.shape[0]] = hit + start
+        ranges[found : found + hit.shape[0]] = r.take(hit)
+        found += hit.shape[0]
+    rows, ranges = rows[:found], ranges[:found]
+    untested = Cut(0, np.zeros(params.channels))
+    if found > count:
+        keep = ranges <= np.partition(ranges, count - 1)[count - 1] if count else ranges < 0.0
+        far = ~keep
+        peak = np.full(found - int(np.count_nonzero(keep)), sel.a0)
+        untested = Cut(peak.shape[0], _cut_amax(params, ranges[far], a.take(rows[far]), peak))
+        rows = rows.compress(keep)
+    return rows, dropped, untested
+
+
+def _select(
+    c: F64,
+    n: F64,
+    a: F64,
+    beam: Beam,
+    params: EchoParams,
+    max_candidates: int | None = None,
+) -> tuple[NDArray[np.intp], F64, F64, F64, F64, int, Cut]:
+    """Guards and waterdrop selection: (index, r, theta^2, S1, n_hat.d, dropped, untested).
+
+    ``index`` (K,) are the kept rows of ``c``; r, theta^2 (the spec's off-axis angle, or the
+    seed2020 az/el form), S1 and n_hat.d (the unit normal dotted with the offset, m) are
+    theirs. Every leaf first passes the guards and a range and cone pre-cull without
+    transcendentals (:meth:`_Selection.precull`); the waterdrop test r <= r0 S1 is taken on
+    logarithms, and with the spec's exact expression where both sides are within
+    _SELECTION_SLACK. With ``max_candidates``, only that many nearest pre-cull survivors are
+    tested (:func:`_nearest`; ``untested`` the others). The arrays are per-thread scratch,
+    valid until the next call.
+    """
+    sel = _Selection.of(beam, params)
+    rows_in: NDArray[np.intp] | None = None
+    dropped = 0
+    total = c.shape[0]
+    untested = Cut(0, np.zeros(params.channels))
+    if max_candidates is not None and total > max_candidates:
+        rows_in, dropped, untested = _nearest(c, n, a, sel, max_candidates, params)
+        total = rows_in.shape[0]
+    r0, a0, sigma = sel.r0, sel.a0, sel.sigma
+    inv2s2 = 1.0 / (2.0 * sigma * sigma)
+    log_scale = 1.0 / (r0 * a0)
+    index = _workspace("index", total, np.intp)
+    outs = [_workspace(name, total, np.float64) for name in ("r", "th2", "s1", "nd")]
+    kept = 0
+    for start in range(0, total, GEOMETRY_BLOCK):
+        stop = min(start + GEOMETRY_BLOCK, total)
+        if rows_in is None:
+            cb, nb, ab = c[start:stop], n[start:stop], a[start:stop]
+        else:
+            rb = rows_in[start:stop]
+            cb, nb, ab = c.take(rb, axis=0), n.take(rb, axis=0), a.take(rb)
+        valid, gone, r, proj, dx, dy, dz, nn = sel.precull(cb, nb, ab)
+        dropped += gone
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nd = nb[:, 0] * dx
+            nd += nb[:, 1] * dy
+            nd += nb[:, 2] * dz
+            nd /= np.sqrt(nn, out=nn)
+        everyone = bool(valid.all())
+        if not everyone:
+            if not valid.any():
+                continue
+            r, proj, nd = r.compress(valid), proj.compress(valid), nd.compress(valid)
+        if params.seed2020:
+            d = np.stack([dx, dy, dz], 1)
+            u = (d if everyone else d.compress(valid, axis=0)) / r[:, None]
+            th2 = _theta2(u, sel.axis, True)
+        else:
+            proj /= r
+            np.clip(proj, -1.0, 1.0, out=proj)
+            th2 = np.arccos(proj, out=proj)
+            th2 *= th2
+        test = np.log(r * log_scale)
+        test += th2 * inv2s2
+        keep = test <= 0.0
+        near = np.abs(test) < _SELECTION_SLACK
+        if near.any():
+            at = np.flatnonzero(near)
+            keep[at] = r[at] <= r0 * (a0 * np.exp(-th2[at] / (2.0 * sigma * sigma)))
+        rows = np.arange(start, stop) if everyone else np.flatnonzero(valid) + start
+        if not keep.all():
+            rows, r, th2 = rows.compress(keep), r.compress(keep), th2.compress(keep)
+            nd = nd.compress(keep)
+        k = rows.shape[0]
+        index[kept : kept + k] = rows if rows_in is None else rows_in.take(rows)
+        outs[0][kept : kept + k] = r
+        outs[1][kept : kept + k] = th2
+        th2 *= -inv2s2
+        outs[2][kept : kept + k] = _exp(th2)
+        outs[3][kept : kept + k] = nd
+        kept += k
+    r, th2, s1, nd = (x[:kept] for x in outs)
+    s1 *= a0
+    return index[:kept], r, th2, s1, nd, dropped, untested
+
+
 def prepare(
-    leaves: LeafSource | tuple[ArrayLike, ArrayLike, ArrayLike], beam: Beam, params: EchoParams
+    leaves: LeafSource | tuple[ArrayLike, ArrayLike, ArrayLike],
+    beam: Beam,
+    params: EchoParams,
+    *,
+    budget: LeafBudget | None = None,
 ) -> Scene:
     """Apply the guards and the beam selection; compute per-leaf quantities (spec, all channels).
 
@@ -182,117 +490,126 @@ def prepare(
     and counted; if the window cannot hold the farthest kept leaf (max delay + call length >=
     N / fs) a ValueError names the numbers. For INDEX_MIN_LEAVES or more leaves with a
     ``query_ball(point, r)`` method (``sim_core.world.Leaves``) only that ball is examined.
+
+    Blocks of GEOMETRY_BLOCK leaves over coordinate columns: the selection (:func:`_select`),
+    then incidence, gain and delay for the kept leaves only. With a ``budget``
+    (:class:`LeafBudget`) the waterdrop test sees only the nearest candidates it affords, and
+    of the selected leaves only as many as it affords are kept, those with the largest
+    waterdrop metric S1/r (raising the threshold G); ``Scene.cut`` summarises the others.
     """
     c, n, a = _leaf_arrays(leaves)
     v = params.speed
-    r0 = params.selection_radius
     a0 = params.peak_amplitude
-    cand = _candidates(leaves, c.shape[0], beam, r0 * max(a0, 1.0))
+    cand = _candidates(leaves, c.shape[0], beam, params.selection_radius * max(a0, 1.0))
     if cand is not None:
-        c, n, a = c[cand], n[cand], a[cand]
-    ones = np.ones(3)
-    d = c - beam.position
-    with np.errstate(invalid="ignore", over="ignore"):
-        finite = np.isfinite(_rowdot(d, ones) + _rowdot(n, ones) + a)
-    nn2 = np.einsum("ij,ij->i", n, n)
-    r2 = np.einsum("ij,ij->i", d, d)
-    valid = finite & (nn2 > 0.0) & (r2 >= params.r_min**2)
-    dropped = int(c.shape[0] - np.count_nonzero(valid))
-    # Pre-cull before any transcendental: S1 >= r/r0 >= r_min/r0 bounds the off-axis angle.
-    sigma = beam.sigma
-    reach_angle = sigma * math.sqrt(2.0 * math.log(max(a0 * r0 / params.r_min, 1.0 + 1e-12)))
-    proj = _rowdot(d, beam.boresight)
-    cand_mask = valid & (r2 <= (r0 * a0) ** 2)
-    if not params.seed2020 and reach_angle < math.pi:
-        with np.errstate(invalid="ignore"):
-            cand_mask &= proj >= (math.cos(reach_angle) - 1e-12) * np.sqrt(r2)
-    if cand_mask.all():
-        idx = np.arange(c.shape[0])
-        r = np.sqrt(r2)
+        c, n, a = c.take(cand, axis=0), n.take(cand, axis=0), a.take(cand)
+    examined = c.shape[0]
+    if budget is None:
+        idx, r, th2, s1, nd, dropped, cut = _select(c, n, a, beam, params)
     else:
-        idx = np.flatnonzero(cand_mask)
-        r, d, proj = np.sqrt(r2[idx]), d[idx], proj[idx]
-    if params.seed2020:
-        th2 = _theta2(d / r[:, None], beam.boresight, True)
-    else:
-        th2 = np.arccos(np.clip(proj / r, -1.0, 1.0)) ** 2
-    s1 = a0 * np.exp(-th2 / (2.0 * sigma * sigma))
-    keep = r <= r0 * s1
-    if keep.all():
-        idx2 = idx
-    else:
-        sel = np.flatnonzero(keep)
-        idx2 = idx[sel]
-        d, r, th2, s1 = d[sel], r[sel], th2[sel], s1[sel]
-    if idx2.shape[0] == c.shape[0]:
-        nn = np.sqrt(nn2)
-        a = np.maximum(a, params.a_min)
-    else:
-        n, nn = n[idx2], np.sqrt(nn2[idx2])
-        a = np.maximum(a[idx2], params.a_min)
-    nd = np.einsum("ij,ij->i", n, d) / nn
-    m = r.shape[0]
-    monostatic = not params.ears
-    need_u = params.shading or not monostatic or (params.doppler and params.moving)
-    u = d / r[:, None] if need_u else d
-    vel = np.asarray(params.platform_velocity, dtype=np.float64)
-    shade = np.ones(m)
-    if params.shading and m > 1:
-        shade = shading_factor(u, r, a, nd / r, params.shading_opacity)
+        per_channel = dataclasses.replace(budget, budget_s=budget.budget_s / params.channels)
+        idx, r, th2, s1, nd, dropped, cut = _select(
+            c, n, a, beam, params, per_channel.candidates(examined)
+        )
+    selected = int(idx.shape[0])
+    in_beam = selected + cut.count
     channels = _ear_geometry(beam, params)
     C = len(channels)
+    wanted = selected if budget is None else per_channel.synthesised(examined, selected)
+    if wanted < selected:
+        wanted = max(wanted, 0)
+        if wanted:
+            metric = np.divide(s1, r)
+            np.negative(metric, out=metric)
+            order = np.argpartition(metric, wanted - 1)
+        else:
+            order = np.arange(selected)
+        out = order[wanted:]
+        amax = _cut_amax(params, r[out], a.take(idx[out]), s1[out])
+        cut = Cut(cut.count + selected - wanted, np.hypot(cut.amax, amax))
+        sel = np.sort(order[:wanted])
+        idx, r, th2, s1, nd = idx[sel], r[sel], th2[sel], s1[sel], nd[sel]
+    m = idx.shape[0]
+    incident = params.beam_model == "incident_freq"
+    doppler = params.doppler and params.moving
+    monostatic = not params.ears
     beta = np.empty((C, m))
     beam_gain = np.empty((C, m))
-    rest = np.empty((C, m))
+    rest = np.empty((C, m)) if incident else _filled(1.0, C, m)
     tau = np.empty((C, m))
     path = np.empty((C, m)) if params.absorption else _filled(0.0, C, m)
     cap = np.empty((C, m)) if params.near_field_cap else _filled(0.0, C, m)
-    incident = params.beam_model == "incident_freq"
     theta2 = np.empty((C, 2, m)) if incident else _filled(0.0, C, 2, m)
-    doppler = params.doppler and params.moving
     leaf_ratio = np.empty((C, m)) if doppler else _filled(1.0, C, m)
     eta = np.empty((C, m)) if doppler else _filled(1.0, C, m)
-    t1 = r / v
-    for ch, (pos, axis, sig) in enumerate(channels):
-        if monostatic:
-            dr, rr, th2r, s1r = d, r, th2, s1
-            beta[ch] = np.arccos(np.clip(np.abs(nd) / r, 0.0, 1.0))
-        else:
-            dr = d + (beam.position - pos)
-            rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
-            rr = np.maximum(rr, params.r_min)
-            ur = dr / rr[:, None]
-            th2r = _theta2(ur, axis, params.seed2020)
-            s1r = a0 * np.exp(-th2r / (2.0 * sig * sig))
-            bis = u + ur
-            bis_n = np.sqrt(np.einsum("ij,ij->i", bis, bis))
-            ok = bis_n > 0.0
-            bis = np.where(ok[:, None], bis / np.where(ok, bis_n, 1.0)[:, None], u)
-            nhat_bis = np.abs(np.einsum("ij,ij->i", n, bis)) / nn
-            beta[ch] = np.arccos(np.clip(nhat_bis, 0.0, 1.0))
-        spread = 1.0 if (not params.spreading or params.seed2020) else 1.0 / (r * rr)
-        beam_gain[ch] = s1 * s1r
-        rest[ch] = shade * spread
-        if incident:
-            theta2[ch, 0] = th2
-            theta2[ch, 1] = th2r
-        if params.near_field_cap:
-            cap[ch] = 0.5 * np.sqrt(r * rr)
-        if params.absorption:
-            path[ch] = r + rr
-        if params.moving:
-            q = dr - vel * t1[:, None]
-            qq = np.einsum("ij,ij->i", q, q)
-            qv = _rowdot(q, vel)
-            vv = float(vel @ vel)
-            s = qq / (qv + np.sqrt(qv * qv + (v * v - vv) * qq))
-            tau[ch] = t1 + s
-            if doppler:
-                u_rx = (q - vel * s[:, None]) / (v * s)[:, None]
-                leaf_ratio[ch] = v / (v - _rowdot(u, vel))
-                eta[ch] = leaf_ratio[ch] * (v + _rowdot(u_rx, vel)) / v
-        else:
-            tau[ch] = (r + rr) / v
+    a_kept = np.empty(m)
+    # offsets (M,3) are read only by shading, the ears and the moving platform
+    need_d = params.shading or not monostatic or params.moving
+    # shading couples all kept leaves: one block; otherwise blocks of GEOMETRY_BLOCK
+    step = max(m, 1) if params.shading else GEOMETRY_BLOCK
+    vel = np.asarray(params.platform_velocity, dtype=np.float64)
+    pos = beam.position
+    for start in range(0, m, step):
+        blk = slice(start, min(start + step, m))
+        ib = idx[blk]
+        rb, th2b, s1b, ndb = r[blk], th2[blk], s1[blk], nd[blk]
+        ab = np.maximum(a.take(ib), params.a_min)
+        a_kept[blk] = ab
+        if need_d:
+            d = c.take(ib, axis=0) - pos
+            nb = n.take(ib, axis=0)
+            nn = np.sqrt(np.einsum("ij,ij->i", nb, nb))
+            u = d / rb[:, None]
+        shade: F64 | float = 1.0
+        if params.shading and rb.shape[0] > 1:
+            shade = shading_factor(u, rb, ab, ndb / rb, params.shading_opacity)
+        t1 = rb / v
+        for ch, (pos_rx, axis_rx, sig) in enumerate(channels):
+            if monostatic:
+                dr, rr, th2r, s1r = (d if need_d else None), rb, th2b, s1b
+                cosb = np.abs(ndb)
+                cosb /= rb
+                np.clip(cosb, 0.0, 1.0, out=cosb)
+                np.arccos(cosb, out=beta[ch, blk])
+            else:
+                dr = d + (pos - pos_rx)
+                rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
+                rr = np.maximum(rr, params.r_min)
+                ur = dr / rr[:, None]
+                th2r = _theta2(ur, axis_rx, params.seed2020)
+                s1r = a0 * np.exp(-th2r / (2.0 * sig * sig))
+                bis = u + ur
+                bis_n = np.sqrt(np.einsum("ij,ij->i", bis, bis))
+                ok = bis_n > 0.0
+                bis = np.where(ok[:, None], bis / np.where(ok, bis_n, 1.0)[:, None], u)
+                nhat_bis = np.abs(np.einsum("ij,ij->i", nb, bis)) / nn
+                beta[ch, blk] = np.arccos(np.clip(nhat_bis, 0.0, 1.0))
+            spread = 1.0 if (not params.spreading or params.seed2020) else 1.0 / (rb * rr)
+            gain = np.multiply(s1b, s1r, out=beam_gain[ch, blk])
+            if incident:
+                np.multiply(shade, spread, out=rest[ch, blk])
+                theta2[ch, 0, blk] = th2b
+                theta2[ch, 1, blk] = th2r
+            else:
+                gain *= np.multiply(shade, spread)
+            if params.near_field_cap:
+                cap[ch, blk] = 0.5 * np.sqrt(rb * rr)
+            if params.absorption:
+                path[ch, blk] = rb + rr
+            if params.moving and dr is not None:
+                q = dr - vel * t1[:, None]
+                qq = np.einsum("ij,ij->i", q, q)
+                qv = _rowdot(q, vel)
+                vv = float(vel @ vel)
+                s = qq / (qv + np.sqrt(qv * qv + (v * v - vv) * qq))
+                tau[ch, blk] = t1 + s
+                if doppler:
+                    u_rx = (q - vel * s[:, None]) / (v * s)[:, None]
+                    leaf_ratio[ch, blk] = v / (v - _rowdot(u, vel))
+                    eta[ch, blk] = leaf_ratio[ch, blk] * (v + _rowdot(u_rx, vel)) / v
+            else:
+                np.add(rb, rr, out=tau[ch, blk])
+                tau[ch, blk] /= v
     if m:
         call_s = params.call.total_s if params.call is not None else 0.0
         window_s = params.samples / params.fs
@@ -306,7 +623,7 @@ def prepare(
                 f"use samples >= {need} (and band edges on bins) or a higher threshold_db"
             )
     return Scene(
-        a=a,
+        a=a_kept,
         beta=beta,
         beam=beam_gain,
         rest=rest,
@@ -316,10 +633,49 @@ def prepare(
         theta2=theta2,
         leaf_ratio=leaf_ratio,
         eta=eta,
-        q=s1 / r,
         dropped=dropped,
         speed=v,
+        in_beam=in_beam,
+        cut=cut,
     )
+
+
+def _cut_amax(params: EchoParams, r: F64, a: F64, s1: F64) -> F64:
+    """Per channel sqrt(sum_i max_f |W_i(f)|^2) of leaves left out by a budget, (C,).
+
+    max_f |W_i| <= g0 P1(k_hi a) S / (k_lo r r_ear): L <= P1 (increasing in f), 1/k <= 1/k_lo,
+    absorption, shading and the near-field cap only reduce it; an ear's own gain is bounded by
+    A0 (and the frequency-dependent beam by A0^2), its range by r - |ear offset| (>= r_min).
+    """
+    g = params.grid
+    v = params.speed
+    k_lo = 2.0 * np.pi * g.m0 * g.df / v
+    k_hi = 2.0 * np.pi * g.m1 * g.df / v
+    a0 = params.peak_amplitude
+    p1 = np.maximum(a, params.a_min)
+    p1 *= k_hi
+    p1 *= p1
+    p1 *= 0.5003
+    p1 += 0.6867
+    p1 *= params.g0 / k_lo
+    out = np.empty(params.channels)
+    for ch in range(params.channels):
+        w = p1.copy()
+        if params.beam_model == "incident_freq":
+            w *= a0 * a0
+        else:
+            w *= s1
+            w *= a0 if params.ears else s1
+        if params.spreading and not params.seed2020:
+            w /= r
+            if params.ears:
+                off = float(np.linalg.norm(params.ears[ch].offset))
+                w /= np.maximum(r - off, params.r_min)
+            else:
+                w /= r
+        w *= w
+        out[ch] = math.sqrt(float(w.sum()))
+    return out
 
 
 def _filled(value: float, *shape: int) -> F64:
@@ -327,18 +683,34 @@ def _filled(value: float, *shape: int) -> F64:
     return np.broadcast_to(np.float64(value), shape)
 
 
+def _scratch(name: str, shape: tuple[int, ...], dtype: Any) -> NDArray[Any]:
+    """A per-thread scratch array of ``shape`` (see :func:`_workspace`), one per name and dtype."""
+    dt = np.dtype(dtype)
+    return _workspace(f"{name}:{dt.char}", math.prod(shape), dt.type).reshape(shape)
+
+
 def _erf_fast(x: NDArray[np.floating]) -> NDArray[np.floating]:
-    """erf via Abramowitz & Stegun 7.1.26 (|error| <= 1.5e-7), SIMD-friendly for float32."""
-    ax = np.abs(x)
+    """erf via Abramowitz & Stegun 7.1.26 (|error| <= 1.5e-7), SIMD-friendly for float32.
+
+    Overwrites and returns ``x``.
+    """
     dt = x.dtype.type
-    t = dt(1.0) / (dt(1.0) + dt(0.3275911) * ax)
-    poly = dt(1.061405429) * t + dt(-1.453152027)
+    ax = np.abs(x, out=_scratch("erf_ax", x.shape, dt))
+    t = np.multiply(ax, dt(0.3275911), out=_scratch("erf_t", x.shape, dt))
+    t += dt(1.0)
+    np.reciprocal(t, out=t)
+    poly = np.multiply(t, dt(1.061405429), out=_scratch("erf_poly", x.shape, dt))
+    poly += dt(-1.453152027)
     for coef in (1.421413741, -0.284496736, 0.254829592):
         poly *= t
         poly += dt(coef)
     poly *= t
-    y = dt(1.0) - poly * np.exp(-ax * ax)
-    return np.copysign(y, x)
+    ax *= ax
+    np.negative(ax, out=ax)
+    np.exp(ax, out=ax)
+    poly *= ax
+    np.subtract(dt(1.0), poly, out=poly)
+    return np.copysign(poly, x, out=x)
 
 
 def leaf_weights(
@@ -349,6 +721,8 @@ def leaf_weights(
     *,
     single: bool = False,
     freq_major: bool = False,
+    phase: NDArray[np.floating] | None = None,
+    out: NDArray[np.complexfloating] | None = None,
 ) -> NDArray[np.complexfloating]:
     """Per-leaf, per-frequency weight W = A exp(-j psi) (no delay phase, no window), (M, F).
 
@@ -356,7 +730,8 @@ def leaf_weights(
     (spec), with the opt-in absorption, near-field cap and incident-frequency beam applied.
     ``single=True`` evaluates in float32 with a 1.5e-7 erf approximation (fast fidelities;
     relative error ~1e-6), returning complex64. ``freq_major=True`` (``f_leaf`` of shape (F,)
-    only) returns the transpose, (F, M), C-contiguous.
+    only) returns the transpose, (F, M). ``phase`` (M,) rad, if given, multiplies leaf i by
+    exp(-j phase_i); ``out`` receives the result (a complex array of the result's shape).
     """
     dt: Any = np.float32 if single else np.float64
     v = scene.speed
@@ -378,16 +753,37 @@ def leaf_weights(
     kk64 = (2.0 * np.pi / v) * f_axis
     kk: Any = kk64.astype(dt)
     a64 = leaf(scene.a)
-    a: Any = a64.astype(dt)
     beta: Any = leaf(scene.beta[ch].astype(dt))
-    c = kk * a
-    p1 = dt(0.5003) * c * c + dt(0.6867)
+    shape = np.broadcast_shapes(kk.shape, a64.shape)
+    c = np.multiply(kk, a64.astype(dt), out=_scratch("c", shape, dt))
+    p1 = np.multiply(dt(0.5003), c, out=_scratch("p1", shape, dt))
+    p1 *= c
+    p1 += dt(0.6867)
     # c^p = a^p k^p: the powers are taken per leaf and per frequency, not per (leaf, frequency)
-    p2 = (dt(0.3999) * a64**-0.9065).astype(dt) * (kk64**-0.9065).astype(dt) + dt(0.9979)
-    lb = np.maximum(dt(0.0), p1 * np.cos(p2 * beta))
-    apsi = (dt(0.9824) * a64**0.3523).astype(dt) * (kk64**0.3523).astype(dt) - dt(0.9459)
-    z = apsi * (dt(1.57) - beta)
-    psi = (_erf_fast(z) if single else erf(z)) - dt(2.6343)
+    if single:
+        # per-leaf powers in float32 through one logarithm (they are rounded to float32 anyway)
+        log_a = np.log(a64.astype(dt))
+        ap: Any = np.exp(log_a * dt(-0.9065))
+        ap *= dt(0.3999)
+        bp: Any = np.exp(log_a * dt(0.3523))
+        bp *= dt(0.9824)
+    else:
+        ap = dt(0.3999) * a64**-0.9065
+        bp = dt(0.9824) * a64**0.3523
+    lb = np.multiply(ap, (kk64**-0.9065).astype(dt), out=_scratch("lb", shape, dt))
+    lb += dt(0.9979)
+    lb *= beta
+    np.cos(lb, out=lb)
+    lb *= p1
+    np.maximum(lb, dt(0.0), out=lb)
+    psi = np.multiply(bp, (kk64**0.3523).astype(dt), out=_scratch("psi", shape, dt))
+    psi -= dt(0.9459)
+    psi *= dt(1.57) - beta
+    if single:
+        _erf_fast(psi)
+    else:
+        erf(psi, out=psi)
+    psi -= dt(2.6343)
     if params.beam_model == "incident_freq":
         sig = incident_freq_sigma(f_axis).astype(dt)
         th = leaf((scene.theta2[ch, 0] + scene.theta2[ch, 1]).astype(dt))
@@ -395,19 +791,27 @@ def leaf_weights(
         gain: Any = dt(a0 * a0) * np.exp(-th / (2.0 * sig * sig))
         gain = gain * leaf(scene.rest[ch].astype(dt))
     else:
-        gain = leaf((scene.beam[ch] * scene.rest[ch]).astype(dt))
-    amp = dt(params.g0) * lb / kk
+        gain = leaf(scene.beam[ch].astype(dt))
+    amp = lb
+    amp *= dt(params.g0)
+    amp /= kk
     if params.near_field_cap:
-        amp = np.minimum(amp, leaf(scene.cap[ch].astype(dt)))
-    amp = amp * gain
+        np.minimum(amp, leaf(scene.cap[ch].astype(dt)), out=amp)
+    amp *= gain
     if params.absorption:
         alpha = absorption_db_per_m(
             f_axis, params.temperature_c, params.humidity_pct, params.pressure_kpa
         ).astype(dt)
-        amp = amp * np.exp(alpha * leaf(scene.path[ch].astype(dt)) * dt(-math.log(10.0) / 20.0))
-    out = np.empty(amp.shape, dtype=np.complex64 if single else np.complex128)
-    out.real = amp * np.cos(psi)
-    out.imag = -amp * np.sin(psi)
+        amp *= np.exp(alpha * leaf(scene.path[ch].astype(dt)) * dt(-math.log(10.0) / 20.0))
+    if phase is not None:
+        psi += leaf(phase.astype(dt, copy=False))
+    if out is None:
+        out = np.empty(amp.shape, dtype=np.complex64 if single else np.complex128)
+    trig = np.cos(psi, out=_scratch("trig", shape, dt))
+    np.multiply(amp, trig, out=out.real)
+    np.sin(psi, out=trig)
+    np.negative(amp, out=amp)
+    np.multiply(amp, trig, out=out.imag)
     return out
 
 

@@ -7,6 +7,8 @@ Contract of a fidelity (:class:`Fidelity`), the one signature every implementati
 2. It never builds an M x N array; memory is bounded for any number of leaves M.
 3. ``Band.error_bound`` is the relative L2 error bound it ran at, or None if not reported.
 4. ``fid.supports(params)`` returns None or the reason the fidelity cannot honour ``params``.
+5. ``fid.leaf_budget(params)`` returns None or the :class:`LeafBudget` ``prepare`` plans the
+   geometry with (the leaves left out are summarised in ``Scene.cut``).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_core.sonar.model import Scene, leaf_weights, window_at
+from sim_core.sonar.model import LeafBudget, Scene, leaf_weights, window_at
 from sim_core.sonar.params import EchoParams
 
 __all__ = ["Band", "Fidelity", "Reference", "direct_sum", "output_bins"]
@@ -58,6 +60,10 @@ class Fidelity(ABC):
 
     def supports(self, params: EchoParams) -> str | None:
         """None if ``params`` can be honoured, else the reason it cannot."""
+        return None
+
+    def leaf_budget(self, params: EchoParams) -> LeafBudget | None:
+        """None, or the time budget and cost model the geometry pass plans with."""
         return None
 
     @abstractmethod

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from sim_core.sonar import FIDELITIES, Beam, EchoParams, Fast, Realtime, synthesize
+from sim_core.sonar.model import prepare
 from tests.sim_core.sonar._scenes import cone_cloud, rel_l2
 
 BEAM = Beam([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], math.radians(30.0))
@@ -49,16 +50,50 @@ def test_realtime_under_budget_equals_fast_quality_and_over_budget_bounds_its_er
     roomy = synthesize(leaves, BEAM, EchoParams(budget_s=1.0), fidelity="realtime")
     assert roomy.leaves_in_beam == ref.leaves_in_beam
     assert rel_l2(roomy.samples, ref.samples) <= roomy.error_bound  # type: ignore[operator]
-    tight = Realtime(overhead_s=0.0, per_leaf_s=1e-6)  # 1000 leaves per ms
+    tight = Realtime(overhead_s=0.0, per_leaf_s=1e-6, per_examined_s=0.0, per_selected_s=0.0)
     params = EchoParams(budget_s=1e-3)  # room for 1000 leaves
     echo = synthesize(leaves, BEAM, params, fidelity=tight)
     assert tight.capacity(params) == 1000
+    assert echo.leaves_in_beam == ref.leaves_in_beam
     assert echo.error_bound is not None and echo.error_bound > 0.0
     err = rel_l2(echo.samples, ref.samples)
     assert 0.0 < err <= echo.error_bound
     # fewer leaves -> larger bound
     tighter = synthesize(leaves, BEAM, EchoParams(budget_s=2e-4), fidelity=tight)
     assert tighter.error_bound > echo.error_bound  # type: ignore[operator]
+
+
+def test_realtime_budget_pays_for_the_geometry_of_every_examined_leaf() -> None:
+    leaves = cone_cloud(4000, seed=12)
+    costly = Realtime(overhead_s=1e-3, per_leaf_s=1e-6, per_examined_s=1e-6, per_selected_s=1e-6)
+    budget = costly.leaf_budget(EchoParams(budget_s=6e-3))
+    # 4000 examined leaves cost 4 ms: 2 ms leave room to test and synthesise 500 nearest ones
+    assert budget.candidates(4000) == 500
+    assert budget.synthesised(4000, 500) == 500
+    scene = prepare(leaves, BEAM, EchoParams(budget_s=6e-3), budget=budget)
+    assert scene.count <= 500 and scene.in_beam == scene.count + scene.cut.count
+    assert scene.cut.count > 0 and scene.cut.amax[0] > 0.0
+    # nothing affordable: a zero echo whose relative error is exactly the reported 1
+    broke = synthesize(leaves, BEAM, EchoParams(budget_s=1e-3), fidelity=costly)
+    assert not broke.samples.any() and broke.error_bound == 1.0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_realtime_bound_holds_on_random_scenes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    bw = float(rng.uniform(10.0, 70.0))
+    beam = Beam([0.0, 0.0, 0.0], [1.0, float(rng.uniform(-0.2, 0.2)), 0.0], math.radians(bw))
+    leaves = cone_cloud(int(rng.integers(1500, 4000)), seed=100 + seed,
+                        half_angle_deg=bw * float(rng.uniform(0.4, 1.0)),
+                        r_lo=float(rng.uniform(0.2, 2.0)), r_hi=float(rng.uniform(4.0, 9.5)))
+    ref = synthesize(leaves, beam, fidelity="reference")
+    per_examined = float(rng.choice([0.0, 2e-7]))
+    fid = Realtime(overhead_s=0.0, per_leaf_s=1e-6, per_examined_s=per_examined,
+                   per_selected_s=float(rng.choice([0.0, 3e-7])))
+    for budget_s in (3e-4, 1e-3, 2e-3):
+        echo = synthesize(leaves, beam, EchoParams(budget_s=budget_s), fidelity=fid)
+        assert echo.error_bound is not None
+        assert rel_l2(echo.samples, ref.samples) <= echo.error_bound
 
 
 def test_fast_is_deterministic() -> None:
