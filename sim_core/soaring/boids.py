@@ -205,6 +205,7 @@ def find_neighbors(
     R = P["neighborRadius"][:, :, None]
     cos_half = np.cos(P["fov"][:, :, None] / 2.0)
     limited_fov = P["fov"][:, :, None] < 2 * math.pi
+    any_limited, all_limited = bool(limited_fov.any()), bool(limited_fov.all())
     kk = P["k"][:, 0].astype(np.intp)
     rows_per = max(1, chunk_elems // max(1, b * n))
     cols = np.arange(n)
@@ -216,10 +217,15 @@ def find_neighbors(
         d3 = np.sqrt(dx * dx + dy * dy + dz * dz)
         cand = alive[:, None, :] & (np.abs(dx) <= R) & (np.abs(dy) <= R) & (d3 <= R)
         cand &= cols[None, None, :] != np.arange(sl.start, sl.stop)[None, :, None]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cosang = (dx * np.cos(heading[:, sl, None]) + dy * np.sin(heading[:, sl, None])) / d3
-        # acos(c) > fov/2  <=>  c < cos(fov/2); NaN (d3 = 0) compares False and is kept
-        cand &= ~(limited_fov & (cosang < cos_half))
+        if any_limited:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                cosang = (dx * np.cos(heading[:, sl, None])
+                          + dy * np.sin(heading[:, sl, None])) / d3
+            # acos(c) > fov/2  <=>  c < cos(fov/2); NaN (d3 = 0) compares False and is kept
+            behind = cosang < cos_half
+            if not all_limited:
+                behind &= limited_fov
+            cand &= ~behind
         key = np.where(cand, d3, np.inf)
         order = np.argsort(key, axis=2, kind="stable")[:, :, :width]
         ok = np.take_along_axis(cand, order, axis=2)

@@ -348,10 +348,17 @@ class SwarmSim:
         self._hbuf = np.empty((B, n + 1))
         self._dead = ~self._alive
         self._waggle_runs = np.flatnonzero(P["waggle"][:, 0] != 0)
-        rates = {}
+        sc = P.scalar
+        self._cmd_kw: dict[str, Any] = {"dt": self.dt, "g": sc("g"),
+                                        "thermal_bank_factor": sc("thermalBankFactor")}
+        self._fly_kw: dict[str, Any] = {
+            "dt": self.dt, "g": sc("g"), "speed_min": sc("forwardSpeedMin"),
+            "speed_max": sc("forwardSpeedMax"), "bank_min": sc("bankMin"),
+            "bank_max": sc("bankMax"), "sink_abc": (sc("Sink_A"), sc("Sink_B"), sc("Sink_C")),
+            "ceiling": sc("agentCeiling"), "floor": sc("agentFloor"),
+        }
         for name in ("bank_rate_max", "speed_rate_max"):
-            rates[name] = None if np.isinf(P[name] * self.dt).all() else P[name]
-        self._rates = rates
+            self._fly_kw[name] = None if np.isinf(P[name] * self.dt).all() else P[name]
 
     # -- read-only views ---------------------------------------------------------------------
     @property
@@ -479,7 +486,7 @@ class SwarmSim:
         """Advance every run by one step of dt (see the module docstring for the order)."""
         self.step_count += 1
         step = self.step_count
-        P, S, alive = self.P, self._S, self._alive
+        S, alive = self._S, self._alive
         self._fader.step()
         B, n = alive.shape
         if self._refreshes(step):
@@ -505,25 +512,16 @@ class SwarmSim:
         a, collision, self.cohesion_mag = kern.accel(
             kern.load(S[: ROW_VZ + 1].reshape(ROW_VZ + 1, B * n)), z, xy, cs, self._waggle_sign
         )
-        sc = P.scalar
         bank_cmd, speed_cmd = accel_to_command(
-            a[0], a[1], heading, speed, dt=self.dt, g=sc("g"),
-            thermal_bank_factor=sc("thermalBankFactor"), updraft=w_th, cos_sin=(cs[0], cs[1]),
+            a[0], a[1], heading, speed, updraft=w_th, cos_sin=(cs[0], cs[1]), **self._cmd_kw
         )
         if external is not None:
             mask, cmd = external
             bank_cmd = np.where(mask, np.asarray(cmd.bank_cmd, dtype=np.float64), bank_cmd)
             speed_cmd = np.where(mask, np.asarray(cmd.airspeed_cmd, dtype=np.float64), speed_cmd)
         new = self._new
-        ground = fly(
-            new, xy, z, heading, S[ROW_BANK], speed, bank_cmd, speed_cmd, w_th, cs,
-            dt=self.dt, g=sc("g"), speed_min=sc("forwardSpeedMin"),
-            speed_max=sc("forwardSpeedMax"), bank_min=sc("bankMin"), bank_max=sc("bankMax"),
-            sink_abc=(sc("Sink_A"), sc("Sink_B"), sc("Sink_C")),
-            ceiling=sc("agentCeiling"), floor=sc("agentFloor"),
-            bank_rate_max=self._rates["bank_rate_max"],
-            speed_rate_max=self._rates["speed_rate_max"],
-        )
+        ground = fly(new, xy, z, heading, S[ROW_BANK], speed, bank_cmd, speed_cmd, w_th, cs,
+                     **self._fly_kw)
         collided = alive & collision
         flew = alive & ~collided
         grounded = flew & ground
