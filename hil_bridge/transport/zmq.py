@@ -20,6 +20,10 @@ counts the loss from publisher ``seq`` gaps.
 Threading: ``publish`` is safe from any thread (a lock guards the publish socket);
 ``subscribe`` is safe from any thread (applied by the receiving thread, which it wakes);
 one thread at a time calls ``recv``.
+
+Closing: ``close()`` returns at once. Messages still queued on the publish socket keep being
+delivered by ZeroMQ's I/O thread for up to ``PUB_LINGER_MS`` (so a publisher that closes right
+after publishing does not lose its tail); receive-side sockets drop what is queued.
 """
 
 from __future__ import annotations
@@ -37,6 +41,9 @@ import zmq
 import zmq.auth
 
 from hil_bridge.transport.base import Frames, Transport
+
+#: how long messages queued on a closed publish socket are still delivered (milliseconds)
+PUB_LINGER_MS = 1000
 
 __all__ = ["ZmqEndpoints", "ZmqTransport", "parse_zmq_url"]
 
@@ -248,5 +255,6 @@ class ZmqTransport(Transport):
                 self._poke()
                 self._rx_done.wait_for(lambda: not self._in_recv, timeout=2.0)
             with self._pub_lock:
-                for sock in self._sockets:
+                self._pub.close(linger=PUB_LINGER_MS)
+                for sock in (self._sub, self._wake_rx, self._wake_tx):
                     sock.close(0)
