@@ -68,6 +68,24 @@ def _plot(echo: Echo, path: Path, title: str) -> None:
     plt.close(fig)
 
 
+_VECTOR_OPTIONS = ("--position", "--boresight")
+
+
+def _join_vector_values(argv: list[str]) -> list[str]:
+    """``--position -10,0,8`` -> ``--position=-10,0,8``: argparse would take a value that
+    starts with ``-`` (and is not a plain number) for an option."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] in _VECTOR_OPTIONS and i + 1 < len(argv):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="echoloop echo", description="Synthesise one foliage echo (sim_core.sonar)."
@@ -86,7 +104,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--out", type=Path, help="write echo (N,) and fs to this .npz")
     parser.add_argument("--plot", type=Path, help="write the waveform to this PNG")
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_vector_values(argv))
 
     position = parse_floats(args.position, 3, "--position")
     az, el = parse_floats(args.boresight, 2, "--boresight")
