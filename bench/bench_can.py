@@ -137,7 +137,7 @@ def _bus_load(out_dir: Path) -> str:
         f"step, 2 Hz). {len(data)} frames logged over {span:.2f} s; commands forwarded "
         f"{stats.get('cmd_forwarded', 0)}, link `{stats.get('can_link')}`. Goal: ≤ 50 % of a "
         f"1 Mbit/s bus.\n\n{measured}\n\nFrom frame rates, worst-case stuffing:\n\n{computed}\n\n"
-        "![CAN bus load](figures/bench/can_bus_load.png)\n"
+        "![CAN bus load](docs/figures/bench/can_bus_load.png)\n"
     )
 
 

@@ -192,7 +192,7 @@ def run(out_dir: Path) -> str:
     fig.tight_layout()
     fig.savefig(out_dir / "serial_latency.png", dpi=120)
     plt.close(fig)
-    out += ["![serial latency](figures/bench/serial_latency.png)", ""]
+    out += ["![serial latency](docs/figures/bench/serial_latency.png)", ""]
 
     # 2. 20 pings/s of IQ echoes over 921600 baud
     r = _run_loop(921600, "iq16", 20.0, 20000, 100, timeout_s=30.0)

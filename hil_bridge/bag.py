@@ -172,6 +172,10 @@ class BagInfo:
         }
 
 
+#: the 8 bytes every MCAP file starts with
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
 class _Reader:
     """Linear, truncation-tolerant pass over an MCAP file's records."""
 
@@ -184,6 +188,10 @@ class _Reader:
 
     def messages(self) -> Iterator[tuple[Channel, McapMessage]]:
         with open(self.path, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+            if head != MCAP_MAGIC:
+                raise ValueError(f"{self.path}: not an MCAP file (starts with {head[:8]!r})")
+            f.seek(0)
             records = StreamReader(f, validate_crcs=True).records
             while True:
                 try:
@@ -374,17 +382,27 @@ class Recorder:
             except BaseException:
                 transport.close()
                 raise
+            try:
+                # the MCAP header is on disk before start() returns: the file is a readable
+                # (empty) recording from then on, even if the process is killed
+                bag = _BagWriter(stream, chunk_size=self.chunk_size,
+                                 compression=self.compression,
+                                 message_encoding=MessageEncoding.MessagePack, as_json=False)
+                stream.flush()
+            except BaseException:
+                stream.close()
+                transport.close()
+                raise
             self._transport = transport
             self._thread = threading.Thread(
-                target=self._run, args=(transport, stream), name=f"{self.name}-rec", daemon=True
+                target=self._run, args=(transport, stream, bag), name=f"{self.name}-rec",
+                daemon=True,
             )
             self._thread.start()
         return self
 
-    def _run(self, transport: Transport, stream: IO[bytes]) -> None:
+    def _run(self, transport: Transport, stream: IO[bytes], bag: _BagWriter) -> None:
         try:
-            bag = _BagWriter(stream, chunk_size=self.chunk_size, compression=self.compression,
-                             message_encoding=MessageEncoding.MessagePack, as_json=False)
             # log_time: Unix-epoch ns that never steps back (wall anchor + monotonic offset)
             wall0, mono0 = time.time_ns(), time.monotonic_ns()
             dirty = False

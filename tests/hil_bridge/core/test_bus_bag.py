@@ -297,3 +297,16 @@ def test_replay_transport_feeds_nodes_and_tools_offline(tmp_path: Path) -> None:
         open_transport(f"replay://{tmp_path}/none.mcap")
     with pytest.raises(ValueError, match="unknown option"):
         open_transport(f"replay://{path}?speed=2")
+
+
+@pytest.mark.parametrize("content", [b"", b"not an mcap file at all"], ids=["empty", "text"])
+def test_info_on_a_file_that_is_not_mcap_fails_clearly(tmp_path: Path, content: bytes,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    from hil_bridge.cli import main as echoloop
+
+    path = tmp_path / "notes.mcap"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match="not an MCAP file"):
+        bag_info(path)
+    assert echoloop(["bag", "info", str(path)]) == 1
+    assert "not an MCAP file" in capsys.readouterr().err
