@@ -28,6 +28,7 @@
 from __future__ import annotations
 
 import errno
+import logging
 import threading
 import time
 from collections import Counter
@@ -47,6 +48,8 @@ from drivers.faults.can_bus import (
     fault_rngs,
 )
 from sim_core.config import from_dict
+
+log = logging.getLogger(__name__)
 
 __all__ = ["CanBusConfig", "CanLink", "LinkPolicy", "LinkState"]
 
@@ -144,6 +147,7 @@ class CanLink:
             fault_rngs(config.faults.seed) if config.faults is not None else None
         )
         self._state: LinkState = "down"
+        self._open_warned = False  # one warning per outage, not one per retry
         self._bus_off_since = 0.0
         self._next_probe = 0.0
         self._probe_backoff = self.policy.reopen_backoff_s
@@ -207,11 +211,16 @@ class CanLink:
                         f"interface {self.config.interface!r} is not usable here: {exc}"
                     ) from None
                 self._inc("open_failures")
+                if not self._open_warned:
+                    self._open_warned = True
+                    log.warning("CAN %s:%s cannot be opened (%s); retrying with back-off",
+                                self.config.interface, self.config.channel, exc)
                 self._state = "down"
                 self._next_open = time.monotonic() + self._open_backoff
                 self._open_backoff = min(2 * self._open_backoff, self.policy.max_backoff_s)
                 return False
             self._bus = bus
+            self._open_warned = False
             if self._state != "bus_off":
                 self._state = "up"
             self._open_backoff = self.policy.reopen_backoff_s
