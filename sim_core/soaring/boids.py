@@ -162,6 +162,25 @@ def power(base: F8, exponent: F8 | float, values: Sequence[float] | None = None)
     return out
 
 
+def _pow_into(out: F8, x: F8, val: float) -> None:
+    """out[...] = x ** val by the same operations as :func:`_pow1`."""
+    if val == 0:
+        out.fill(1.0)
+    elif val == 1:
+        np.copyto(out, x)
+    elif val == 2:
+        np.multiply(x, x, out=out)
+    elif val == -1:
+        np.divide(1.0, x, out=out)
+    elif val == -2:
+        np.multiply(x, x, out=out)
+        np.divide(1.0, out, out=out)
+    elif val == 0.5:
+        np.sqrt(x, out=out)
+    else:
+        np.power(x, val, out=out)
+
+
 def _pow1(x: F8, val: float) -> F8:
     if val == 0:
         return np.ones_like(x)
@@ -311,9 +330,14 @@ class AccelKernel:
         self._unified_pp = self.P["unified"][run, 0]
         ign, wmax = pp["cohesionAscensionIgnore"], pp["cohesionAscensionMax"]
         pp["asc_range"] = wmax - ign
-        pp["half_sep"] = pp["separationHeightWidth"] / 2
-        pp["half_ali"] = pp["alignmentHeightWidth"] / 2
+        # |Δz| limits of alignment and separation (unified), rows (2, V) or (2, 1)
+        half = np.broadcast_arrays(np.asarray(pp["alignmentHeightWidth"] / 2),
+                                   np.asarray(pp["separationHeightWidth"] / 2))
+        self._half = np.stack(half).reshape(2, -1)
         self.pp = pp
+        # (row, exponent) of the alignment and separation weights when uniform in the batch
+        ali_p, sep_p = pp["aliPower"], pp["sepPower"]
+        self._same_pw = isinstance(ali_p, float) and isinstance(sep_p, float) and ali_p == sep_p
         self.D = np.empty((6, V))
         self._gg = np.empty((6, 2 * V))
         self._sq = np.empty((3, V))
@@ -322,7 +346,6 @@ class AccelKernel:
         self._inv = np.zeros(V)
         self._e = np.empty((2, V))
         self._seen = np.empty((3, V), dtype=bool)
-        self._tmpb = np.empty(V, dtype=bool)
         self._pw = np.empty((3, V))
         self._wt = np.empty((7, V))
 
@@ -356,8 +379,7 @@ class AccelKernel:
         e = self._e
         np.multiply(D[2:4], inv, out=e)
         wt = self._wt
-        np.less(d3, pp["collisionKillDistance"], out=self._tmpb)
-        wt[6] = self._tmpb
+        np.less(d3, pp["collisionKillDistance"], out=wt[6])
 
         # cohesion weight: height factor × relative ascension (unified), 1 (baseline)
         ign, wmax = pp["cohesionAscensionIgnore"], pp["cohesionAscensionMax"]
@@ -375,14 +397,12 @@ class AccelKernel:
                 pw[0] = weight  # weight · 0 ** 0 == weight
             else:
                 np.multiply(weight, power(nd[0], pp["cohPower"], self._coh_p), out=pw[0])
-            if self._ali_p == self._sep_p and isinstance(pp["aliPower"], float) \
-                    and pp["aliPower"] == pp["sepPower"]:
-                pw[1:] = power(nd, pp["aliPower"], self._ali_p)
+            if self._same_pw:
+                _pow_into(pw[1:], nd, self._ali_p[0])
             else:
                 pw[1] = power(nd[0], pp["aliPower"], self._ali_p)
                 pw[2] = power(nd[1], pp["sepPower"], self._sep_p)
-        np.less(rzabs, pp["half_ali"], out=seen[1])
-        np.less(rzabs, pp["half_sep"], out=seen[2])
+        np.less(rzabs, self._half, out=seen[1:])
         if not self._all_unified:
             np.logical_or(seen[1:], ~self._unified_pp, out=seen[1:])
         np.logical_and(seen[1:], flat, out=seen[1:])

@@ -330,6 +330,7 @@ class SwarmSim:
         )
         self._end_step = np.full(B, -1, dtype=np.int64)
         self._update_finished()
+        self._any_finished = bool(self._finished.any())
         self._trace: _TraceBuf | None = _TraceBuf() if trace else None
         if self._trace is not None:
             self._record()
@@ -522,20 +523,23 @@ class SwarmSim:
         new = self._new
         ground = fly(new, xy, z, heading, S[ROW_BANK], speed, bank_cmd, speed_cmd, w_th, cs,
                      **self._fly_kw)
-        collided = alive & collision
-        flew = alive & ~collided
-        grounded = flew & ground
-        moved = flew & ~grounded
-        deaths = bool(collided.any()) or bool(grounded.any())
+        deaths = bool(((collision | ground) & alive).any())
         if deaths:
+            collided = alive & collision
+            flew = alive & ~collided
+            grounded = flew & ground
             self._alive = alive & ~collided & ~grounded
-        self._update_metrics(step, collided, grounded, deaths)
-        # the saved state is no longer needed: the gliders that moved take the new state
-        np.copyto(S[ROW_X:ROW_BANK], new[ROW_X:ROW_BANK], where=moved)
-        np.copyto(S[ROW_BANK], new[ROW_BANK], where=flew)
+            self._update_metrics(step, collided, grounded, deaths)
+            # the saved state is no longer needed: the gliders that moved take the new state
+            np.copyto(S[ROW_X:ROW_BANK], new[ROW_X:ROW_BANK], where=flew & ~grounded)
+            np.copyto(S[ROW_BANK], new[ROW_BANK], where=flew)
+        else:  # every alive glider flew and moved
+            self._update_metrics(step, alive, alive, deaths)
+            np.copyto(S[ROW_X:], new[ROW_X:], where=alive)
         if deaths or step == 1 or step >= self.total_steps:
             self._update_finished()
-        if self._finished.any():
+            self._any_finished = bool(self._finished.any())
+        if self._any_finished:
             self._end_step[self._finished & (self._end_step < 0)] = step
         if self._trace is not None:
             self._record()
@@ -553,7 +557,8 @@ class SwarmSim:
 
     def _update_metrics(self, step: int, collided: B8, grounded: B8, deaths: bool) -> None:
         """Accumulate the metrics of a step from the saved state (still in ``_S``) of the
-        gliders alive after it (``deaths``: whether any glider died in the step)."""
+        gliders alive after it (``deaths``: whether any glider died in the step; without,
+        ``collided`` and ``grounded`` are not read)."""
         a, alive, dt, S = self._acc, self._alive, self.dt, self._S
         z = S[ROW_Z]
         if deaths:
@@ -642,6 +647,7 @@ class SwarmSim:
         self._acc = self._acc.select(runs)
         self._end_step = self._end_step[runs]
         self._finished = self._finished[runs]
+        self._any_finished = bool(self._finished.any())
         self._setup()
 
 
