@@ -170,7 +170,9 @@ def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
         elif topic == "/forest/points":
             leaves = msg
         else:
-            echo = msg
+            # show the last echo that heard leaves (an empty one says little), else the last
+            if echo is None or msg.leaves_in_beam > 0 or echo.leaves_in_beam == 0:
+                echo = msg
             frame = m.header.frame_id
             if frame.startswith("glider/") and frame[7:].isdigit():
                 mount = int(frame[7:])
