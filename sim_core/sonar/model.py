@@ -379,15 +379,17 @@ def _nearest(
         dropped += gone
         hit = np.flatnonzero(valid)
         rows[found : found + hit.shape[0]] = hit + start
-        ranges[found : found + hit.shape[0]] = r.take(hit)
+        ranges[found : found + hit.shape[0]] = r.compress(valid)
         found += hit.shape[0]
     rows, ranges = rows[:found], ranges[:found]
     untested = Cut(0, np.zeros(params.channels))
     if found > count:
         keep = ranges <= np.partition(ranges, count - 1)[count - 1] if count else ranges < 0.0
         far = ~keep
-        peak = np.full(found - int(np.count_nonzero(keep)), sel.a0)
-        untested = Cut(peak.shape[0], _cut_amax(params, ranges[far], a.take(rows[far]), peak))
+        r_far = ranges.compress(far)
+        peak = np.full(r_far.shape[0], sel.a0)
+        amax = _cut_amax(params, r_far, a.take(rows.compress(far)), peak)
+        untested = Cut(r_far.shape[0], amax)
         rows = rows.compress(keep)
     return rows, dropped, untested
 
