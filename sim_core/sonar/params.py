@@ -6,6 +6,7 @@ Defaults are those of ``spec/echo_model.md``; every opt-in physics switch defaul
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -224,30 +225,7 @@ class FrequencyGrid:
 
     @staticmethod
     def from_params(p: EchoParams) -> FrequencyGrid:
-        n = int(p.samples)
-        edges = []
-        for name in ("f_lo", "f_hi"):
-            value = getattr(p, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"EchoParams.{name} must be a finite number > 0, got {value!r}")
-            ratio = Fraction(value) * n / Fraction(p.fs)
-            index = round(ratio)
-            # exact in rationals; a float band edge like fs/N itself is off by an ulp
-            if abs(ratio - index) > BIN_TOLERANCE * max(1, index):
-                raise ValueError(
-                    f"EchoParams.{name}={value!r} is not a multiple of the bin spacing "
-                    f"fs/N = {p.fs / n!r} Hz (f*N/fs = {float(ratio)!r}); choose N or the band "
-                    "so both band edges fall on bins"
-                )
-            edges.append(int(index))
-        m0, m1 = edges
-        if not m0 < m1:
-            raise ValueError(f"EchoParams band must satisfy f_lo < f_hi, got {p.f_lo}, {p.f_hi}")
-        if m1 > n // 2:
-            raise ValueError(
-                f"EchoParams.f_hi={p.f_hi!r} exceeds the Nyquist frequency fs/2 = {p.fs / 2!r}"
-            )
-        return FrequencyGrid(m0=m0, m1=m1, df=p.fs / n, n=n)
+        return _grid(float(p.f_lo), float(p.f_hi), float(p.fs), int(p.samples))
 
     @property
     def count(self) -> int:
@@ -260,9 +238,44 @@ class FrequencyGrid:
 
     @property
     def window(self) -> NDArray[np.float64]:
-        """Periodic Hann over the band bins, shape (count,)."""
-        k = np.arange(self.count)
-        return 0.5 * (1.0 - np.cos(2.0 * np.pi * k / self.count))
+        """Periodic Hann over the band bins, shape (count,) (read-only, shared)."""
+        return _hann(self.count)
+
+
+@functools.lru_cache(maxsize=256)
+def _hann(count: int) -> NDArray[np.float64]:
+    k = np.arange(count)
+    out = 0.5 * (1.0 - np.cos(2.0 * np.pi * k / count))
+    out.setflags(write=False)
+    return out
+
+
+@functools.lru_cache(maxsize=256)
+def _grid(f_lo: float, f_hi: float, fs: float, samples: int) -> FrequencyGrid:
+    """FrequencyGrid of a band (cached: the exact rational check costs ~0.1 ms per call)."""
+    n = samples
+    edges = []
+    for name, value in (("f_lo", f_lo), ("f_hi", f_hi)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"EchoParams.{name} must be a finite number > 0, got {value!r}")
+        ratio = Fraction(value) * n / Fraction(fs)
+        index = round(ratio)
+        # exact in rationals; a float band edge like fs/N itself is off by an ulp
+        if abs(ratio - index) > BIN_TOLERANCE * max(1, index):
+            raise ValueError(
+                f"EchoParams.{name}={value!r} is not a multiple of the bin spacing "
+                f"fs/N = {fs / n!r} Hz (f*N/fs = {float(ratio)!r}); choose N or the band "
+                "so both band edges fall on bins"
+            )
+        edges.append(int(index))
+    m0, m1 = edges
+    if not m0 < m1:
+        raise ValueError(f"EchoParams band must satisfy f_lo < f_hi, got {f_lo}, {f_hi}")
+    if m1 > n // 2:
+        raise ValueError(
+            f"EchoParams.f_hi={f_hi!r} exceeds the Nyquist frequency fs/2 = {fs / 2!r}"
+        )
+    return FrequencyGrid(m0=m0, m1=m1, df=fs / n, n=n)
 
 
 @dataclass(frozen=True, slots=True)
