@@ -227,15 +227,17 @@ def find_neighbors(
     any_limited, all_limited = bool(limited_fov.any()), bool(limited_fov.all())
     kk = P["k"][:, 0].astype(np.intp)
     rows_per = max(1, chunk_elems // max(1, b * n))
-    cols = np.arange(n)
     for start in range(0, n, rows_per):
         sl = slice(start, min(n, start + rows_per))
         dx = x[:, None, :] - x[:, sl, None]
         dy = y[:, None, :] - y[:, sl, None]
         dz = z[:, None, :] - z[:, sl, None]
-        d3 = np.sqrt(dx * dx + dy * dy + dz * dz)
+        d3 = dx * dx
+        d3 += dy * dy
+        d3 += dz * dz
+        np.sqrt(d3, out=d3)
         cand = alive[:, None, :] & (np.abs(dx) <= R) & (np.abs(dy) <= R) & (d3 <= R)
-        cand &= cols[None, None, :] != np.arange(sl.start, sl.stop)[None, :, None]
+        cand[:, np.arange(sl.stop - sl.start), np.arange(sl.start, sl.stop)] = False  # j ≠ i
         if any_limited:
             with np.errstate(invalid="ignore", divide="ignore"):
                 cosang = (dx * np.cos(heading[:, sl, None])
@@ -254,8 +256,8 @@ def find_neighbors(
         if pad > 0:
             order = np.concatenate([order, np.zeros((*order.shape[:2], pad), np.intp)], axis=2)
             ok = np.concatenate([ok, np.zeros((*ok.shape[:2], pad), bool)], axis=2)
-        idx[:, :, sl] = np.moveaxis(order, 2, 0)
-        valid[:, :, sl] = np.moveaxis(ok, 2, 0)
+        idx[:, :, sl] = order.transpose(2, 0, 1)
+        valid[:, :, sl] = ok.transpose(2, 0, 1)
     return idx, valid
 
 
@@ -311,6 +313,11 @@ class AccelKernel:
         self._kc, self._ka = P.scalar("cohesion"), P.scalar("alignment")
         self._km, self._kw = P.scalar("migration"), P.scalar("waggle")
         self._waggle = bool(np.any(self._kw != 0))  # a zero gain adds only ±0
+        ali_w, sep_w = self._uniform["alignmentHeightWidth"], self._uniform["separationHeightWidth"]
+        self._half_const = (
+            np.array([[ali_w / 2], [sep_w / 2]])
+            if isinstance(ali_w, float) and isinstance(sep_w, float) else None
+        )
         self.set_pairs(np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp))
 
     def set_pairs(self, owner: NDArray[np.intp], other: NDArray[np.intp]) -> None:
@@ -331,9 +338,12 @@ class AccelKernel:
         ign, wmax = pp["cohesionAscensionIgnore"], pp["cohesionAscensionMax"]
         pp["asc_range"] = wmax - ign
         # |Δz| limits of alignment and separation (unified), rows (2, V) or (2, 1)
-        half = np.broadcast_arrays(np.asarray(pp["alignmentHeightWidth"] / 2),
-                                   np.asarray(pp["separationHeightWidth"] / 2))
-        self._half = np.stack(half).reshape(2, -1)
+        if self._half_const is not None:
+            self._half = self._half_const
+        else:
+            half = np.broadcast_arrays(np.asarray(pp["alignmentHeightWidth"] / 2),
+                                       np.asarray(pp["separationHeightWidth"] / 2))
+            self._half = np.stack(half).reshape(2, -1)
         self.pp = pp
         # (row, exponent) of the alignment and separation weights when uniform in the batch
         ali_p, sep_p = pp["aliPower"], pp["sepPower"]
