@@ -58,7 +58,7 @@ INCIDENT_FREQ_ORDER = 12
 #: NUFFT tolerances at or above this run in single precision (float32 delays: the phase of mode
 #: k is off by at most |k| pi 2^-24, i.e. <= 7.2e-5 at the band edges for the default band)
 SINGLE_EPS = 1e-5
-#: up to this many kinked leaves per echo are summed directly (exactly)
+#: up to this many kinked leaves per echo are summed directly (exactly) when they are summed apart
 DIRECT_KINKED = 8
 #: kinked leaves are interpolated with the others while their worst-case error stays below this
 #: share of the amplitude weight (typical foliage: 2e-4 of 0.7 % of the leaves, all near
@@ -93,11 +93,11 @@ class Fast(Fidelity):
     2P + 1 check frequencies); if it exceeds ``adapt`` the node count is doubled (up to
     MAX_ORDER) and the group recomputed (``adapt=None``: never).
 
-    Kinked leaves (the clip of L or the near-field cap inside the band, see :func:`_kinked`):
-    up to DIRECT_KINKED are summed directly; more are interpolated with the others while their
-    worst case, (1 + Lambda_P) sum_i max_f |W_i| (Lambda_P the Lebesgue constant of P
-    Chebyshev nodes), stays below ``kink_share`` of the amplitude weight, else interpolated
-    apart at ``kink_order`` nodes and counted at KINK_ERROR of their weight.
+    Kinked leaves (the clip of L or the near-field cap inside the band, see :func:`_kinked`)
+    are interpolated with the others while their worst case, (1 + Lambda_P) sum_i max_f |W_i|
+    (Lambda_P the Lebesgue constant of P Chebyshev nodes), stays below ``kink_share`` of the
+    amplitude weight; otherwise up to DIRECT_KINKED are summed directly and more are
+    interpolated apart at ``kink_order`` nodes and counted at KINK_ERROR of their weight.
     ``error_bound`` reported per echo = (CHECK_MARGIN x check error + the kinked leaves'
     share) + 2 eps + the float32 phase floor. Measured errors against ``reference``:
     docs/sonar.md and BENCHMARKS.md.
@@ -146,7 +146,7 @@ class Fast(Fidelity):
             kinked, amax = _kinked(scene, ch, params)
             order = self.order_for(params)
             n_kinked = kinked.shape[0]
-            apart = n_kinked <= DIRECT_KINKED
+            apart = False
             spec, tail, weight = self._group(scene, ch, params, order, kinked, apart)
             while self.adapt is not None and tail > self.adapt and order < MAX_ORDER:
                 order = min(2 * order, MAX_ORDER)
@@ -172,7 +172,10 @@ class Fast(Fidelity):
                     err += CHECK_MARGIN * KINK_ERROR * weight_k
                     weight += weight_k
             out[ch] = spec
-            bound = max(bound, (err + kink_err) / weight if weight > 0 else 0.0)
+            if weight > 0:
+                bound = max(bound, (err + kink_err) / weight)
+            elif err + kink_err > 0:
+                bound = math.inf
         out *= g.window
         floor = (B // 2) * math.pi * 2.0**-24 + 1e-6 if self.eps >= SINGLE_EPS else 0.0
         return Band(out, g.m0, bound + 2.0 * self.eps + floor)
