@@ -169,6 +169,10 @@ class RunResult:
     trace: Trace | None = None
 
 
+#: Steps of metric history summed at once (see SwarmSim._flush).
+_HISTORY = 64
+
+
 def batch_key(law: Law) -> tuple[Any, ...]:
     """Laws with equal keys can share a batch (same dt, duration and frame skips)."""
     return (law.dt, law.steps, law.neighborFrameSkip, law.mapDivFrameSkip,
@@ -203,8 +207,9 @@ def _spawn_agents(law: Law, rng: np.random.Generator) -> dict[str, F8]:
 
 @dataclass(slots=True)
 class _Acc:
-    """Metric accumulators, (B,) arrays (visited: (B, res*res)). The final heights are
-    computed on demand from the last step's saved altitudes and alive mask."""
+    """Metric accumulators, (B,) arrays (visited: (B, res*res)). flight, height and thermal
+    lag behind by the steps held in SwarmSim's history until it is flushed; the final heights
+    are computed on demand from the last step's saved altitudes and alive mask."""
 
     n_agents: NDArray[np.int64]
     living: NDArray[np.int64]
@@ -346,8 +351,11 @@ class SwarmSim:
                             top=P["fade_top"], bottom=P["fade_bottom"], dt=self.dt)
         self._new = np.zeros((STATE_ROWS, B, n))
         self._cs = np.empty((2, B, n))
-        self._hbuf = np.empty((B, n + 1))
-        self._dead = ~self._alive
+        # per-step history of the saved (z, vz) and of the alive mask and count after the
+        # step; flight, height and thermal scores are summed from it every _HISTORY steps
+        self._zv_hist = np.empty((_HISTORY, 2, B, n))
+        self._alive_hist: list[B8] = []
+        self._living_hist: list[NDArray[np.int64]] = []
         self._waggle_runs = np.flatnonzero(P["waggle"][:, 0] != 0)
         sc = P.scalar
         self._cmd_kw: dict[str, Any] = {"dt": self.dt, "g": sc("g"),
@@ -442,6 +450,7 @@ class SwarmSim:
 
     def metrics(self, run: int = 0) -> Metrics:
         """Metrics of one run so far (final once the run is finished)."""
+        self._flush()
         a = self._acc
         n_agents = int(a.n_agents[run])
         living = int(a.living[run])
@@ -559,24 +568,18 @@ class SwarmSim:
         """Accumulate the metrics of a step from the saved state (still in ``_S``) of the
         gliders alive after it (``deaths``: whether any glider died in the step; without,
         ``collided`` and ``grounded`` are not read)."""
-        a, alive, dt, S = self._acc, self._alive, self.dt, self._S
-        z = S[ROW_Z]
+        a, alive, S = self._acc, self._alive, self._S
         if deaths:
             a.coll += collided.sum(axis=1)
             a.ground += grounded.sum(axis=1)
             a.living = alive.sum(axis=1)
-            self._dead = ~alive
-        a.flight = a.flight + a.living * dt
-        # heightScore: one sequential sum over the steps and, within a step, the gliders
-        h = self._hbuf
-        h[:, 0] = a.height
-        zdt = h[:, 1:]
-        np.multiply(z, dt, out=zdt)
-        np.copyto(zdt, 0.0, where=self._dead)
-        a.height = np.cumsum(h, axis=1)[:, -1]
-        climbing = (alive & (S[ROW_VZ] > 0)).sum(axis=1)
-        a.thermal = a.thermal + climbing * dt
-        np.copyto(self._z_saved, z)
+        # alive masks and counts are replaced, never modified, so references suffice
+        k = len(self._alive_hist)
+        self._zv_hist[k] = S[ROW_Z : ROW_VZ + 1]
+        self._alive_hist.append(alive)
+        self._living_hist.append(a.living)
+        if k + 1 == _HISTORY:
+            self._flush()
         if step == 1 or step % self._mfs == 0:
             x, y = S[ROW_X], S[ROW_Y]
             ix = np.ceil((x - self._map_min) / self._cell).astype(np.int64)
@@ -585,6 +588,35 @@ class SwarmSim:
             inside = alive & (ix > 0) & (ix <= res) & (iy > 0) & (iy <= res)
             rows, cols = np.nonzero(inside)
             a.visited[rows, (ix[rows, cols] - 1) * res + (iy[rows, cols] - 1)] = True
+
+    def _flush(self) -> None:
+        """Add the steps in the history to flightTime, heightScore and thermalUseScore, with
+        the same sequential sums as step-by-step accumulation: each score is the running sum
+        over steps (and, for heightScore, over the gliders within a step) of
+        living·dt, alive·z·dt and (alive & vz > 0)·dt."""
+        c = len(self._alive_hist)
+        if c == 0:
+            return
+        a, dt = self._acc, self.dt
+        zv = self._zv_hist[:c]
+        alive = np.stack(self._alive_hist)  # (c, B, N)
+        B, n = alive.shape[1:]
+        seq = np.empty((c + 1, B))
+        seq[0] = a.flight
+        np.multiply(np.stack(self._living_hist), dt, out=seq[1:])
+        a.flight = np.cumsum(seq, axis=0)[-1]
+        seq[0] = a.thermal
+        np.multiply((alive & (zv[:, 1] > 0)).sum(axis=2), dt, out=seq[1:])
+        a.thermal = np.cumsum(seq, axis=0)[-1]
+        zdt = zv[:, 0] * dt
+        zdt[~alive] = 0.0
+        h = np.empty((B, 1 + c * n))
+        h[:, 0] = a.height
+        h[:, 1:] = zdt.transpose(1, 0, 2).reshape(B, c * n)
+        a.height = np.cumsum(h, axis=1)[:, -1]
+        self._z_saved = zv[c - 1, 0].copy()
+        self._alive_hist.clear()
+        self._living_hist.clear()
 
     def _record(self) -> None:
         buf = self._trace
@@ -626,6 +658,7 @@ class SwarmSim:
 
     def _keep(self, runs: NDArray[np.intp]) -> None:
         """Drop every run not in ``runs`` (used to stop stepping finished runs)."""
+        self._flush()
         self.laws = [self.laws[r] for r in runs]
         self.seeds = [self.seeds[r] for r in runs]
         self.run_ids = self.run_ids[runs]
