@@ -18,8 +18,10 @@ __all__ = [
     "STATE_ROWS",
     "GliderStep",
     "accel_to_command",
+    "command",
     "fly",
     "glider_step",
+    "limits",
     "scalar_if_uniform",
     "sink_rate",
 ]
@@ -67,28 +69,56 @@ def accel_to_command(
     a_f = a·f̂ (f̂ = heading unit vector); a_c = sign((f̂ × a)_z)·sqrt(‖a‖² − a_f²), 0 if
     ‖a‖ − |a_f| < 1e−6; airspeed_cmd = v + a_f·dt/10; bank_cmd = atan(a_c/g) +
     thermalBankFactor·w·sign(atan(a_c/g)). Limits are applied by :func:`glider_step`.
-    ``cos_sin``: (cos ψ, sin ψ) if the caller has them already.
+    ``cos_sin``: (cos ψ, sin ψ) if the caller has them already. Evaluated by :func:`command`.
     """
-    norm = np.hypot(ax, ay)
-    if not (norm <= A_MAX).all():
-        ax = np.clip(np.nan_to_num(ax, posinf=A_MAX, neginf=-A_MAX), -A_MAX, A_MAX)
-        ay = np.clip(np.nan_to_num(ay, posinf=A_MAX, neginf=-A_MAX), -A_MAX, A_MAX)
-        norm = np.hypot(ax, ay)
     fx, fy = (np.cos(heading), np.sin(heading)) if cos_sin is None else cos_sin
-    a_f = ax * fx + ay * fy
+    ins = np.broadcast_arrays(
+        *(np.asarray(v, dtype=np.float64) for v in (ax, ay, fx, fy, speed, updraft))
+    )
+    out = np.empty((2, *ins[0].shape))
+    command(out, np.stack(ins[:2]), np.stack(ins[2:4]), ins[4], dt=dt, g=g,
+            thermal_bank_factor=thermal_bank_factor, updraft=ins[5])
+    return out[1], out[0]
+
+
+def command(
+    out: F8,
+    a: F8,
+    cos_sin: F8,
+    speed: F8,
+    *,
+    dt: float,
+    g: ArrayLike,
+    thermal_bank_factor: ArrayLike,
+    updraft: ArrayLike,
+) -> None:
+    """:func:`accel_to_command` on stacked rows: a (2, ...) = (ax, ay) m/s², cos_sin (2, ...)
+    of the heading, speed m/s; writes out (2, ...) = (airspeed_cmd m/s, bank_cmd rad)."""
+    norm = np.hypot(a[0], a[1])
+    if not (norm <= A_MAX).all():
+        a = np.clip(np.nan_to_num(a, posinf=A_MAX, neginf=-A_MAX), -A_MAX, A_MAX)
+        norm = np.hypot(a[0], a[1])
+    p = a * cos_sin  # (ax·fx, ay·fy)
+    a_f = p[0] + p[1]
     small = norm - np.abs(a_f) < 1e-6
     a_c = np.where(small, 0.0, np.sqrt(np.maximum(norm * norm - a_f * a_f, 0.0)))
-    a_c = a_c * np.sign(fx * ay - fy * ax)
-    airspeed_cmd = speed + a_f * dt / 10.0
+    np.multiply(a[::-1], cos_sin, out=p)  # (ay·fx, ax·fy)
+    a_c *= np.sign(p[0] - p[1])
+    v_cmd = out[0]
+    np.multiply(a_f, dt, out=v_cmd)
+    v_cmd /= 10.0
+    v_cmd += speed
     bank = np.arctan(a_c / g)
-    bank_cmd = bank + thermal_bank_factor * updraft * np.sign(bank)
-    return bank_cmd, airspeed_cmd
+    b_cmd = out[1]
+    np.multiply(thermal_bank_factor, updraft, out=b_cmd)
+    b_cmd *= np.sign(bank)
+    b_cmd += bank
 
 
 #: Rows of a glider state block (R, ...): what :func:`fly` writes and the swarm stores.
 #: Rows VX and VY (horizontal velocity v·cos ψ, v·sin ψ) are derived each step by the swarm;
 #: :func:`fly` leaves them alone. Rows VX..VZ are those the Boids kernel reads per pair.
-ROW_VX, ROW_VY, ROW_X, ROW_Y, ROW_Z, ROW_VZ, ROW_HEADING, ROW_SPEED, ROW_OMEGA, ROW_BANK = range(10)
+ROW_VX, ROW_VY, ROW_X, ROW_Y, ROW_Z, ROW_VZ, ROW_HEADING, ROW_OMEGA, ROW_SPEED, ROW_BANK = range(10)
 STATE_ROWS = 10
 
 
@@ -130,17 +160,14 @@ def fly(
     heading: F8,
     bank: F8,
     speed: F8,
-    bank_cmd: F8,
-    airspeed_cmd: F8,
+    cmd: F8,
     updraft: ArrayLike,
     cos_sin: F8,
     *,
     dt: float,
     g: ArrayLike,
-    speed_min: ArrayLike,
-    speed_max: ArrayLike,
-    bank_min: ArrayLike,
-    bank_max: ArrayLike,
+    cmd_min: F8,
+    cmd_max: F8,
     sink_abc: tuple[ArrayLike, ArrayLike, ArrayLike],
     ceiling: ArrayLike,
     floor: ArrayLike,
@@ -151,18 +178,19 @@ def fly(
     rows ROW_X ... ROW_BANK, *without* the ground rule: where the returned ``ground`` mask is
     True the caller keeps the old position, heading and speed (see :func:`glider_step`).
 
-    xy (2, *shape) m and cos_sin (2, *shape) = (cos ψ, sin ψ) of the old heading; the other
-    inputs are broadcastable to ``shape``. ``*_rate_max``: None or ``inf`` = no rate limit.
+    xy (2, *shape) m and cos_sin (2, *shape) = (cos ψ, sin ψ) of the old heading; cmd
+    (2, *shape) = (airspeed_cmd m/s, bank_cmd rad) as from :func:`command`, limited to
+    [cmd_min, cmd_max] (each (2, ...) = (speed, bank) limits, broadcastable); the other inputs
+    are broadcastable to ``shape``. ``*_rate_max``: None or ``inf`` = no rate limit.
     """
-    v_cmd = _rate_limited(airspeed_cmd, speed, speed_rate_max, dt)
-    b_cmd = _rate_limited(bank_cmd, bank, bank_rate_max, dt)
+    c_v, c_b = cmd[0], cmd[1]
+    v_cmd = _rate_limited(c_v, speed, speed_rate_max, dt)
+    b_cmd = _rate_limited(c_b, bank, bank_rate_max, dt)
+    if v_cmd is not c_v or b_cmd is not c_b:
+        cmd = np.stack(np.broadcast_arrays(v_cmd, b_cmd))
+    new = out[ROW_SPEED : ROW_BANK + 1]
+    new[...] = np.where(cmd > cmd_max, cmd_max, np.where(cmd < cmd_min, cmd_min, cmd))
     new_speed, new_bank, omega = out[ROW_SPEED], out[ROW_BANK], out[ROW_OMEGA]
-    new_speed[...] = np.where(
-        v_cmd > speed_max, speed_max, np.where(v_cmd < speed_min, speed_min, v_cmd)
-    )
-    new_bank[...] = np.where(
-        b_cmd > bank_max, bank_max, np.where(b_cmd < bank_min, bank_min, b_cmd)
-    )
     np.tan(new_bank, out=omega)
     omega *= g
     omega /= new_speed
@@ -181,6 +209,18 @@ def fly(
     np.multiply(omega, dt, out=nh)
     np.add(heading, nh, out=nh)
     return ground
+
+
+def limits(
+    low: tuple[ArrayLike, ArrayLike], high: tuple[ArrayLike, ArrayLike], ndim: int = 2
+) -> tuple[F8, F8]:
+    """(cmd_min, cmd_max) for :func:`fly` from (speed_min, bank_min) and (speed_max, bank_max),
+    each broadcastable to glider arrays of ``ndim`` dimensions (scalars, or per-run (B, 1)
+    arrays for (B, N) gliders), stacked as (2, ...) arrays of 1 + ndim dimensions."""
+    lo = np.stack(np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in low)))
+    hi = np.stack(np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in high)))
+    pad = (1,) * max(0, 1 + ndim - lo.ndim)
+    return lo.reshape(lo.shape + pad), hi.reshape(hi.shape + pad)
 
 
 def glider_step(
@@ -224,11 +264,11 @@ def glider_step(
     x, y, z, heading, bank, speed = ins[:6]
     ch, sh = (np.cos(heading), np.sin(heading)) if cos_sin is None else cos_sin
     out = np.zeros((STATE_ROWS, *x.shape))
+    lo, hi = limits((speed_min, bank_min), (speed_max, bank_max), x.ndim)
     keep = fly(
-        out, np.stack([x, y]), z, heading, bank, speed, ins[6], ins[7], ins[8],
-        np.stack(np.broadcast_arrays(ch, sh)), dt=dt, g=g, speed_min=speed_min,
-        speed_max=speed_max, bank_min=bank_min, bank_max=bank_max, sink_abc=sink_abc,
-        ceiling=ceiling, floor=floor, bank_rate_max=bank_rate_max,
+        out, np.stack([x, y]), z, heading, bank, speed, np.stack([ins[7], ins[6]]), ins[8],
+        np.stack(np.broadcast_arrays(ch, sh)), dt=dt, g=g, cmd_min=lo, cmd_max=hi,
+        sink_abc=sink_abc, ceiling=ceiling, floor=floor, bank_rate_max=bank_rate_max,
         speed_rate_max=speed_rate_max,
     )
     return GliderStep(

@@ -46,8 +46,9 @@ from sim_core.soaring.glider import (
     ROW_Y,
     ROW_Z,
     STATE_ROWS,
-    accel_to_command,
+    command,
     fly,
+    limits,
 )
 from sim_core.soaring.law import Law
 from sim_core.soaring.thermals import (
@@ -360,12 +361,14 @@ class SwarmSim:
         sc = P.scalar
         self._cmd_kw: dict[str, Any] = {"dt": self.dt, "g": sc("g"),
                                         "thermal_bank_factor": sc("thermalBankFactor")}
+        lo, hi = limits((sc("forwardSpeedMin"), sc("bankMin")),
+                        (sc("forwardSpeedMax"), sc("bankMax")))
         self._fly_kw: dict[str, Any] = {
-            "dt": self.dt, "g": sc("g"), "speed_min": sc("forwardSpeedMin"),
-            "speed_max": sc("forwardSpeedMax"), "bank_min": sc("bankMin"),
-            "bank_max": sc("bankMax"), "sink_abc": (sc("Sink_A"), sc("Sink_B"), sc("Sink_C")),
+            "dt": self.dt, "g": sc("g"), "cmd_min": lo, "cmd_max": hi,
+            "sink_abc": (sc("Sink_A"), sc("Sink_B"), sc("Sink_C")),
             "ceiling": sc("agentCeiling"), "floor": sc("agentFloor"),
         }
+        self._cmd = np.empty((2, B, n))  # (airspeed_cmd, bank_cmd)
         for name in ("bank_rate_max", "speed_rate_max"):
             self._fly_kw[name] = None if np.isinf(P[name] * self.dt).all() else P[name]
 
@@ -522,16 +525,14 @@ class SwarmSim:
         a, collision, self.cohesion_mag = kern.accel(
             kern.load(S[: ROW_VZ + 1].reshape(ROW_VZ + 1, B * n)), z, xy, cs, self._waggle_sign
         )
-        bank_cmd, speed_cmd = accel_to_command(
-            a[0], a[1], heading, speed, updraft=w_th, cos_sin=(cs[0], cs[1]), **self._cmd_kw
-        )
+        cmd = self._cmd
+        command(cmd, a, cs, speed, updraft=w_th, **self._cmd_kw)
         if external is not None:
-            mask, cmd = external
-            bank_cmd = np.where(mask, np.asarray(cmd.bank_cmd, dtype=np.float64), bank_cmd)
-            speed_cmd = np.where(mask, np.asarray(cmd.airspeed_cmd, dtype=np.float64), speed_cmd)
+            mask, ext = external
+            np.copyto(cmd[0], np.asarray(ext.airspeed_cmd, dtype=np.float64), where=mask)
+            np.copyto(cmd[1], np.asarray(ext.bank_cmd, dtype=np.float64), where=mask)
         new = self._new
-        ground = fly(new, xy, z, heading, S[ROW_BANK], speed, bank_cmd, speed_cmd, w_th, cs,
-                     **self._fly_kw)
+        ground = fly(new, xy, z, heading, S[ROW_BANK], speed, cmd, w_th, cs, **self._fly_kw)
         deaths = bool(((collision | ground) & alive).any())
         if deaths:
             collided = alive & collision
