@@ -33,7 +33,7 @@ import finufft
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_core.sonar.model import LeafBudget, Scene, leaf_weights
+from sim_core.sonar.model import SCRATCH_MAX_BYTES, LeafBudget, Scene, leaf_weights
 from sim_core.sonar.params import EchoParams
 from sim_core.sonar.reference import Band, Fidelity, direct_sum
 
@@ -340,10 +340,12 @@ _SCRATCH = threading.local()
 
 
 def _scratch(name: str, shape: tuple[int, ...], dtype: type) -> NDArray[Any]:
-    """A per-thread array of ``shape`` reused between pings (its contents do not outlive the
-    call: fresh pages for large arrays cost more than the arithmetic on them)."""
-    cache: dict[tuple[str, type], NDArray[Any]] = _SCRATCH.__dict__.setdefault("arrays", {})
+    """A per-thread array of ``shape`` reused between pings, up to SCRATCH_MAX_BYTES (its
+    contents do not outlive the call: fresh pages cost more than the arithmetic on them)."""
     size = math.prod(shape)
+    if size * np.dtype(dtype).itemsize > SCRATCH_MAX_BYTES:
+        return np.empty(shape, dtype=dtype)
+    cache: dict[tuple[str, type], NDArray[Any]] = _SCRATCH.__dict__.setdefault("arrays", {})
     buf = cache.get((name, dtype))
     if buf is None or buf.shape[0] < size:
         buf = np.empty(max(size, 4096), dtype=dtype)

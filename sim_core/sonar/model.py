@@ -243,14 +243,20 @@ class Cut:
 
 
 _WORKSPACE = threading.local()
+#: scratch arrays larger than this are allocated per call instead of kept per thread (bounds
+#: the memory a thread holds between pings; at this size the page faults are a small share)
+SCRATCH_MAX_BYTES = 32 << 20
 
 
 def _workspace(name: str, size: int, dtype: type) -> NDArray[Any]:
-    """A per-thread scratch array of at least ``size`` elements, reused between pings.
+    """A per-thread scratch array of ``size`` elements, reused between pings (up to
+    SCRATCH_MAX_BYTES).
 
     For results that do not outlive the call that asks for them (fresh pages for large arrays
     are slow; reused ones are not).
     """
+    if size * np.dtype(dtype).itemsize > SCRATCH_MAX_BYTES:
+        return np.empty(size, dtype=dtype)
     cache: dict[str, NDArray[Any]] = _WORKSPACE.__dict__.setdefault("arrays", {})
     buf = cache.get(name)
     if buf is None or buf.shape[0] < size or buf.dtype != dtype:
