@@ -251,6 +251,7 @@ class Fader:
         self.th = th
         self.active = th.fade & th.valid
         self.any_active = bool(self.active.any())
+        self.all_active = bool(self.active.all())
         self.rate = scalar_if_uniform(rate)
         self.incr = scalar_if_uniform(np.where(by_time, dt, 1.0))
         tol = np.where(by_time, 1e-9, 0.0)
@@ -268,7 +269,19 @@ class Fader:
         # round(w, 1) <= 1e-5 (half away from zero) <=> 10·w + 0.5 < 1: w < 0.05, or w < 0
         low = w * 10.0
         low += 0.5
-        at_bottom = (low < 1.0) & ~at_top
+        # on booleans, a > b is a & ~b and a >= b is a | ~b
+        at_bottom = (low < 1.0) > at_top
+        if self.all_active:
+            top_done = at_top & (timer >= self.top_lim)
+            bottom_done = at_bottom & (timer >= self.bottom_lim)
+            np.copyto(direction, -1.0, where=top_done)
+            np.copyto(direction, 1.0, where=bottom_done)
+            done = top_done | bottom_done
+            edge = at_top | at_bottom
+            np.copyto(w, w + direction * self.rate, where=done >= edge)
+            np.add(timer, self.incr, out=timer, where=edge > done)
+            np.copyto(timer, 0.0, where=done)
+            return
         top_done = at_top & (timer >= self.top_lim) & act
         bottom_done = at_bottom & (timer >= self.bottom_lim) & act
         np.copyto(direction, -1.0, where=top_done)
