@@ -215,6 +215,7 @@ def run(out_dir: Path) -> str:
         "### Baseband IQ (70 kHz centre)\n\n" + _baseband(),
         f"`realtime` cost model: {realtime.overhead_s * 1e3:.1f} ms + "
         f"{realtime.per_examined_s * 1e9:.0f} ns per leaf examined + "
+        f"{realtime.per_candidate_s * 1e9:.0f} ns per pre-cull survivor + "
         f"{realtime.per_selected_s * 1e9:.0f} ns per leaf tested + "
         f"{realtime.per_leaf_s * 1e9:.0f} ns per leaf synthesised → "
         f"{realtime.capacity(EchoParams(), 10_000, 10_000):,} leaves synthesised after "

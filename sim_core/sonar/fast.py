@@ -369,21 +369,22 @@ def _plan(modes: int, eps: float, single: bool, n_trans: int) -> Any:
 class Realtime(Fidelity):
     """``fast`` within a per-echo time budget (``EchoParams.budget_s``), geometry included.
 
-    A fixed, deterministic cost model (measured on the reference machine; same inputs -> same
-    echo): an echo costs ``overhead_s`` + ``per_examined_s`` per leaf examined by the range /
-    cone pre-cull + ``per_selected_s`` per leaf the beam selects (off-axis angle and waterdrop
-    test) + ``per_leaf_s`` per leaf synthesised (incidence, gain, delay, node weights, NUFFT).
-    Whatever the budget leaves after the first three buys the synthesised leaves: if fewer than
-    the beam selects, ``prepare`` keeps those with the largest waterdrop metric S1/r (the
-    selection threshold G is raised) and never computes the others' incidence or weights.
+    A fixed, deterministic cost model (:class:`~sim_core.sonar.model.LeafBudget`, measured on
+    the reference machine; same inputs -> same echo): an echo costs ``overhead_s`` +
+    ``per_examined_s`` per leaf examined by the range / cone pre-cull + ``per_candidate_s`` per
+    leaf passing it + ``per_selected_s`` per candidate given the off-axis angle and waterdrop
+    test + ``per_leaf_s`` per leaf synthesised (incidence, gain, delay, node weights, NUFFT).
+    What the budget cannot afford is left out: the farthest candidates untested, then the
+    selected leaves with the smallest waterdrop metric S1/r (the selection threshold G is
+    raised); their incidence and weights are never computed.
 
     ``error_bound`` = the ``fast`` bound + the share of the left-out leaves under the
     random-phase model of a foliage echo (leaves at independent ranges add incoherently):
     ||X_cut|| ~ ||w|| sqrt(sum_i max_f |W_i(f)|^2) with max_f |W_i| <= g0 P1(k_hi a) S /
-    (k_lo r^2), times DROP_MARGIN, relative to the synthesised spectrum (1 if nothing could be
-    synthesised: a zero echo). It is a statistical bound, not a worst case (coherent
-    alignments of the left-out leaves could exceed it); the tests check it on random scenes
-    and BENCHMARKS.md compares it with the measured error.
+    (k_lo r^2) (S <= A0^2 for untested leaves), times DROP_MARGIN, relative to the synthesised
+    spectrum (1 if nothing could be synthesised: a zero echo). It is a statistical bound, not a
+    worst case (coherent alignments of the left-out leaves could exceed it); the tests check it
+    on random scenes and BENCHMARKS.md compares it with the measured error.
     """
 
     name = "realtime"
@@ -394,21 +395,23 @@ class Realtime(Fidelity):
         eps: float = 1e-3,
         overhead_s: float = 1e-3,
         per_leaf_s: float = 6e-8,
-        per_examined_s: float = 3.5e-8,
+        per_examined_s: float = 1.5e-8,
         per_selected_s: float = 2.5e-8,
+        per_candidate_s: float = 2e-8,
     ) -> None:
         self.fast = Fast(order=order, eps=eps, adapt=None, kink_share=math.inf)
-        costs = (overhead_s, per_examined_s, per_selected_s)
+        costs = (overhead_s, per_examined_s, per_selected_s, per_candidate_s)
         if not (all(math.isfinite(x) and x >= 0 for x in costs) and per_leaf_s > 0):
             raise ValueError(
-                "Realtime cost model needs overhead_s, per_examined_s, per_selected_s >= 0 and "
-                f"per_leaf_s > 0, got {overhead_s!r}, {per_examined_s!r}, {per_selected_s!r}, "
-                f"{per_leaf_s!r}"
+                "Realtime cost model needs overhead_s, per_examined_s, per_selected_s, "
+                f"per_candidate_s >= 0 and per_leaf_s > 0, got {overhead_s!r}, "
+                f"{per_examined_s!r}, {per_selected_s!r}, {per_candidate_s!r}, {per_leaf_s!r}"
             )
         self.overhead_s = overhead_s
         self.per_leaf_s = per_leaf_s
         self.per_examined_s = per_examined_s
         self.per_selected_s = per_selected_s
+        self.per_candidate_s = per_candidate_s
 
     def supports(self, params: EchoParams) -> str | None:
         return self.fast.supports(params)
@@ -418,15 +421,16 @@ class Realtime(Fidelity):
             budget_s=params.budget_s,
             overhead_s=self.overhead_s,
             per_examined_s=self.per_examined_s,
+            per_candidate_s=self.per_candidate_s,
             per_selected_s=self.per_selected_s,
             per_leaf_s=self.per_leaf_s,
         )
 
-    def capacity(self, params: EchoParams, examined: int = 0, selected: int = 0) -> int:
-        """Leaves synthesised per channel after selecting ``selected`` of ``examined``."""
+    def capacity(self, params: EchoParams, examined: int = 0, candidates: int = 0) -> int:
+        """Leaves synthesised per channel after testing all ``candidates`` of ``examined``."""
         budget = self.leaf_budget(params)
         per_channel = dataclasses.replace(budget, budget_s=budget.budget_s / params.channels)
-        return per_channel.synthesised(examined, selected)
+        return per_channel.synthesised(examined, candidates, candidates)
 
     def run(self, scene: Scene, params: EchoParams) -> Band:
         g = params.grid

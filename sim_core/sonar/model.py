@@ -275,34 +275,44 @@ GEOMETRY_BLOCK = 16384
 class LeafBudget:
     """A per-echo time budget and the cost model ``prepare`` plans the geometry with (s).
 
-    An echo costs ``overhead_s`` + ``per_examined_s`` per leaf examined by the range / cone
-    pre-cull + ``per_selected_s`` per leaf given the off-axis angle and waterdrop test +
-    ``per_leaf_s`` per leaf synthesised. If the pre-cull leaves more candidates than the rest of
-    the budget affords, only the nearest are tested (the range cut-off r0 is lowered, i.e. the
-    threshold G raised); if more are selected than can be synthesised, those with the largest
-    S1/r are kept (``Scene.cut`` summarises the others).
+    An echo costs ``overhead_s`` + ``per_examined_s`` per leaf examined by the guards and the
+    range / cone pre-cull + ``per_candidate_s`` per leaf passing it (bookkeeping, or the bound
+    of one left untested) + ``per_selected_s`` per candidate given the off-axis angle and
+    waterdrop test + ``per_leaf_s`` per leaf synthesised. If the candidates exceed what the
+    rest of the budget affords, only the nearest are tested (the range cut-off r0 is lowered,
+    i.e. the threshold G raised); if more are selected than can be synthesised, those with the
+    largest S1/r are kept (``Scene.cut`` summarises the others).
     """
 
     budget_s: float
     overhead_s: float
     per_examined_s: float
+    per_candidate_s: float
     per_selected_s: float
     per_leaf_s: float
 
-    def candidates(self, examined: int) -> int:
-        """Leaves the waterdrop test may examine after a pre-cull of ``examined`` leaves."""
-        left = self.budget_s - self.overhead_s - self.per_examined_s * examined
-        return max(0, int(left / (self.per_selected_s + self.per_leaf_s)))
-
-    def synthesised(self, examined: int, selected: int) -> int:
-        """Leaves that can be synthesised after selecting ``selected`` of ``examined``."""
-        left = (
+    def _left(self, examined: int, found: int, tested: int) -> float:
+        return (
             self.budget_s
             - self.overhead_s
             - self.per_examined_s * examined
-            - self.per_selected_s * selected
+            - self.per_candidate_s * found
+            - self.per_selected_s * tested
         )
-        return max(0, int(left / self.per_leaf_s))
+
+    def candidates(self, examined: int) -> int:
+        """Candidates affordable even if all were tested and synthesised (no range cut needed
+        when ``examined`` is at most this)."""
+        unit = self.per_candidate_s + self.per_selected_s + self.per_leaf_s
+        return max(0, int(self._left(examined, 0, 0) / unit))
+
+    def tested(self, examined: int, found: int) -> int:
+        """Candidates the waterdrop test may see when ``found`` of ``examined`` passed."""
+        return max(0, int(self._left(examined, found, 0) / (self.per_selected_s + self.per_leaf_s)))
+
+    def synthesised(self, examined: int, found: int, tested: int) -> int:
+        """Leaves that can be synthesised after testing ``tested`` of ``found`` candidates."""
+        return max(0, int(self._left(examined, found, tested) / self.per_leaf_s))
 
 
 @dataclass(frozen=True, slots=True)
@@ -369,11 +379,11 @@ class _Selection:
 
 
 def _nearest(
-    c: F64, n: F64, a: F64, sel: _Selection, count: int, params: EchoParams
-) -> tuple[NDArray[np.intp], int, Cut]:
-    """Rows of the ``count`` nearest leaves passing the pre-cull (ties kept), the number
-    dropped by the guards, and the farther candidates left untested (their bound takes the
-    beam gain at its peak A0)."""
+    c: F64, n: F64, a: F64, sel: _Selection, budget: LeafBudget, params: EchoParams
+) -> tuple[NDArray[np.intp], int, int, Cut]:
+    """Rows of the nearest leaves passing the pre-cull that ``budget`` affords to test (ties
+    kept), the number dropped by the guards, the number that passed, and the farther ones left
+    untested (their bound takes the beam gain at its peak A0)."""
     total = c.shape[0]
     rows = _workspace("near_rows", total, np.intp)
     ranges = _workspace("near_r", total, np.float64)
@@ -389,6 +399,7 @@ def _nearest(
         found += hit.shape[0]
     rows, ranges = rows[:found], ranges[:found]
     untested = Cut(0, np.zeros(params.channels))
+    count = budget.tested(total, found)
     if found > count:
         keep = ranges <= np.partition(ranges, count - 1)[count - 1] if count else ranges < 0.0
         far = ~keep
@@ -397,7 +408,7 @@ def _nearest(
         amax = _cut_amax(params, r_far, a.take(rows.compress(far)), peak)
         untested = Cut(r_far.shape[0], amax)
         rows = rows.compress(keep)
-    return rows, dropped, untested
+    return rows, dropped, found, untested
 
 
 def _select(
@@ -406,27 +417,30 @@ def _select(
     a: F64,
     beam: Beam,
     params: EchoParams,
-    max_candidates: int | None = None,
-) -> tuple[NDArray[np.intp], F64, F64, F64, F64, int, Cut]:
-    """Guards and waterdrop selection: (index, r, theta^2, S1, n_hat.d, dropped, untested).
+    budget: LeafBudget | None = None,
+) -> tuple[NDArray[np.intp], F64, F64, F64, F64, int, int, int, Cut]:
+    """Guards and waterdrop selection: (index, r, theta^2, S1, n_hat.d, dropped, candidates,
+    tested, untested).
 
     ``index`` (K,) are the kept rows of ``c``; r, theta^2 (the spec's off-axis angle, or the
     seed2020 az/el form), S1 and n_hat.d (the unit normal dotted with the offset, m) are
     theirs. Every leaf first passes the guards and a range and cone pre-cull without
     transcendentals (:meth:`_Selection.precull`); the waterdrop test r <= r0 S1 is taken on
     logarithms, and with the spec's exact expression where both sides are within
-    _SELECTION_SLACK. With ``max_candidates``, only that many nearest pre-cull survivors are
-    tested (:func:`_nearest`; ``untested`` the others). The arrays are per-thread scratch,
-    valid until the next call.
+    _SELECTION_SLACK. With a ``budget`` that cannot afford every candidate (pre-cull survivor),
+    only the nearest it affords are tested (:func:`_nearest`; ``untested`` the others). The
+    arrays are per-thread scratch, valid until the next call.
     """
     sel = _Selection.of(beam, params)
     rows_in: NDArray[np.intp] | None = None
     dropped = 0
     total = c.shape[0]
     untested = Cut(0, np.zeros(params.channels))
-    if max_candidates is not None and total > max_candidates:
-        rows_in, dropped, untested = _nearest(c, n, a, sel, max_candidates, params)
+    found = -1
+    if budget is not None and total > budget.candidates(total):
+        rows_in, dropped, found, untested = _nearest(c, n, a, sel, budget, params)
         total = rows_in.shape[0]
+    tested = 0
     r0, a0, sigma = sel.r0, sel.a0, sel.sigma
     inv2s2 = 1.0 / (2.0 * sigma * sigma)
     log_scale = 1.0 / (r0 * a0)
@@ -452,6 +466,7 @@ def _select(
             if not valid.any():
                 continue
             r, proj, nd = r.compress(valid), proj.compress(valid), nd.compress(valid)
+        tested += r.shape[0]
         if params.seed2020:
             d = np.stack([dx, dy, dz], 1)
             u = (d if everyone else d.compress(valid, axis=0)) / r[:, None]
@@ -482,7 +497,7 @@ def _select(
         kept += k
     r, th2, s1, nd = (x[:kept] for x in outs)
     s1 *= a0
-    return index[:kept], r, th2, s1, nd, dropped, untested
+    return index[:kept], r, th2, s1, nd, dropped, tested if found < 0 else found, tested, untested
 
 
 def prepare(
@@ -512,18 +527,17 @@ def prepare(
     if cand is not None:
         c, n, a = c.take(cand, axis=0), n.take(cand, axis=0), a.take(cand)
     examined = c.shape[0]
-    if budget is None:
-        idx, r, th2, s1, nd, dropped, cut = _select(c, n, a, beam, params)
-    else:
+    per_channel = None
+    if budget is not None:
         per_channel = dataclasses.replace(budget, budget_s=budget.budget_s / params.channels)
-        idx, r, th2, s1, nd, dropped, cut = _select(
-            c, n, a, beam, params, per_channel.candidates(examined)
-        )
+    idx, r, th2, s1, nd, dropped, found, tested, cut = _select(c, n, a, beam, params, per_channel)
     selected = int(idx.shape[0])
     in_beam = selected + cut.count
     channels = _ear_geometry(beam, params)
     C = len(channels)
-    wanted = selected if budget is None else per_channel.synthesised(examined, selected)
+    wanted = selected
+    if per_channel is not None:
+        wanted = per_channel.synthesised(examined, found, tested)
     if wanted < selected:
         wanted = max(wanted, 0)
         if wanted:

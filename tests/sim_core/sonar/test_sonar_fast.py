@@ -50,7 +50,8 @@ def test_realtime_under_budget_equals_fast_quality_and_over_budget_bounds_its_er
     roomy = synthesize(leaves, BEAM, EchoParams(budget_s=1.0), fidelity="realtime")
     assert roomy.leaves_in_beam == ref.leaves_in_beam
     assert rel_l2(roomy.samples, ref.samples) <= roomy.error_bound  # type: ignore[operator]
-    tight = Realtime(overhead_s=0.0, per_leaf_s=1e-6, per_examined_s=0.0, per_selected_s=0.0)
+    tight = Realtime(overhead_s=0.0, per_leaf_s=1e-6, per_examined_s=0.0, per_selected_s=0.0,
+                     per_candidate_s=0.0)
     params = EchoParams(budget_s=1e-3)  # room for 1000 leaves
     echo = synthesize(leaves, BEAM, params, fidelity=tight)
     assert tight.capacity(params) == 1000
@@ -65,13 +66,16 @@ def test_realtime_under_budget_equals_fast_quality_and_over_budget_bounds_its_er
 
 def test_realtime_budget_pays_for_the_geometry_of_every_examined_leaf() -> None:
     leaves = cone_cloud(4000, seed=12)
-    costly = Realtime(overhead_s=1e-3, per_leaf_s=1e-6, per_examined_s=1e-6, per_selected_s=1e-6)
+    costly = Realtime(overhead_s=1e-3, per_leaf_s=1e-6, per_examined_s=1e-6, per_selected_s=1e-6,
+                      per_candidate_s=1e-7)
     budget = costly.leaf_budget(EchoParams(budget_s=6e-3))
-    # 4000 examined leaves cost 4 ms: 2 ms leave room to test and synthesise 500 nearest ones
-    assert budget.candidates(4000) == 500
-    assert budget.synthesised(4000, 500) == 500
+    # 4000 examined leaves cost 4 ms; the 4000 candidates 0.4 ms: 0.6 ms are left to test and
+    # synthesise the 300 nearest
+    assert budget.candidates(4000) == 476
+    assert budget.tested(4000, 4000) == 300
+    assert budget.synthesised(4000, 4000, 300) == 300
     scene = prepare(leaves, BEAM, EchoParams(budget_s=6e-3), budget=budget)
-    assert scene.count <= 500 and scene.in_beam == scene.count + scene.cut.count
+    assert scene.count <= 300 and scene.in_beam == scene.count + scene.cut.count
     assert scene.cut.count > 0 and scene.cut.amax[0] > 0.0
     # nothing affordable: a zero echo whose relative error is exactly the reported 1
     broke = synthesize(leaves, BEAM, EchoParams(budget_s=1e-3), fidelity=costly)
@@ -89,7 +93,8 @@ def test_realtime_bound_holds_on_random_scenes(seed: int) -> None:
     ref = synthesize(leaves, beam, fidelity="reference")
     per_examined = float(rng.choice([0.0, 2e-7]))
     fid = Realtime(overhead_s=0.0, per_leaf_s=1e-6, per_examined_s=per_examined,
-                   per_selected_s=float(rng.choice([0.0, 3e-7])))
+                   per_selected_s=float(rng.choice([0.0, 3e-7])),
+                   per_candidate_s=float(rng.choice([0.0, 2e-7])))
     for budget_s in (3e-4, 1e-3, 2e-3):
         echo = synthesize(leaves, beam, EchoParams(budget_s=budget_s), fidelity=fid)
         assert echo.error_bound is not None
