@@ -209,7 +209,7 @@ def run(out_dir: Path) -> str:
         f"{os.cpu_count()} cores — on a shared machine absolute times vary from run to run; "
         "the ratios compare figures of the same run.",
         fid_md,
-        f"![speed/accuracy](figures/bench/{png.name})",
+        f"![speed/accuracy](docs/figures/bench/{png.name})",
         "### Options of `fast`\n\n" + sweep_md,
         "### Table 1 (seed 000)\n\n" + _table1(),
         "### Baseband IQ (70 kHz centre)\n\n" + _baseband(),
