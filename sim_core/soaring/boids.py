@@ -1,10 +1,11 @@
 """Hawk-inspired Boids of seed 002: neighbourhood search and the "Unified"/"Baseline" controllers.
 
-Layout: own-glider arrays are (B, N) (B runs, N gliders); neighbour arrays are (K, B, N) — K
-neighbour slots of glider (b, i), with a ``valid`` mask (padding slots are False). Sums over
-neighbours run over the leading axis, which numpy accumulates slot by slot in order, so a run's
-result does not depend on the batch it is stepped in. Per-run parameters are (B, 1) arrays in a
-:class:`LawParams` table built by :func:`law_params`.
+Layout: own-glider arrays are (B, N) (B runs, N gliders); neighbour lists are (K, B, N) — K
+neighbour slots of glider (b, i), with a ``valid`` mask (padding slots are False) — flattened
+into V (owner, other) pairs sorted by owner then slot. Sums over a glider's neighbours are
+``bincount`` sums in that order, so a run's result does not depend on the batch it is stepped
+in. Per-run parameters are (B, 1) arrays in a :class:`LawParams` table built by
+:func:`law_params`; :class:`AccelKernel` evaluates the controller for a batch.
 
 :func:`controller_command` is the same controller for ONE glider from its own observations
 (B = N = 1), for an autopilot on the far side of a bus.

@@ -7,8 +7,17 @@ with slots that are never alive). One step follows the seed's order (spec §3.1)
 2. the state is saved; every glider reads its neighbours' *saved* state;
 3. on step 1 and every ``neighborFrameSkip``-th step the neighbour lists are rebuilt (§3.6);
 4. each alive glider: collision check (dies, does not move), Boids acceleration → commands (or
-   the external commands of gliders flown by an autopilot), then :func:`glider_step`;
+   the external commands of gliders flown by an autopilot), then the glider step
+   (:func:`~sim_core.soaring.glider.fly`, the core of :func:`glider_step`);
 5. deaths take effect; metrics accumulate from the saved state of the gliders still alive.
+
+Cost: at N = 40 a step is numpy call overhead, so the step keeps the state as one
+(STATE_ROWS, B, N) block updated in place, computes everything that depends only on the laws
+once per batch (:class:`~sim_core.soaring.boids.AccelKernel`,
+:class:`~sim_core.soaring.thermals.UpdraftField`, :class:`~sim_core.soaring.thermals.Fader`;
+parameters equal in every run as Python floats) and sums the flight, height and thermal
+scores from a short history. Each element still sees the same float64 operations in the same
+order: ``tests/sim_core/soaring/test_soaring_pinned.py`` pins results from before.
 
 Randomness: run b with seed s draws thermals then gliders from ``derive_rng(s, "soaring",
 "spawn")`` and waggle signs from ``derive_rng(s, "soaring", "waggle")``, so a run's result is
