@@ -237,17 +237,25 @@ def find_neighbors(
         d3 += dy * dy
         d3 += dz * dz
         np.sqrt(d3, out=d3)
-        cand = alive[:, None, :] & (np.abs(dx) <= R) & (np.abs(dy) <= R) & (d3 <= R)
+        # |dx| <= R and |dy| <= R (a NaN fails both forms)
+        box = np.abs(dx)
+        np.maximum(box, np.abs(dy), out=box)
+        cand = box <= R
+        cand &= d3 <= R
+        cand &= alive[:, None, :]
         cand[:, np.arange(sl.stop - sl.start), np.arange(sl.start, sl.stop)] = False  # j ≠ i
         if any_limited:
+            # cos of the bearing, (dx cos ψ + dy sin ψ) / d3, in place (dx, dy are done)
+            dx *= np.cos(heading[:, sl, None])
+            dy *= np.sin(heading[:, sl, None])
+            dx += dy
             with np.errstate(invalid="ignore", divide="ignore"):
-                cosang = (dx * np.cos(heading[:, sl, None])
-                          + dy * np.sin(heading[:, sl, None])) / d3
+                dx /= d3
             # acos(c) > fov/2  <=>  c < cos(fov/2); NaN (d3 = 0) compares False and is kept
-            behind = cosang < cos_half
+            behind = dx < cos_half
             if not all_limited:
                 behind &= limited_fov
-            cand &= ~behind
+            np.greater(cand, behind, out=cand)  # cand & ~behind
         key = np.where(cand, d3, np.inf)
         order = np.argsort(key, axis=2, kind="stable")[:, :, :width]
         ok = np.take_along_axis(cand, order, axis=2)
