@@ -308,7 +308,6 @@ class AccelKernel:
         self.B, self.N, self.M = B, N, B * N
         uni = np.asarray(P["unified"], dtype=bool)
         self._all_unified = bool(uni.all())
-        self._no_unified = not bool(uni.any())
         self._uniform = {name: P.scalar(name) for name in _PAIR_PARAMS if name != "unified"}
         self._ceiling = P.scalar("agentCeiling")
         self._hfp = P.values("heightFactorPower")
@@ -332,11 +331,12 @@ class AccelKernel:
     def set_pairs(self, owner: NDArray[np.intp], other: NDArray[np.intp]) -> None:
         """Pairs (V,) of flat glider indices b·N + i, sorted by owner then list slot."""
         V, M = owner.shape[0], self.M
-        self.owner, self.other, self.V = owner, other, V
+        self.owner, self.V = owner, V
         self.gather = np.concatenate([other, owner])
         # one bincount sums all seven per-pair rows: row r of glider m goes to bin r·M + m
         self._bins = (owner[None, :] + M * np.arange(7)[:, None]).ravel()
-        # 1/n of each glider's n neighbours (0 without any: its sums are then +0.0 anyway)
+        # 1/n of each glider's n neighbours; 1 without any, where every sum is +0.0 and
+        # +0.0·1 == +0.0·0, the seed's 0 factor
         count = np.bincount(owner, minlength=M).reshape(self.B, self.N)
         self._inv_n = 1.0 / np.maximum(count, 1)
         run = owner // max(self.N, 1)
