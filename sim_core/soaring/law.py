@@ -227,6 +227,17 @@ class Law:
         need(self.mapDivFrameSkip >= 1, "mapDivFrameSkip", "an integer >= 1")
         need(self.bankRateMax is None or self.bankRateMax > 0, "bankRateMax", "null or > 0")
         need(self.speedRateMax is None or self.speedRateMax > 0, "speedRateMax", "null or > 0")
+        for i, agent in enumerate(self.agents or ()):
+            if not self.forwardSpeedMin <= agent.speed <= self.forwardSpeedMax:
+                raise ConfigError(
+                    f"agents[{i}].speed: expected a speed in [forwardSpeedMin, forwardSpeedMax]"
+                    f" = [{self.forwardSpeedMin}, {self.forwardSpeedMax}] m/s, got {agent.speed!r}"
+                )
+            if not self.agentFloor < agent.z <= self.agentCeiling:
+                raise ConfigError(
+                    f"agents[{i}].z: expected a height in (agentFloor, agentCeiling]"
+                    f" = ({self.agentFloor}, {self.agentCeiling}] m, got {agent.z!r}"
+                )
 
     # -- derived ----------------------------------------------------------------------------
     @property
