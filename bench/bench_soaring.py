@@ -159,7 +159,8 @@ def _trends(lines: list[str], out_dir: Path) -> None:
         f"{fmt_s(cpu)} CPU. Mean survivingPercent per value (seed: survival grows with each):\n"
     )
     lines.append(table(["parameter", "values", "mean survival %"], summary))
-    lines.append(f"\n![trends]({fig.name}) ![histograms by numThermals]({hist.name})\n")
+    lines.append(f"\n![trends](docs/figures/bench/{fig.name}) "
+                 f"![histograms by numThermals](docs/figures/bench/{hist.name})\n")
 
 
 def run(out_dir: Path) -> str:
