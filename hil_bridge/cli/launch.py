@@ -78,7 +78,7 @@ def headline(summary: RunSummary) -> list[str]:
         )
     for ap in _find(summary, "cmd_forwarded"):
         lines.append(
-            f"CAN ({ap.get('can_link', '?')}): {ap.get('can_tx_frames', 0)} frames sent, "
+            f"CAN: {ap.get('can_tx_frames', 0)} frames sent, "
             f"{ap.get('can_rx_frames', 0)} received by the adapter; "
             f"{ap['cmd_forwarded']} autopilot commands forwarded"
             + (f"; bus failed to open {ap['can_open_failures']} times"
