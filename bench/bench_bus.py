@@ -95,6 +95,7 @@ def _summary(lat_ns: list[int], arrivals_ns: list[int], n: int) -> dict[str, flo
         "p99_ms": float(np.percentile(lat, 99)),
         "max_ms": float(lat.max()),
         "max_gap_ms": float(gaps.max()) if gaps.size else float("nan"),
+        "gaps_over_20ms": float(np.count_nonzero(gaps > 20.0)),
     }
 
 
@@ -252,7 +253,8 @@ def run(out_dir: Path) -> str:
 
     def row(name: str, r: dict[str, float]) -> list[str]:
         return [name, f"{int(r['received'])}/{int(r['sent'])}", f"{r['p50_ms']:.3f}",
-                f"{r['p99_ms']:.3f}", f"{r['max_ms']:.2f}", f"{r['max_gap_ms']:.2f}"]
+                f"{r['p99_ms']:.3f}", f"{r['max_ms']:.2f}", f"{r['max_gap_ms']:.2f}",
+                f"{int(r['gaps_over_20ms'])}"]
 
     lat_rows = [
         row("raw pyzmq PUB→SUB (baseline)", raw),
@@ -273,13 +275,18 @@ def run(out_dir: Path) -> str:
         f"### State path at {RATE_HZ:.0f} Hz for {RUN_S:.0f} s each "
         f"(load thread finished {echoes} 64 Ki-sample FFT convolutions meanwhile)",
         "",
-        table(["path", "received", "p50 ms", "p99 ms", "max ms", "max gap ms"], lat_rows),
+        table(["path", "received", "p50 ms", "p99 ms", "max ms", "max gap ms", "gaps > 20 ms"],
+              lat_rows),
         "",
         f"Bridge-added latency (bridge − raw, same run): p50 **{added_p50:.3f} ms** "
         f"(goal ≤ 0.2), p99 **{added_p99:+.3f} ms** (goal ≤ 2; tails on a shared machine are "
         "dominated by other processes, so this difference can even be negative); bridge max "
         "inter-message gap "
-        f"**{bridge['max_gap_ms']:.2f} ms** (goal ≤ 20; nominal period 4 ms); subscriber "
+        f"**{bridge['max_gap_ms']:.2f} ms** (goal ≤ 20; nominal period 4 ms) with "
+        f"{int(bridge['gaps_over_20ms'])} gaps over 20 ms, against "
+        f"{int(raw['gaps_over_20ms'])} for raw pyzmq in the same run (max "
+        f"{raw['max_gap_ms']:.2f} ms): a stall of the whole process on this shared machine hits "
+        "whichever path is running, so compare the paths, not one maximum; subscriber "
         f"counted {int(bridge['dropped'])} dropped. Of the added p50, the proxy hop that the "
         f"spec's topology requires accounts for {via['p50_ms'] - raw['p50_ms']:.3f} ms (raw "
         "pyzmq through the same kind of proxy); the rest is the bridge's own Python path "
