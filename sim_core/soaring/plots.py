@@ -38,6 +38,15 @@ def _segments(trace: Trace, max_points: int) -> tuple[NDArray[Any], NDArray[Any]
     return segs[keep], tt[keep], vz[keep]
 
 
+
+def _save(fig: Any, path: str | Path) -> Path:
+    """Lay out, write ``fig`` as a PNG at ``path`` and release it."""
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
 def plot_paths(trace: Trace, path: str | Path, *, max_points: int = 1500) -> Path:
     """All glider paths, coloured by time (top row, Fig 3) and by vertical speed (bottom row,
     Fig 4), seen from an upper corner, a side corner and from above."""
@@ -80,11 +89,7 @@ def plot_paths(trace: Trace, path: str | Path, *, max_points: int = 1500) -> Pat
             if col == 2:
                 fig.colorbar(mappable, ax=ax_for_bar, label=label, shrink=0.8)
     fig.suptitle(f"{trace.n_agents} gliders, {trace.t[-1]:.0f} s")
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, path)
 
 
 def plot_agent_series(
@@ -114,11 +119,7 @@ def plot_agent_series(
     axes[2].set_ylabel("cohesion magnitude")
     axes[2].set_xlabel("time [s]")
     axes[0].legend(fontsize=8, ncol=4)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, path)
 
 
 def plot_survival_histograms(
@@ -146,11 +147,7 @@ def plot_survival_histograms(
         ax.set_title(f"{by} = {val}  (n={data.size})", fontsize=9)
         ax.set_xlabel(metric)
     axes[0][0].set_ylabel("runs")
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, path)
 
 
 def plot_trends(
@@ -174,8 +171,4 @@ def plot_trends(
         ax.set_xticks(xs, [f"{v:g}" if isinstance(v, float) else str(v) for v in vals])
         ax.set_xlabel(p)
         ax.set_ylabel(f"mean {metric}")
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(fig, path)
