@@ -1,24 +1,34 @@
-"""Suite-wide fixtures: where the shared specs and data live, and a thread-leak guard."""
+"""Suite-wide fixtures: where the test data live, and a thread-leak guard."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-SHARED = ROOT.parent / "shared"
+DATA = Path(__file__).resolve().parent / "data"
+
+
+def pytest_report_header() -> str:
+    """Which of numpy's SIMD paths this run takes (float results differ in the last bit)."""
+    from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+
+    active = [f for f in __cpu_dispatch__ if __cpu_features__.get(f)]
+    off = os.environ.get("NPY_DISABLE_CPU_FEATURES", "")
+    return f"numpy {np.__version__}, SIMD dispatch {active or 'baseline only'}" + (
+        f" (NPY_DISABLE_CPU_FEATURES={off})" if off else ""
+    )
 
 
 @pytest.fixture(scope="session")
-def shared_dir() -> Path:
-    """``../shared`` beside the project root (CI has it too)."""
-    if not SHARED.is_dir():
-        pytest.fail(f"shared/ not found at {SHARED}; CI and developers have it beside the repo")
-    return SHARED
+def data_dir() -> Path:
+    """``tests/data``: the seeds' data files and their code's outputs (see each README there)."""
+    return DATA
 
 
 @pytest.fixture(autouse=True)

@@ -10,11 +10,11 @@ from sim_core.config import ConfigError
 from sim_core.soaring import Law, default_law_path
 
 
-def test_packaged_default_is_the_seed_law(shared_dir: Path) -> None:
+def test_packaged_default_is_the_seed_law(data_dir: Path) -> None:
     assert Law.from_yaml("default") == Law()
-    assert Law.from_yaml(shared_dir / "data" / "seed002" / "law_40survivors.yaml") == Law()
+    assert Law.from_yaml(data_dir / "seed002" / "law_40survivors.yaml") == Law()
     assert default_law_path().read_text() == (
-        shared_dir / "data" / "seed002" / "law_40survivors.yaml"
+        data_dir / "seed002" / "law_40survivors.yaml"
     ).read_text()
     assert Law().steps == 14400 and Law().n_agents == 40
 

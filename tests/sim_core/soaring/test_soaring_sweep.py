@@ -17,9 +17,9 @@ GRID: dict[str, list[Any]] = {"numThermals": [3, 6], "rngSeed": [1, 2],
                               "controller": ["unified", "baseline"]}
 
 
-def test_megarun7_grid_has_18000_runs(shared_dir: Path) -> None:
+def test_megarun7_grid_has_18000_runs(data_dir: Path) -> None:
     grid = load_grid(default_grid_path())
-    assert grid == load_grid(shared_dir / "data" / "seed002" / "megarun7_grid.yaml")
+    assert grid == load_grid(data_dir / "seed002" / "megarun7_grid.yaml")
     n = 1
     for values in grid.values():
         n *= len(values)

@@ -87,13 +87,13 @@ def test_seed000_fig5d_counts_and_leaves() -> None:
     np.testing.assert_allclose(np.linalg.norm(f.leaves.normals, axis=1), 1.0, atol=1e-12)
 
 
-def test_seed001_fig9_map_is_the_stored_forest(shared_dir: Path) -> None:
+def test_seed001_fig9_map_is_the_stored_forest(data_dir: Path) -> None:
     spec = get_preset("seed001-fig9")
     spec = dataclasses.replace(
         spec, species=tuple(dataclasses.replace(s, growth_level=2) for s in spec.species)
     )
     f = build_forest(spec, seed=0)
-    stored = np.loadtxt(shared_dir / "data" / "seed001" / "forest_points.csv", delimiter=",")
+    stored = np.loadtxt(data_dir / "seed001" / "forest_points.csv", delimiter=",")
     np.testing.assert_allclose(f.tree_xy, stored[:, :2])
     assert f.species_counts() == {"tree4": 10, "tree5": 6, "tree6": 8, "tree7": 7}
 
@@ -146,8 +146,8 @@ def test_huge_intensity_cap_fails_before_building() -> None:
         build_forest(spec, seed=0)
 
 
-def test_kde_species_mimics_a_site(shared_dir: Path) -> None:
-    csv = str(shared_dir / "data" / "seed001" / "forest_points.csv")
+def test_kde_species_mimics_a_site(data_dir: Path) -> None:
+    csv = str(data_dir / "seed001" / "forest_points.csv")
     spec = ForestSpec.from_dict(
         {
             "domain": [-100, -100, 400, 400],

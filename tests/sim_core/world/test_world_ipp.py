@@ -99,9 +99,9 @@ def test_min_distance_thinning_holds_and_is_greedy(n: int, d: float, seed: int) 
         assert keep[0]
 
 
-def test_seed001_merge_reproduces_the_stored_forest(shared_dir: Path) -> None:
+def test_seed001_merge_reproduces_the_stored_forest(data_dir: Path) -> None:
     # Untitled.ipynb: species files in order 1..4, threshold 16, any species blocks any other
-    base = shared_dir / "data" / "seed001"
+    base = data_dir / "seed001"
     pts, labels = [], []
     for k in range(1, 5):
         xy, _ = read_tree_map(base / "ipp_points" / f"points_{k}.csv")
@@ -114,8 +114,8 @@ def test_seed001_merge_reproduces_the_stored_forest(shared_dir: Path) -> None:
     assert [int(s or 0) for s in sp] == list(np.asarray(labels)[keep])
 
 
-def test_kde_intensity_integrates_to_map_size(shared_dir: Path) -> None:
-    xy, _ = read_tree_map(shared_dir / "data" / "seed001" / "forest_points.csv")
+def test_kde_intensity_integrates_to_map_size(data_dir: Path) -> None:
+    xy, _ = read_tree_map(data_dir / "seed001" / "forest_points.csv")
     lam = KDEIntensity(xy)
     gx, gy = np.meshgrid(np.linspace(-300, 600, 301), np.linspace(-300, 600, 301))
     integral = lam(gx, gy).sum() * (900 / 300) ** 2

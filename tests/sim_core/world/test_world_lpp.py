@@ -23,9 +23,9 @@ SPECIES = ["tree4", "tree5", "tree6", "tree7"]
 
 
 @pytest.mark.parametrize("name", SPECIES)
-def test_packaged_grammars_match_the_seed_files(name: str, shared_dir: Path) -> None:
+def test_packaged_grammars_match_the_seed_files(name: str, data_dir: Path) -> None:
     packaged = packaged_grammar(name)
-    original = shared_dir / "data" / "seed001" / "lplusplus" / f"{name}.l++"
+    original = data_dir / "seed001" / "lplusplus" / f"{name}.l++"
     assert packaged.read_bytes() == original.read_bytes()
     g = load_grammar(packaged)
     header = {
