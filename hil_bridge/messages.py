@@ -3,7 +3,7 @@
 Every message has ``stamp_ns: int`` (sim time from a :class:`~hil_bridge.clock.SimClock`) and is
 keyword-only, so a field can never be filled by position by mistake. Array fields are numpy arrays
 coerced to the dtype declared in ``ARRAYS`` and made read-only, so one instance can be handed to
-any number of subscribers without copying. Field names listed in ``spec/protocols.md`` §1 are
+any number of subscribers without copying. Field names listed in ``docs/spec/protocols.md`` §1 are
 binding; fields may be added (with a default) without bumping ``VERSION``; renaming or changing
 the meaning of a field bumps it.
 

@@ -1,4 +1,4 @@
-"""The serial sonar-head edge (spec/protocols.md §2; user guide in docs/serial.md).
+"""The serial sonar-head edge (docs/spec/protocols.md §2; user guide in docs/serial.md).
 
 Modules: ``framing`` (COBS + CRC-32 frames, streaming decoder), ``protocol`` (payloads, echo
 encodings, chunking and reassembly), ``link`` (``open_link(url)``: reconnecting pyserial link

@@ -1,4 +1,4 @@
-"""Sonar-head serial framing (spec/protocols.md §2): COBS + CRC-32 + the 14-byte header.
+"""Sonar-head serial framing (docs/spec/protocols.md §2): COBS + CRC-32 + the 14-byte header.
 
 Wire form of one frame::
 

@@ -1,4 +1,4 @@
-"""Sonar-head message payloads (spec/protocols.md §2) and the echo sample encodings.
+"""Sonar-head message payloads (docs/spec/protocols.md §2) and the echo sample encodings.
 
 All integers and floats are little-endian. Byte tables are in docs/serial.md.
 

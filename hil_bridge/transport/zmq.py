@@ -4,7 +4,7 @@ One URL names both proxy endpoints. It is the **publish** endpoint (the proxy's 
 **subscribe** endpoint (the proxy's XPUB) is, unless ``?sub=URL`` names it:
 
 - ``tcp://HOST:PORT`` → ``tcp://HOST:PORT+1`` (the default bus ``tcp://127.0.0.1:7400`` subscribes
-  on 7401, as ``spec/protocols.md`` §1 says);
+  on 7401, as ``docs/spec/protocols.md`` §1 says);
 - ``ipc://PATH`` → ``ipc://PATH.sub``.
 
 Options (query string): ``sub=URL``; ``hwm=N`` (per-socket queue bound in messages, default

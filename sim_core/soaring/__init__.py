@@ -1,7 +1,7 @@
 """Thermal-soaring swarm of seed 002 (Pooley et al. 2023): thermals, SB-XC gliders, hawk-inspired
 Boids ("Unified" and "Baseline"), metrics, batched runs and parameter sweeps.
 
-Formulas and their sources: ``spec/seed_models.md`` §3; user notes: ``docs/soaring.md``.
+Formulas and their sources: ``docs/spec/seed_models.md`` §3; user notes: ``docs/soaring.md``.
 """
 
 from sim_core.soaring.boids import (

@@ -1,7 +1,7 @@
 """The simulation law: seed 002's parameter set as one frozen dataclass.
 
 Field names are the seed's (``Law_40SurvivorsExample.xlsx`` sheet 1, see
-``spec/seed_models.md`` §3.9); defaults are that law, shipped as ``data/law_40survivors.yaml``.
+``docs/spec/seed_models.md`` §3.9); defaults are that law, shipped as ``data/law_40survivors.yaml``.
 Units are SI (m, s, rad). A law file may omit keys (they take the defaults) but may not contain
 unknown keys. Extensions beyond the seed (all defaulting to the seed's behaviour):
 

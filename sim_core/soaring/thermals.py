@@ -1,6 +1,6 @@
 """Thermals of seed 002: the "Mexican hat" updraft profile, random spawn, and the fade cycle.
 
-Profile (``spec/seed_models.md`` §3.2): for horizontal distance d to the centre and radius R,
+Profile (``docs/spec/seed_models.md`` §3.2): for horizontal distance d to the centre and radius R,
 u = (3d/R)², w = W·e^(−u)·(1 − u) if d < R, else 0; where several thermals contain a point
 the first in list order wins. No altitude dependence, no sink outside thermals.
 

@@ -1,4 +1,4 @@
-"""Foliage biosonar echoes (seed 000): the spec/echo_model.md reference and fast fidelities.
+"""Foliage biosonar echoes (seed 000): the docs/spec/echo_model.md reference and fast fidelities.
 
 Public API: :class:`EchoParams`, :class:`Beam`, :class:`Ear`, :class:`Call`, :class:`Echo`,
 :func:`synthesize`, :data:`FIDELITIES`, :func:`to_baseband`. See docs/sonar.md.

@@ -1,4 +1,4 @@
-"""The foliage echo model of ``spec/echo_model.md``: guards, beam selection, per-leaf terms.
+"""The foliage echo model of ``docs/spec/echo_model.md``: guards, beam selection, per-leaf terms.
 
 Shared by every fidelity: :func:`prepare` applies the guards and the beam selection and returns
 the per-leaf, frequency-independent quantities (:class:`Scene`); :func:`leaf_weights` evaluates

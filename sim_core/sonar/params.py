@@ -1,6 +1,6 @@
 """Parameters, beams and the echo result of :mod:`sim_core.sonar` (frozen data only).
 
-Defaults are those of ``spec/echo_model.md``; every opt-in physics switch defaults to *off*, so
+Defaults are those of ``docs/spec/echo_model.md``; every opt-in physics switch defaults to *off*, so
 ``EchoParams()`` is exactly the ``reference`` model. Units: SI (m, s, Hz, rad, degC, kPa).
 """
 
@@ -100,7 +100,7 @@ class Ear:
 
 @dataclass(frozen=True, slots=True)
 class EchoParams:
-    """All model parameters (defaults = ``spec/echo_model.md``); physics switches are opt-in.
+    """All model parameters (defaults = ``docs/spec/echo_model.md``); physics switches are opt-in.
 
     Core (reference): ``sound_speed`` m/s, band ``f_lo``..``f_hi`` Hz, sample rate ``fs`` Hz,
     ``samples`` N, gain constant ``g0``, ``spreading`` (1/r^2), selection threshold

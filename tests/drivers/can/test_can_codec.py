@@ -23,7 +23,7 @@ CODEC = GliderCanCodec()
 ALL_SIGNALS = [(m, s) for m in CODEC.message_names for s in CODEC.signals(m)]
 IDS = [f"{m}.{s.name}" for m, s in ALL_SIGNALS]
 
-#: spec/protocols.md §3: binding names and the minimum resolution / range each must cover.
+#: docs/spec/protocols.md §3: binding names and the minimum resolution / range each must cover.
 REQUIRED = {
     "GLIDER_STATE_POS": {
         "x_m": (0.01, -20000.0, 20000.0),

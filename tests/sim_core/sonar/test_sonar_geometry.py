@@ -16,7 +16,7 @@ from tests.sim_core.sonar._scenes import cone_cloud
 def _spec_selection(
     c: np.ndarray, n: np.ndarray, a: np.ndarray, beam: Beam, params: EchoParams
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """Kept indices, beta and S of spec/echo_model.md, one array expression each."""
+    """Kept indices, beta and S of docs/spec/echo_model.md, one array expression each."""
     d = c - beam.position
     r = np.sqrt((d * d).sum(1))
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -1,4 +1,4 @@
-"""The reference fidelity against closed forms and the guards of spec/echo_model.md."""
+"""The reference fidelity against closed forms and the guards of docs/spec/echo_model.md."""
 
 from __future__ import annotations
 
