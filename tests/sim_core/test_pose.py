@@ -1,0 +1,136 @@
+"""Rotations and frames against hand-computed cases and the explicit Z-Y-X matrices."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from sim_core.pose import (
+    ENU_FROM_NED,
+    enu_from_ned,
+    euler_from_quat,
+    flu_from_frd,
+    quat_conjugate,
+    quat_enu_flu_from_ned_frd,
+    quat_from_euler,
+    quat_multiply,
+    quat_normalize,
+    quat_rotate,
+    quat_slerp,
+    quat_to_matrix,
+)
+
+D = math.radians
+angle = st.floats(-math.pi, math.pi, allow_nan=False)
+pitch_angle = st.floats(-1.5, 1.5, allow_nan=False)
+
+
+def _rz(a: float) -> np.ndarray:
+    return np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+
+
+def _ry(a: float) -> np.ndarray:
+    return np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+
+
+def _rx(a: float) -> np.ndarray:
+    return np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+
+
+@given(angle, pitch_angle, angle)
+def test_quaternion_is_the_zyx_matrix_and_euler_round_trips(r: float, p: float, y: float) -> None:
+    q = quat_from_euler(r, p, y)
+    np.testing.assert_allclose(quat_to_matrix(q), _rz(y) @ _ry(p) @ _rx(r), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(q), 1.0, rtol=1e-15, atol=1e-15)
+    back = np.array(euler_from_quat(q))
+    wrapped = (back - np.array([r, p, y]) + math.pi) % (2 * math.pi) - math.pi
+    np.testing.assert_allclose(wrapped, 0.0, atol=1e-9)
+
+
+@given(angle, pitch_angle, angle, st.lists(st.floats(-10, 10), min_size=3, max_size=3))
+def test_rotate_is_the_matrix_and_conjugate_undoes_it(
+    r: float, p: float, y: float, v: list[float]
+) -> None:
+    q = quat_from_euler(r, p, y)
+    np.testing.assert_allclose(quat_rotate(q, v), quat_to_matrix(q) @ v, atol=1e-12)
+    np.testing.assert_allclose(quat_rotate(quat_conjugate(q), quat_rotate(q, v)), v, atol=1e-12)
+    two = quat_multiply(q, q)
+    np.testing.assert_allclose(quat_rotate(two, v), quat_rotate(q, quat_rotate(q, v)), atol=1e-11)
+
+
+def test_flu_sign_conventions() -> None:
+    right, forward = np.array([0.0, -1.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    assert quat_rotate(quat_from_euler(0.3, 0.0, 0.0), right)[2] < 0  # +roll: right wing down
+    assert quat_rotate(quat_from_euler(0.0, 0.3, 0.0), forward)[2] < 0  # +pitch: nose down
+    np.testing.assert_allclose(quat_rotate(quat_from_euler(0, 0, math.pi / 2), forward),
+                               [0.0, 1.0, 0.0], atol=1e-15)  # yaw pi/2: nose north
+
+
+def test_vectorised_over_leading_axes() -> None:
+    r = np.linspace(-1, 1, 12).reshape(3, 4)
+    q = quat_from_euler(r, 0.5 * r, -r)
+    assert q.shape == (3, 4, 4)
+    v = quat_rotate(q, np.array([1.0, 2.0, 3.0]))
+    assert v.shape == (3, 4, 3)
+    np.testing.assert_allclose(v[1, 2], quat_rotate(q[1, 2], [1.0, 2.0, 3.0]))
+    roll, pitch, yaw = euler_from_quat(q)
+    np.testing.assert_allclose(np.stack([roll, pitch, yaw]), np.stack([r, 0.5 * r, -r]),
+                               atol=1e-12)
+    assert quat_to_matrix(q).shape == (3, 4, 3, 3)
+
+
+def _ned_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """An attitude as a NED/FRD log stores it (the same Z-Y-X formula, NED axes)."""
+    return quat_from_euler(roll, pitch, yaw)
+
+
+def test_north_bound_level_vehicle() -> None:
+    q = quat_enu_flu_from_ned_frd(_ned_quat(0.0, 0.0, 0.0))
+    roll, pitch, yaw = euler_from_quat(q)
+    assert (roll, pitch) == pytest.approx((0.0, 0.0), abs=1e-15)
+    assert yaw == pytest.approx(math.pi / 2, abs=1e-15)
+    np.testing.assert_allclose(quat_rotate(q, [1.0, 0, 0]), [0.0, 1.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(quat_rotate(q, [0.0, 0, 1.0]), [0.0, 0.0, 1.0], atol=1e-15)
+
+
+def test_thirty_degree_right_bank_heading_north() -> None:
+    q = quat_enu_flu_from_ned_frd(_ned_quat(D(30), 0.0, 0.0))
+    roll, pitch, yaw = euler_from_quat(q)
+    assert (roll, pitch, yaw) == pytest.approx((D(30), 0.0, math.pi / 2), abs=1e-12)
+    # the right wing (FLU -y) points east and 30 degrees down
+    np.testing.assert_allclose(quat_rotate(q, [0.0, -1.0, 0.0]),
+                               [math.cos(D(30)), 0.0, -math.sin(D(30))], atol=1e-15)
+
+
+def test_ten_degree_climb_heading_east() -> None:
+    q = quat_enu_flu_from_ned_frd(_ned_quat(0.0, D(10), D(90)))
+    roll, pitch, yaw = euler_from_quat(q)
+    assert (roll, pitch, yaw) == pytest.approx((0.0, -D(10), 0.0), abs=1e-12)
+    np.testing.assert_allclose(quat_rotate(q, [1.0, 0.0, 0.0]),
+                               [math.cos(D(10)), 0.0, math.sin(D(10))], atol=1e-15)
+
+
+def test_vectors_and_rates_at_the_edge() -> None:
+    np.testing.assert_array_equal(enu_from_ned([1.0, 2.0, 3.0]), [2.0, 1.0, -3.0])
+    np.testing.assert_array_equal(ENU_FROM_NED @ np.array([1.0, 2.0, 3.0]), [2.0, 1.0, -3.0])
+    np.testing.assert_array_equal(flu_from_frd([[1.0, 2.0, 3.0]]), [[1.0, -2.0, -3.0]])
+
+
+def test_slerp_end_points_midpoint_and_short_arc() -> None:
+    a, b = quat_from_euler(0, 0, 0.0), quat_from_euler(0, 0, 1.0)
+    np.testing.assert_allclose(quat_slerp(a, b, 0.0), a, atol=1e-15)
+    np.testing.assert_allclose(quat_slerp(a, b, 1.0), b, atol=1e-15)
+    np.testing.assert_allclose(quat_slerp(a, b, 0.5), quat_from_euler(0, 0, 0.5), atol=1e-15)
+    # -b is the same rotation: the arc taken is still the short one
+    np.testing.assert_allclose(euler_from_quat(quat_slerp(a, -b, 0.25))[2], 0.25, atol=1e-12)
+    np.testing.assert_allclose(quat_slerp(a, a, np.array([0.0, 0.3, 1.0])), np.tile(a, (3, 1)))
+
+
+def test_normalize_canonical_sign_and_zero() -> None:
+    np.testing.assert_allclose(quat_normalize([-2.0, 0.0, 0.0, 0.0]), [1.0, 0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="zero or non-finite"):
+        quat_normalize([0.0, 0.0, 0.0, 0.0])
