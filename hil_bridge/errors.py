@@ -5,6 +5,7 @@ from __future__ import annotations
 __all__ = [
     "CodecError",
     "HilError",
+    "OutputExistsError",
     "SecurityError",
     "TransportClosed",
     "TransportTimeout",
@@ -29,3 +30,7 @@ class CodecError(HilError, ValueError):
 
 class SecurityError(HilError, PermissionError):
     """A bind or peer was refused by the security policy (e.g. non-loopback without CURVE keys)."""
+
+
+class OutputExistsError(HilError, FileExistsError):
+    """An output file exists and the caller did not ask to overwrite it."""
