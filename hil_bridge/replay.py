@@ -7,10 +7,9 @@ heading), a sonar mounted on it, and optionally a :class:`Pinger` node that ping
 rate. External pingers (a sonar-head adapter with a real head) can ping ``/sonar/<id>/ping``
 instead; the server answers each at the vehicle's pose when the ping arrives.
 
-File formats (see ``docs/server.md``): CSV with a header row containing at least
-``t, x, y, z, heading, bank, airspeed`` (s, m ENU, rad, rad, m/s; ``#`` comment lines allowed),
-or NPZ with one array per column. Multi-vehicle traces (``t, id, x, y, z, heading, bank,
-airspeed, vz, alive`` as written by ``echoloop swarm``) need ``vehicle_id``.
+File formats (:mod:`hil_bridge.logs`, ``docs/server.md``): CSV/NPZ columns in local ENU or
+geodetic, PX4 ULog, ArduPilot DataFlash, MAVLink tlog, ROS 2 bags and echoloop recordings.
+Multi-vehicle logs (swarm traces, recordings, tlogs of several systems) need ``vehicle_id``.
 
 The vehicle's time axis starts at the file's first ``t``: sim time 0 is mapped to it. The run
 pace is the server clock's real-time factor ``rate``.
@@ -31,7 +30,7 @@ import numpy as np
 from hil_bridge.transport import DEFAULT_BUS
 from sim_core.config import ConfigError, from_dict, load_yaml
 from sim_core.rng import make_rng
-from sim_core.scene import SceneSpec, load_trajectory
+from sim_core.scene import SceneSpec
 
 __all__ = ["DEFAULT_REPLAY_SCENE", "Pinger", "build_replay_launch"]
 
@@ -181,6 +180,8 @@ def build_replay_launch(
     state_rate_hz: float = 50.0,
     bus: str = DEFAULT_BUS,
     clock_mode: str = "realtime",
+    topic: str | None = None,
+    origin: tuple[float, float, float] | None = None,
 ) -> tuple[dict[str, Any], float]:
     """Launch mapping (for :func:`hil_bridge.launch.run`) replaying ``trajectory``, and its length.
 
@@ -190,9 +191,12 @@ def build_replay_launch(
     settings (``fidelity``, ``echo`` overrides). ``sonar_rate_hz`` None: no built-in pinger;
     ``pinger``: extra :class:`Pinger` params (default beamwidths U(30°, 65°) as seed 000).
     The server stops ticking at the trajectory's end (the vehicle rests at its last pose).
+    ``topic`` and ``origin`` go to the log reader (:func:`hil_bridge.logs.read_log`).
     Returns ``(launch mapping, trajectory duration in wall seconds at rate)``.
     """
-    traj = load_trajectory(trajectory, vehicle_id=vehicle_id)
+    from hil_bridge.logs import load_trajectory
+
+    traj = load_trajectory(trajectory, vehicle_id=vehicle_id, topic=topic, origin=origin)
     source: Mapping[str, Any]
     if scene is None:
         source = DEFAULT_REPLAY_SCENE
@@ -214,6 +218,10 @@ def build_replay_launch(
     path: dict[str, Any] = {"kind": "file", "file": str(trajectory), "loop": False}
     if vehicle_id is not None:
         path["id"] = int(vehicle_id)
+    if topic is not None:
+        path["topic"] = topic
+    if origin is not None:
+        path["origin"] = [float(v) for v in origin]
     base["vehicles"] = [{"id": vid, "path": path, "time_offset_s": -float(traj.t[0])}]
     if "forest" in base:
         base["sonars"] = [{"id": 0, "mount": vid, **dict(sonar or {})}]

@@ -64,6 +64,7 @@ from typing import Any, Literal
 import numpy as np
 
 from hil_bridge.errors import HilError
+from hil_bridge.logs import load_trajectory
 from hil_bridge.messages import (
     Clock,
     Diagnostics,
@@ -175,7 +176,7 @@ def _echo_process_main(spec: Any, requests: Any, responses: Any) -> None:
     time; exits on ``None`` or when its parent is gone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent = os.getppid()
-    scene = Scene(spec)
+    scene = Scene(spec, trajectory_reader=load_trajectory)
     while True:
         try:
             job = requests.get(timeout=1.0)
@@ -258,7 +259,8 @@ class SimServer:
         self.params = from_dict(ServerParams, params, path=f"{name}.params")
         scene_src = self.params.scene
         self.scene: Scene = load_scene(
-            str(scene_src) if isinstance(scene_src, Path) else scene_src
+            str(scene_src) if isinstance(scene_src, Path) else scene_src,
+            trajectory_reader=load_trajectory,
         )
         spec = self.scene.spec
         self.clock_spec: ClockSpec = self.params.clock or spec.clock

@@ -41,7 +41,6 @@ airspeed, shortest-arc interpolation of heading (the same code drives ``echoloop
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import itertools
 import math
@@ -49,15 +48,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sim_core.config import ConfigError, from_dict, load_yaml
+from sim_core.pose import quat_normalize, quat_slerp
 
 __all__ = [
-    "TRAJECTORY_COLUMNS",
     "ClockSpec",
     "ForestSceneSpec",
     "PathSpec",
@@ -66,16 +65,27 @@ __all__ = [
     "SonarSpec",
     "SwarmSceneSpec",
     "Trajectory",
+    "TrajectoryReader",
     "VehicleSpec",
     "load_scene",
-    "load_trajectory",
     "unicycle_step",
 ]
 
-#: Columns a trajectory CSV/NPZ must have (``id``, ``vz``, ``alive`` are optional).
-TRAJECTORY_COLUMNS = ("t", "x", "y", "z", "heading", "bank", "airspeed")
-
 FloatArray = NDArray[np.float64]
+
+
+class TrajectoryReader(Protocol):
+    """Reads a logged path: ``reader(path, vehicle_id=, topic=, origin=) -> Trajectory``
+    (``hil_bridge.logs.load_trajectory``); raises ``ValueError`` naming the file on bad input."""
+
+    def __call__(
+        self,
+        path: str,
+        *,
+        vehicle_id: int | None = None,
+        topic: str | None = None,
+        origin: tuple[float, float, float] | None = None,
+    ) -> Trajectory: ...
 
 
 # --------------------------------------------------------------------------- trajectories
@@ -92,7 +102,9 @@ class Trajectory:
 
     Arrays (K >= 2 samples): ``t`` (K,) s strictly increasing; ``xyz`` (K, 3) m ENU; ``heading``
     (K,) rad from +x towards +y; ``bank`` (K,) rad; ``airspeed`` (K,) m/s. ``loop``: times past
-    the end wrap around to the start (otherwise they clamp to the last sample).
+    the end wrap around to the start (otherwise they clamp to the last sample). ``quat``
+    (K, 4), optional: the logged attitude, world-from-body ``[w, x, y, z]`` (ENU/FLU,
+    :mod:`sim_core.pose`), sampled by :meth:`attitude`.
     """
 
     t: FloatArray
@@ -101,6 +113,7 @@ class Trajectory:
     bank: FloatArray
     airspeed: FloatArray
     loop: bool = False
+    quat: FloatArray | None = None
     _heading_unwrapped: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -109,6 +122,8 @@ class Trajectory:
         if k < 2:
             raise ValueError(f"t: expected a 1-D array of at least 2 times, got shape {t.shape}")
         shapes = {"xyz": (k, 3), "heading": (k,), "bank": (k,), "airspeed": (k,)}
+        if self.quat is not None:
+            shapes["quat"] = (k, 4)
         arrays = {"t": t}
         for name, shape in shapes.items():
             arr = np.asarray(getattr(self, name), dtype=np.float64)
@@ -119,6 +134,8 @@ class Trajectory:
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"{name}: contains non-finite values")
             object.__setattr__(self, name, arr)
+        if self.quat is not None:
+            object.__setattr__(self, "quat", quat_normalize(arrays["quat"]))
         if not np.all(np.diff(t) > 0):
             bad = int(np.argmin(np.diff(t) > 0)) + 1
             raise ValueError(f"t: expected strictly increasing times, t[{bad}] = {t[bad]}")
@@ -154,6 +171,21 @@ class Trajectory:
         dz = self.xyz[seg + 1, 2] - self.xyz[seg, 2]
         out["vz"] = np.asarray(dz / (self.t[seg + 1] - self.t[seg]), dtype=np.float64)
         return out
+
+    def attitude(self, t: float | FloatArray) -> FloatArray | None:
+        """Logged attitude at time(s) ``t``: shape ``t.shape + (4,)``, spherical interpolation
+        between the neighbouring samples (times clamp or wrap as in :meth:`sample`); None when
+        the trajectory carries no attitude."""
+        if self.quat is None:
+            return None
+        tq = np.asarray(t, dtype=np.float64)
+        if self.loop:
+            tq = self.t[0] + np.mod(tq - self.t[0], self.duration)
+        else:
+            tq = np.clip(tq, self.t[0], self.t[-1])
+        seg = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self) - 2)
+        f = (tq - self.t[seg]) / (self.t[seg + 1] - self.t[seg])
+        return quat_slerp(self.quat[seg], self.quat[seg + 1], f)
 
     @classmethod
     def from_path(
@@ -198,108 +230,6 @@ def _densify(points: FloatArray, max_step_m: float) -> FloatArray:
         f = np.arange(1, n + 1, dtype=np.float64)[:, None] / n
         out.append(a + (b - a) * f)
     return np.concatenate(out)
-
-
-def load_trajectory(path: str | Path, *, vehicle_id: int | None = None) -> Trajectory:
-    """Read a trajectory from CSV (header row) or NPZ (one array per column).
-
-    Columns: ``t, x, y, z, heading, bank, airspeed`` (s, m ENU, rad, rad, m/s); extra columns
-    are ignored. A multi-vehicle file needs ``vehicle_id``: the swarm trace CSV (``t, id, x, y, z,
-    heading, bank, airspeed, vz, alive``, rows per vehicle) or the swarm trace NPZ (``t`` (T,),
-    the others (T, N); the id is the column). Rows with ``alive == 0`` are dropped.
-    """
-    p = Path(path)
-    cols: dict[str, NDArray[Any]]
-    if p.suffix.lower() == ".npz":
-        try:
-            with np.load(p) as npz:
-                cols = {k: np.asarray(npz[k]) for k in npz.files}
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{p}: cannot read NPZ ({exc})") from None
-    elif p.suffix.lower() == ".csv":
-        cols = _read_csv_columns(p)
-    else:
-        raise ValueError(f"{p}: expected a .csv or .npz trajectory file")
-    missing = [c for c in TRAJECTORY_COLUMNS if c not in cols]
-    if missing:
-        raise ValueError(f"{p}: missing column(s) {missing}; expected {list(TRAJECTORY_COLUMNS)}")
-    if np.asarray(cols["x"]).ndim == 2:
-        cols = _wide_columns(p, cols, vehicle_id)
-        vehicle_id = None
-    mask = np.ones(np.asarray(cols["t"]).shape, dtype=bool)
-    if "id" in cols:
-        ids = np.asarray(cols["id"]).astype(np.int64)
-        present = sorted(set(ids.tolist()))
-        if vehicle_id is None:
-            if len(present) > 1:
-                raise ValueError(f"{p}: holds vehicles {present}; choose one with an id")
-        elif vehicle_id not in present:
-            raise ValueError(f"{p}: no rows for id {vehicle_id}; ids present: {present}")
-        else:
-            mask &= ids == vehicle_id
-    elif vehicle_id is not None:
-        raise ValueError(f"{p}: has no 'id' column, so id {vehicle_id} cannot be selected")
-    if "alive" in cols:
-        mask &= np.asarray(cols["alive"]).astype(np.float64) != 0
-    f = {c: np.asarray(cols[c], dtype=np.float64)[mask] for c in TRAJECTORY_COLUMNS}
-    try:
-        return Trajectory(
-            f["t"], np.stack([f["x"], f["y"], f["z"]], axis=1), f["heading"], f["bank"],
-            f["airspeed"],
-        )
-    except ValueError as exc:
-        raise ValueError(f"{p}: {exc}") from None
-
-
-def _wide_columns(
-    p: Path, cols: dict[str, NDArray[Any]], vehicle_id: int | None
-) -> dict[str, NDArray[Any]]:
-    """Column ``vehicle_id`` of a wide NPZ trace (``t`` (T,), the others (T, N), as written by
-    ``sim_core.soaring.Trace.save_npz``)."""
-    n = np.asarray(cols["x"]).shape[1]
-    if vehicle_id is None:
-        if n > 1:
-            raise ValueError(f"{p}: holds vehicles {list(range(n))}; choose one with an id")
-        vehicle_id = 0
-    if not 0 <= vehicle_id < n:
-        raise ValueError(f"{p}: no vehicle {vehicle_id}; ids present: {list(range(n))}")
-    out = {"t": np.asarray(cols["t"])}
-    for name in (*TRAJECTORY_COLUMNS[1:], "alive"):
-        if name in cols:
-            arr = np.asarray(cols[name])
-            out[name] = arr[:, vehicle_id] if arr.ndim == 2 else arr
-    return out
-
-
-def _read_csv_columns(p: Path) -> dict[str, NDArray[Any]]:
-    try:
-        with p.open(newline="", encoding="utf-8") as fh:
-            reader = csv.reader(row for row in fh if not row.lstrip().startswith("#"))
-            header = next(reader, None)
-            if header is None:
-                raise ValueError(f"{p}: empty CSV file")
-            names = [h.strip() for h in header]
-            rows: list[list[float]] = []
-            for lineno, row in enumerate(reader, start=2):
-                if not row:
-                    continue
-                if len(row) != len(names):
-                    raise ValueError(f"{p}:{lineno}: expected {len(names)} fields, got {len(row)}")
-                try:
-                    rows.append([_csv_float(v) for v in row])
-                except ValueError:
-                    raise ValueError(f"{p}:{lineno}: non-numeric field in {row}") from None
-    except OSError as exc:
-        raise ValueError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    data = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(names))
-    return {name: data[:, i] for i, name in enumerate(names)}
-
-
-def _csv_float(text: str) -> float:
-    s = text.strip().lower()
-    if s in ("true", "false"):
-        return 1.0 if s == "true" else 0.0
-    return float(s)
 
 
 # --------------------------------------------------------------------------- spec dataclasses
@@ -386,11 +316,14 @@ class SwarmSceneSpec:
 
 @dataclass(frozen=True, slots=True)
 class PathSpec:
-    """A kinematic path: ``figure_eight`` (seed 000 "8" route), ``csv``/``npz`` file, or points.
+    """A kinematic path: ``figure_eight`` (seed 000 "8" route), a logged ``file``, or points.
 
-    ``params`` go to :func:`sim_core.sonar.scenarios.figure_eight_path`; ``file``/``id`` name a
-    trajectory file (:func:`load_trajectory`); ``points`` is a list of [x, y, z] flown at
-    ``speed_mps``. ``speed_mps`` also times the figure-eight route.
+    ``params`` go to :func:`sim_core.sonar.scenarios.figure_eight_path`; ``file`` names a flight
+    log read by the scene's :data:`TrajectoryReader` (``hil_bridge.logs.load_trajectory``: CSV,
+    NPZ, ULog, DataFlash, tlog, ROS 2 bags, echoloop recordings) with its options ``id``
+    (vehicle of a multi-vehicle log), ``topic`` (ROS 2 bags) and ``origin`` ([lat, lon, alt]
+    of the local ENU frame for geodetic logs; default the first fix); ``points`` is a list of
+    [x, y, z] flown at ``speed_mps``. ``speed_mps`` also times the figure-eight route.
     """
 
     kind: Literal["figure_eight", "file", "points"]
@@ -398,6 +331,8 @@ class PathSpec:
     params: dict[str, Any] = field(default_factory=dict)
     file: str | None = None
     id: int | None = None
+    topic: str | None = None
+    origin: tuple[float, float, float] | None = None
     points: tuple[tuple[float, float, float], ...] = ()
     loop: bool = True
 
@@ -493,14 +428,22 @@ class SceneSpec:
             raise ValueError("sonars: a sonar needs a 'forest' section to echo from")
 
 
-def load_scene(source: str | Path | Mapping[str, Any] | SceneSpec) -> Scene:
-    """Build a :class:`Scene` from a YAML path, a mapping or a :class:`SceneSpec` (validated)."""
+def load_scene(
+    source: str | Path | Mapping[str, Any] | SceneSpec,
+    *,
+    trajectory_reader: TrajectoryReader | None = None,
+) -> Scene:
+    """Build a :class:`Scene` from a YAML path, a mapping or a :class:`SceneSpec` (validated).
+
+    ``trajectory_reader`` reads the ``kind: file`` paths (see :class:`Scene`).
+    """
     if isinstance(source, SceneSpec):
-        return Scene(source)
+        return Scene(source, trajectory_reader=trajectory_reader)
     data = source if isinstance(source, Mapping) else load_yaml(source)
     where = "scene" if isinstance(source, Mapping) else str(source)
     try:
-        return Scene(from_dict(SceneSpec, data, path="scene" if where == "scene" else ""))
+        return Scene(from_dict(SceneSpec, data, path="scene" if where == "scene" else ""),
+                     trajectory_reader=trajectory_reader)
     except ConfigError as exc:
         if where == "scene":
             raise
@@ -516,10 +459,17 @@ class Scene:
     Attributes built lazily (check :attr:`built` to see which exist): ``forest_source``
     (None without sonars), ``swarm`` (None without a swarm section). Glider ids of the swarm are
     ``swarm.first_id + i``; they must not collide with vehicle ids (checked here).
+
+    Files are I/O, which ``sim_core`` does not do: a scene with ``kind: file`` paths needs a
+    ``trajectory_reader`` (the layer that runs the scene passes
+    ``hil_bridge.logs.load_trajectory``).
     """
 
-    def __init__(self, spec: SceneSpec) -> None:
+    def __init__(
+        self, spec: SceneSpec, *, trajectory_reader: TrajectoryReader | None = None
+    ) -> None:
         self.spec = spec
+        self.trajectory_reader = trajectory_reader
         self.built: set[str] = set()
         self._echo_params: dict[int, Any] = {}
         self._validate_parts()
@@ -679,7 +629,13 @@ class Scene:
     def _vehicle_trajectory(self, v: VehicleSpec) -> Trajectory:
         ps = v.path
         if ps.kind == "file":
-            traj = load_trajectory(str(ps.file), vehicle_id=ps.id)
+            if self.trajectory_reader is None:
+                raise ValueError(
+                    f"file {ps.file!r}: a logged path needs a trajectory reader; build the "
+                    "scene with trajectory_reader=hil_bridge.logs.load_trajectory"
+                )
+            traj = self.trajectory_reader(str(ps.file), vehicle_id=ps.id, topic=ps.topic,
+                                          origin=ps.origin)
             if ps.loop:
                 traj = dataclasses.replace(traj, loop=True)
         elif ps.kind == "points":

@@ -1,11 +1,13 @@
-"""``echoloop replay FILE (.csv|.npz) [--id N] [--sonar HZ] [--rate R] [--scene FILE] ...``.
+"""``echoloop replay LOG [--id N] [--topic T] [--origin LAT,LON,ALT] [--sonar HZ] [--rate R] ...``.
 
-Drives a vehicle along a logged trajectory (linear position, shortest-arc heading) through a
-scene's forest and answers pings along it with echoes, in real time times ``--rate`` (or as
-fast as possible with ``--fast``). ``--sonar HZ`` pings over the bus at that rate (0: no
-built-in pinger; a sonar-head adapter or any other node pings ``/sonar/0/ping``). The run
-lasts the trajectory's duration unless ``--duration`` says otherwise. See docs/server.md for
-the file formats.
+Drives a vehicle along a logged trajectory (linear position, shortest-arc heading, slerped
+attitude) through a scene's forest and answers pings along it with echoes, in real time times
+``--rate`` (or as fast as possible with ``--fast``). ``LOG`` is a PX4 ULog, an ArduPilot
+DataFlash log, a MAVLink tlog, a ROS 2 bag, an echoloop recording, or a CSV/NPZ table
+(:mod:`hil_bridge.logs`); what was read, the origin and any time gaps or jumps are printed
+first. ``--sonar HZ`` pings over the bus at that rate (0: no built-in pinger; a sonar-head
+adapter or any other node pings ``/sonar/0/ping``). The run lasts the trajectory's duration
+unless ``--duration`` says otherwise. See docs/server.md for the file formats.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import sys
 
 from hil_bridge.cli.launch import _announce, _jsonable, format_summary
 from hil_bridge.launch import run
+from hil_bridge.logs import read_log
 from hil_bridge.replay import build_replay_launch
 from hil_bridge.transport import DEFAULT_BUS
 
@@ -25,9 +28,17 @@ def _parser() -> argparse.ArgumentParser:
         prog="echoloop replay",
         description="Drive a vehicle along a logged trajectory; pings get echoes from the scene.",
     )
-    p.add_argument("file", help="trajectory: CSV with a header row, or NPZ (see docs/server.md)")
+    p.add_argument("file", help="flight log: .ulg, .bin, .tlog, ROS 2 bag, echoloop .mcap, "
+                                "CSV or NPZ (see docs/server.md)")
     p.add_argument("--id", type=int, default=None,
-                   help="vehicle id to replay from a multi-vehicle trace (column 'id')")
+                   help="vehicle of a multi-vehicle log (trace id, glider id, MAVLink system "
+                        "id); also the replayed vehicle's id (default 0)")
+    p.add_argument("--topic", default=None, help="pose topic of a ROS 2 bag")
+    p.add_argument("--origin", default=None, metavar="LAT,LON,ALT",
+                   help="local ENU origin of a geodetic log (deg, deg, m; default: first fix); "
+                        "write --origin=-33.9,... for a negative latitude")
+    p.add_argument("--max-gap", type=float, default=1.0, metavar="S",
+                   help="report intervals between poses longer than this (default 1 s)")
     p.add_argument("--sonar", type=float, default=10.0, metavar="HZ",
                    help="built-in pinger rate in Hz (0: none, pings come from other nodes)")
     p.add_argument("--beamwidth", type=float, default=None, metavar="RAD",
@@ -55,6 +66,15 @@ def main(argv: list[str] | None = None) -> int:
     if args.sonar < 0:
         raise ValueError(f"--sonar: expected a rate >= 0 Hz, got {args.sonar}")
     pinger = {} if args.beamwidth is None else {"beamwidth": args.beamwidth}
+    origin = None
+    if args.origin is not None:
+        from hil_bridge.cli.echo import parse_floats
+
+        lat, lon, alt = parse_floats(args.origin, 3, "--origin")
+        origin = (lat, lon, alt)
+    _, report = read_log(args.file, vehicle_id=args.id, topic=args.topic, origin=origin,
+                         max_gap_s=args.max_gap)
+    print("\n".join(report.lines()), file=sys.stderr if args.json else sys.stdout, flush=True)
     launch, length_s = build_replay_launch(
         args.file,
         vehicle_id=args.id,
@@ -66,11 +86,15 @@ def main(argv: list[str] | None = None) -> int:
         state_rate_hz=args.state_rate,
         bus=args.bus,
         clock_mode="fast" if args.fast else "realtime",
+        topic=args.topic,
+        origin=origin,
     )
     duration = args.duration if args.duration is not None else max(length_s, 0.5)
     summary = run(launch, duration=duration, record=args.record, on_started=_announce)
     if args.json:
-        print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))
+        out = _jsonable(summary.to_dict())
+        out["log"] = report.as_dict()
+        print(json.dumps(out, indent=2, sort_keys=True))
     else:
         print(format_summary(summary))
     return 0

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim_core.scene import Trajectory, load_trajectory
+from hil_bridge.logs import load_trajectory
+from sim_core.scene import Trajectory
 
 
 def _square() -> Trajectory:
@@ -91,11 +92,13 @@ def test_csv_single_and_multi_vehicle(tmp_path: Path) -> None:
 
 def test_npz_and_missing_columns(tmp_path: Path) -> None:
     path = tmp_path / "run.npz"
-    cols = {c: np.array([0.0, 1.0]) for c in ("t", "x", "y", "z", "heading", "bank")}
+    cols = {c: np.array([0.0, 1.0]) for c in ("t", "x", "y", "heading", "bank")}
     np.savez(path, **cols)
-    with pytest.raises(ValueError, match=r"missing column\(s\) \['airspeed'\]"):
+    with pytest.raises(ValueError, match=r"missing column\(s\) \['z'\]"):
         load_trajectory(path)
-    np.savez(path, **cols, airspeed=np.array([3.0, 4.0]))
+    np.savez(path, **cols, z=np.array([5.0, 5.0]))  # no airspeed: the track speed, sqrt(2)
+    assert float(load_trajectory(path).sample(0.5)["airspeed"]) == pytest.approx(2**0.5)
+    np.savez(path, **cols, z=np.array([5.0, 5.0]), airspeed=np.array([3.0, 4.0]))
     assert float(load_trajectory(path).sample(0.5)["airspeed"]) == pytest.approx(3.5)
 
 
