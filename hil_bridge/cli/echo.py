@@ -4,6 +4,8 @@ Example::
 
     echoloop echo --leaves forest.npz --position 0,0,5 --boresight 30,0 --beamwidth 30 \\
         --out echo.npz --plot echo.png --json
+    echoloop echo ... --absorption --temperature 25 --humidity 80 --call fm --ears 0.03 \\
+        --out echo.mat --plot echo.png --spectrogram     # .npz, .mat (MATLAB v5) or .wav
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sim_core.sonar import FIDELITIES, Beam, Echo, EchoParams, synthesize
+from hil_bridge.cli._echo_physics import add_physics_arguments, physics_meta, physics_params
+from hil_bridge.export.echo_file import WAV_FORMATS, check_echo_output, write_echo
+from sim_core.sonar import FIDELITIES, Beam, EchoParams, synthesize
 
 __all__ = ["load_leaves", "main", "parse_floats"]
 
@@ -47,28 +51,7 @@ def load_leaves(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return data["centers"], data["normals"], data["radii"]
 
 
-def _plot(echo: Echo, path: Path, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    samples = np.atleast_2d(echo.samples)
-    fig, ax = plt.subplots(figsize=(8, 3))
-    t_ms = echo.times * 1e3
-    for ch, row in enumerate(samples):
-        ax.plot(t_ms, row, lw=0.6, label=f"channel {ch}" if samples.shape[0] > 1 else None)
-    ax.set_xlabel("time since emission (ms)")
-    ax.set_ylabel("impulse response")
-    ax.set_title(title)
-    if samples.shape[0] > 1:
-        ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-_VECTOR_OPTIONS = ("--position", "--boresight")
+_VECTOR_OPTIONS = ("--position", "--boresight", "--velocity")
 
 
 def _join_vector_values(argv: list[str]) -> list[str]:
@@ -101,9 +84,17 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--samples", type=int, default=EchoParams().samples, metavar="N",
                         help="echo length in samples at 400 kHz (default 24000 = 60 ms)")
     parser.add_argument("--no-spreading", action="store_true", help="drop the 1/r^2 loss")
-    parser.add_argument("--out", type=Path, help="write echo (N,) and fs to this .npz")
-    parser.add_argument("--plot", type=Path, help="write the waveform to this PNG")
+    parser.add_argument("--out", type=Path,
+                        help="write the echo, fs and the ping's parameters to .npz, .mat "
+                             "(MATLAB v5) or .wav, by extension")
+    parser.add_argument("--wav-format", choices=WAV_FORMATS, default="float32",
+                        help="WAV samples: float32 (values re A0) or int16 (peak = 32767)")
+    parser.add_argument("--plot", type=Path,
+                        help="PNG: waveform and envelope in dB re A0 (--spectrogram adds one)")
+    parser.add_argument("--spectrogram", action="store_true", help="add a spectrogram panel")
+    parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
+    add_physics_arguments(parser)
     args = parser.parse_args(_join_vector_values(argv))
 
     position = parse_floats(args.position, 3, "--position")
@@ -112,15 +103,31 @@ def main(argv: list[str]) -> int:
         raise ValueError(f"--beamwidth must be in (0, 180) degrees, got {args.beamwidth!r}")
     beam = Beam.from_az_el(position, math.radians(az), math.radians(el),
                            math.radians(args.beamwidth))
-    params = EchoParams(samples=args.samples, spreading=not args.no_spreading)
+    params = EchoParams(samples=args.samples, spreading=not args.no_spreading,
+                        **physics_params(args))
+    if args.out is not None:
+        check_echo_output(args.out, overwrite=args.overwrite)
     leaves = load_leaves(args.leaves)
     t0 = time.perf_counter()
     echo = synthesize(leaves, beam, params, fidelity=args.fidelity)
     seconds = time.perf_counter() - t0
+    written: dict[str, object] = {}
     if args.out is not None:
-        np.savez(args.out, echo=echo.samples, fs=np.float64(echo.fs))
+        meta = {"position": list(position), "az_deg": az, "el_deg": el,
+                "beamwidth_deg": args.beamwidth, "fidelity": echo.fidelity,
+                "leaves_in_beam": echo.leaves_in_beam, "sound_speed": params.sound_speed,
+                "spreading": params.spreading, **physics_meta(args)}
+        written = write_echo(args.out, echo.samples, echo.fs, meta, overwrite=args.overwrite,
+                             wav_format=args.wav_format)
     if args.plot is not None:
-        _plot(echo, args.plot, f"{echo.leaves_in_beam} leaves in beam, {args.fidelity}")
+        from hil_bridge.outputs import atomic_output
+        from sim_core.sonar.plots import plot_echo
+
+        with (atomic_output(args.plot, overwrite=args.overwrite, inputs=[args.leaves]) as tmp,
+              open(tmp, "wb") as fh):
+            plot_echo(echo.samples, echo.fs, fh, sound_speed=params.sound_speed,
+                      spectrogram=args.spectrogram, band=(params.f_lo, params.f_hi),
+                      title=f"{echo.leaves_in_beam} leaves in beam, {args.fidelity}")
     summary = {
         "leaves_in_beam": echo.leaves_in_beam,
         "dropped": echo.dropped,
@@ -130,6 +137,8 @@ def main(argv: list[str]) -> int:
         "seconds": seconds,
         "error_bound": echo.error_bound,
         "peak": float(np.abs(echo.samples).max()),
+        "channels": int(np.atleast_2d(echo.samples).shape[0]),
+        **{f"out_{k}": v for k, v in written.items()},
     }
     if args.json:
         print(json.dumps(summary))

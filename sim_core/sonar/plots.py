@@ -4,13 +4,19 @@
   the -3 dB contour in red, and the impulse response below (seed 000 Fig 6);
 * :func:`plot_fig7` — bird's-eye view of the "8" route with each ping's -3 dB wedge and
   in-beam leaves in red, plus the 12 impulse responses (Fig 7);
-* :func:`plot_table1` — Table 1 timings beside the seed's MATLAB numbers.
+* :func:`plot_table1` — Table 1 timings beside the seed's MATLAB numbers;
+* :func:`plot_echo` — one echo: waveform, envelope in dB re the emitted amplitude, and
+  optionally its spectrogram.
+
+Amplitudes are relative to the emitted peak amplitude ``A0`` at 1 m (``EchoParams.peak_amplitude``,
+spec: ``A0 = 1``), so levels in dB are "dB re A0".
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import BinaryIO
 
 import matplotlib
 
@@ -24,7 +30,7 @@ from sim_core.sonar.params import Echo, EchoParams
 from sim_core.sonar.scenarios import TABLE1_SEED_SECONDS, Ping
 from sim_core.world import Leaves
 
-__all__ = ["in_contour", "plot_fig6", "plot_fig7", "plot_table1"]
+__all__ = ["envelope_db", "in_contour", "plot_echo", "plot_fig6", "plot_fig7", "plot_table1"]
 
 _MAX_POINTS = 30_000
 
@@ -82,8 +88,8 @@ def plot_fig6(
                      f"{echo.leaves_in_beam} in beam")
         wave = axes[1, col]
         wave.plot(echo.times * 1e3, echo.samples, lw=0.5, color="k")
-        wave.set_xlabel("time (ms)")
-        wave.set_ylabel("impulse response")
+        wave.set_xlabel("time since emission (ms)")
+        wave.set_ylabel("amplitude (re A0)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -118,8 +124,10 @@ def plot_fig7(
         ax = fig.add_axes((0.53 + c * 0.155, 0.08 + (rows - 1 - r) * (0.86 / rows),
                            0.14, 0.86 / rows - 0.04))
         ax.plot(echo.times * 1e3, echo.samples, lw=0.4, color="k")
-        ax.set_title(f"{ping.label} ({echo.leaves_in_beam})", fontsize=7)
+        ax.set_title(f"{ping.label} ({echo.leaves_in_beam} leaves)", fontsize=7)
         ax.tick_params(labelsize=6)
+        ax.set_xlabel("time (ms)", fontsize=6, labelpad=1)
+        ax.set_ylabel("amplitude (re A0)", fontsize=6, labelpad=1)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -144,4 +152,76 @@ def plot_table1(measured: Mapping[str, Mapping[int, Sequence[float]]], label: st
     axes[1].legend(fontsize=6, ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def envelope_db(samples: NDArray[np.floating], floor_db: float = -160.0) -> NDArray[np.float64]:
+    """Hilbert envelope of ``samples`` (..., N) in dB re 1 (= re A0), floored at ``floor_db``."""
+    from scipy.signal import hilbert
+
+    env = np.abs(hilbert(np.asarray(samples, dtype=np.float64), axis=-1))
+    with np.errstate(divide="ignore"):
+        return np.maximum(20.0 * np.log10(env), floor_db)
+
+
+def plot_echo(
+    samples: NDArray[np.floating],
+    fs: float,
+    path: Path | BinaryIO,
+    *,
+    title: str = "",
+    sound_speed: float = 340.0,
+    spectrogram: bool = False,
+    band: tuple[float, float] | None = None,
+    dynamic_range_db: float = 80.0,
+) -> None:
+    """One echo, (N,) or (C, N) at ``fs`` Hz, t = 0 at emission: the waveform (re A0), its
+    envelope in dB re A0 with the peak level marked, and with ``spectrogram`` the level over
+    time and frequency (first channel; ``band`` (Hz) zooms it on the model band). The top
+    axis gives the range ``c t / 2`` in metres.
+    Levels more than ``dynamic_range_db`` below the peak are cut off."""
+    x = np.atleast_2d(np.asarray(samples, dtype=np.float64))
+    t_ms = np.arange(x.shape[-1]) / fs * 1e3
+    env = envelope_db(x)
+    peak_db = float(env.max())
+    low = peak_db - dynamic_range_db
+    names = [f"channel {c}" for c in range(x.shape[0])] if x.shape[0] > 1 else [None]
+    rows = 3 if spectrogram else 2
+    fig, axes = plt.subplots(rows, 1, figsize=(9.5, 2.6 * rows), sharex=True)
+    wave, level = axes[0], axes[1]
+    for c, row in enumerate(x):
+        wave.plot(t_ms, row, lw=0.5, label=names[c])
+        level.plot(t_ms, env[c], lw=0.7, label=names[c])
+    wave.set_ylabel("amplitude (re A0)")
+    wave.set_title(title)
+    level.axhline(peak_db, color="0.4", ls="--", lw=0.8)
+    level.annotate(f"peak {peak_db:.1f} dB re A0", (t_ms[-1], peak_db), ha="right",
+                   va="bottom", fontsize=8, color="0.3")
+    level.set_ylim(low, peak_db + 6.0)
+    level.set_ylabel("envelope (dB re A0)")
+    if x.shape[0] > 1:
+        wave.legend(fontsize=7, loc="upper right")
+    if spectrogram:
+        from scipy.signal import spectrogram as stft
+
+        nper = min(512, x.shape[-1])
+        f, tt, sxx = stft(x[0], fs=fs, nperseg=nper, noverlap=nper * 3 // 4, mode="magnitude",
+                          scaling="spectrum")
+        with np.errstate(divide="ignore"):
+            sdb = 20.0 * np.log10(np.maximum(sxx, 1e-300))
+        top = float(sdb.max())
+        mesh = axes[2].pcolormesh(tt * 1e3, f / 1e3, sdb, shading="auto", cmap="magma",
+                                  vmin=top - dynamic_range_db, vmax=top)
+        axes[2].set_ylabel("frequency (kHz)")
+        if band is not None:
+            width = band[1] - band[0]
+            axes[2].set_ylim(max(0.0, band[0] - width) / 1e3, min(fs / 2, band[1] + width) / 1e3)
+        fig.colorbar(mesh, cax=axes[2].inset_axes((1.01, 0.0, 0.015, 1.0)), label="dB re A0")
+    axes[-1].set_xlabel("time since emission (ms)")
+    rng = wave.secondary_xaxis(
+        "top", functions=(lambda ms: ms * 1e-3 * sound_speed / 2.0,
+                          lambda m: m * 2.0 / sound_speed * 1e3))
+    rng.set_xlabel("range (m)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120, format="png")
     plt.close(fig)
