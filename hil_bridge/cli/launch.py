@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 from typing import Any
 
 from hil_bridge.launch import LaunchSpec, RunSummary, parse_param_overrides, run
+from hil_bridge.recording_plot import plot_recording
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -136,83 +136,6 @@ def _announce(spec: LaunchSpec) -> None:
     print(f"echoloop launch: running {names} on {spec.bus} (Ctrl-C to stop)", file=sys.stderr,
           flush=True)
 
-
-def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
-    """Plot a recording: swarm tracks + thermals, the sonar vehicle over the forest, an echo.
-
-    The sonar vehicle is the one named by the echoes' ``frame_id`` (``glider/<id>``). Returns
-    counts of what was drawn.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from hil_bridge.bag import read_bag
-    from hil_bridge.codec import decode_payload
-
-    tracks: dict[int, list[tuple[float, float]]] = {}
-    thermals: Any = None
-    leaves: Any = None
-    echo: Any = None
-    mount: int | None = None
-    for m in read_bag(mcap):
-        topic = m.topic
-        is_state = topic.startswith("/glider/") and topic.endswith("/state")
-        if not (is_state or topic in ("/thermals", "/forest/points") or topic.endswith("/echo")):
-            continue
-        msg: Any = decode_payload(m.header.type, m.header.v, m.payload)
-        if is_state:
-            tracks.setdefault(int(topic.split("/")[2]), []).append((msg.x, msg.y))
-        elif topic == "/thermals":
-            thermals = msg
-        elif topic == "/forest/points":
-            leaves = msg
-        else:
-            # show the last echo that heard leaves (an empty one says little), else the last
-            if echo is None or msg.leaves_in_beam > 0 or echo.leaves_in_beam == 0:
-                echo = msg
-            frame = m.header.frame_id
-            if frame.startswith("glider/") and frame[7:].isdigit():
-                mount = int(frame[7:])
-    fig, axes = plt.subplots(1, 3, figsize=(16, 5.2))
-    ax = axes[0]
-    if thermals is not None:
-        for x, y, r in zip(thermals.x, thermals.y, thermals.radius, strict=True):
-            ax.add_patch(plt.Circle((x / 1e3, y / 1e3), r / 1e3, color="tab:orange", alpha=0.25))
-    for gid, pts in sorted(tracks.items()):
-        if gid == mount:
-            continue
-        a = np.asarray(pts)
-        ax.plot(a[:, 0] / 1e3, a[:, 1] / 1e3, lw=1.2)
-        ax.plot(a[-1, 0] / 1e3, a[-1, 1] / 1e3, "k^", ms=4)
-    ax.set(title="soaring swarm (CAN autopilots), thermals", xlabel="x [km]", ylabel="y [km]",
-           aspect="equal")
-    ax = axes[1]
-    if leaves is not None:
-        ax.scatter(leaves.points[:, 0], leaves.points[:, 1], s=0.3, c="tab:green", alpha=0.3,
-                   label="leaves")
-    if mount is not None and mount in tracks:
-        a = np.asarray(tracks[mount])
-        ax.plot(a[:, 0], a[:, 1], "k-", lw=1.2, label=f"sonar vehicle {mount}")
-        ax.plot(a[-1, 0], a[-1, 1], "r^", ms=6)
-    ax.set(title="sonar vehicle in the forest", xlabel="x [m]", ylabel="y [m]", aspect="equal")
-    if ax.get_legend_handles_labels()[1]:
-        ax.legend(loc="upper right", fontsize=8)
-    ax = axes[2]
-    if echo is not None:
-        samples = np.asarray(echo.samples, dtype=np.float64).reshape(-1, echo.samples.shape[-1])
-        rng_m = np.arange(samples.shape[1]) / echo.fs * 340.0 / 2.0
-        ax.plot(rng_m, samples[0], lw=0.5)
-        ax.set(title=f"echo of ping {echo.ping_seq} ({echo.leaves_in_beam} leaves in beam)",
-               xlabel="range [m] (c = 340 m/s)", ylabel="amplitude")
-    fig.tight_layout()
-    Path(png).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
-    return {"tracks": len(tracks), "echo": int(echo is not None),
-            "leaves": 0 if leaves is None else len(leaves.points)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -16,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
+from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection  # type: ignore[import-untyped]
 from numpy.typing import NDArray
 
@@ -49,46 +50,51 @@ def _save(fig: Any, path: str | Path) -> Path:
 
 def plot_paths(trace: Trace, path: str | Path, *, max_points: int = 1500) -> Path:
     """All glider paths, coloured by time (top row, Fig 3) and by vertical speed (bottom row,
-    Fig 4), seen from an upper corner, a side corner and from above."""
+    Fig 4): a 3-D view from an upper corner, a side view (x–z) and the top view (x–y).
+    Horizontal distances are in km once the swarm spans more than 2 km."""
     segs, t, vz = _segments(trace, max_points)
-    fig = plt.figure(figsize=(15, 9.5))
+    span = float(np.ptp(segs[..., :2])) if segs.size else 0.0
+    scale, unit = (1e-3, "km") if span > 2000.0 else (1.0, "m")
+    xy = segs.copy()
+    xy[..., :2] *= scale
+    fig = plt.figure(figsize=(16, 9.5))
     lim = float(np.nanmax(np.abs(vz))) if vz.size else 1.0
     for row, (vals, cmap, label, norm) in enumerate((
-        (t, "viridis", "time [s]", plt.Normalize(0, max(1.0, float(trace.t[-1])))),
-        (vz, "coolwarm", "vertical speed [m/s]", plt.Normalize(-lim, lim)),
+        (t, "viridis", "time (s)", plt.Normalize(0, max(1.0, float(trace.t[-1])))),
+        (vz, "coolwarm", "vertical speed (m/s)", plt.Normalize(-lim, lim)),
     )):
-        for col, view in enumerate(((30, -60), (5, -30), None)):
-            idx = row * 3 + col + 1
-            if view is None:
-                ax2 = fig.add_subplot(2, 3, idx)
-                lc = LineCollection(list(segs[:, :, :2]), cmap=cmap, norm=norm, linewidths=0.5,
-                                    alpha=0.6)
-                lc.set_array(vals)
-                ax2.add_collection(lc)
-                ax2.autoscale()
-                ax2.set_aspect("equal")
-                ax2.set_xlabel("x [m]")
-                ax2.set_ylabel("y [m]")
-                mappable: Any = lc
-                ax_for_bar: Any = ax2
-            else:
-                ax3: Any = fig.add_subplot(2, 3, idx, projection="3d")
-                lc3 = Line3DCollection(segs, cmap=cmap, norm=norm, linewidths=0.4, alpha=0.5)
-                lc3.set_array(vals)
-                ax3.add_collection3d(lc3)
-                if segs.size:
-                    ax3.set_xlim(segs[..., 0].min(), segs[..., 0].max())
-                    ax3.set_ylim(segs[..., 1].min(), segs[..., 1].max())
-                    ax3.set_zlim(0, segs[..., 2].max())
-                ax3.view_init(*view)
-                ax3.set_xlabel("x [m]")
-                ax3.set_ylabel("y [m]")
-                ax3.set_zlabel("z [m]")
-                mappable = lc3
-                ax_for_bar = ax3
-            if col == 2:
-                fig.colorbar(mappable, ax=ax_for_bar, label=label, shrink=0.8)
-    fig.suptitle(f"{trace.n_agents} gliders, {trace.t[-1]:.0f} s")
+        ax3: Any = fig.add_subplot(2, 3, row * 3 + 1, projection="3d")
+        lc3 = Line3DCollection(xy, cmap=cmap, norm=norm, linewidths=0.4, alpha=0.6)
+        lc3.set_array(vals)
+        ax3.add_collection3d(lc3)
+        if xy.size:
+            ax3.set_xlim(xy[..., 0].min(), xy[..., 0].max())
+            ax3.set_ylim(xy[..., 1].min(), xy[..., 1].max())
+            ax3.set_zlim(0, xy[..., 2].max())
+        ax3.view_init(30, -60)
+        for axis in (ax3.xaxis, ax3.yaxis, ax3.zaxis):
+            axis.set_major_locator(MaxNLocator(4))
+        ax3.set_xlabel(f"x ({unit})")
+        ax3.set_ylabel(f"y ({unit})")
+        ax3.set_zlabel("z (m)")
+        for col, (i, j, xl, yl, title) in enumerate((
+            (0, 2, f"x ({unit})", "z (m)", "side view"),
+            (0, 1, f"x ({unit})", f"y ({unit})", "top view"),
+        )):
+            ax = fig.add_subplot(2, 3, row * 3 + 2 + col)
+            lc = LineCollection(list(xy[:, :, [i, j]]), cmap=cmap, norm=norm, linewidths=0.5,
+                                alpha=0.7)
+            lc.set_array(vals)
+            ax.add_collection(lc)
+            ax.autoscale()
+            if j == 1:
+                ax.set_aspect("equal")
+            ax.set_xlabel(xl)
+            ax.set_ylabel(yl)
+            ax.set_title(title, fontsize=9)
+        fig.colorbar(lc, ax=fig.axes[-1], label=label, shrink=0.85)
+    fig.suptitle(f"{trace.n_agents} gliders, {trace.t[-1]:.0f} s "
+                 "(top: coloured by time; bottom: by vertical speed)")
     return _save(fig, path)
 
 
@@ -114,10 +120,10 @@ def plot_agent_series(
         alive = trace.alive[sel, a]
         for ax, arr in zip(axes, (trace.z, trace.vz, trace.cohesion), strict=True):
             ax.plot(t[alive], arr[sel, a][alive], lw=1.0, label=f"agent {a}")
-    axes[0].set_ylabel("height [m]")
-    axes[1].set_ylabel("vertical speed [m/s]")
-    axes[2].set_ylabel("cohesion magnitude")
-    axes[2].set_xlabel("time [s]")
+    axes[0].set_ylabel("height (m)")
+    axes[1].set_ylabel("vertical speed (m/s)")
+    axes[2].set_ylabel("cohesion |K_c c| (m/s²)")
+    axes[2].set_xlabel("time (s)")
     axes[0].legend(fontsize=8, ncol=4)
     return _save(fig, path)
 
@@ -145,8 +151,8 @@ def plot_survival_histograms(
         ax.hist(data, bins=edges, color="tab:blue", edgecolor="white")
         ax.set_yscale("log")
         ax.set_title(f"{by} = {val}  (n={data.size})", fontsize=9)
-        ax.set_xlabel(metric)
-    axes[0][0].set_ylabel("runs")
+        ax.set_xlabel(f"{metric} (%)" if metric.endswith("Percent") else metric)
+    axes[0][0].set_ylabel("runs (count)")
     return _save(fig, path)
 
 
@@ -170,5 +176,5 @@ def plot_trends(
         ax.errorbar(xs, means, yerr=errs, marker="o", capsize=3)
         ax.set_xticks(xs, [f"{v:g}" if isinstance(v, float) else str(v) for v in vals])
         ax.set_xlabel(p)
-        ax.set_ylabel(f"mean {metric}")
+        ax.set_ylabel(f"mean {metric}" + (" (%)" if metric.endswith("Percent") else ""))
     return _save(fig, path)
