@@ -4,6 +4,9 @@
     echoloop bag play out.mcap [--rate 2] [--loop] [--start-offset 5] [--topics ...] [--clock]
     echoloop bag info out.mcap [--json]
     echoloop bag export out.mcap --json out_json.mcap      # JSON + JSON Schema, for Foxglove
+    echoloop bag export out.mcap --ros2 out_ros2.mcap      # ROS 2 bag (CDR, ros2msg schemas)
+    echoloop bag export out.mcap --foxglove out_fox.mcap   # Foxglove well-known schemas (3D)
+    echoloop bag export out.mcap --mat out.mat             # MATLAB v5: echoes, pings, tracks
 """
 
 from __future__ import annotations
@@ -106,9 +109,19 @@ def _info(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    counts = export_json(args.file, args.json_out, topics=args.topics)
-    print(f"wrote {counts['messages']} JSON messages to {args.json_out}"
-          + (f" (skipped {counts['skipped']} undecodable)" if counts["skipped"] else ""))
+    if args.json_out is not None:
+        counts = export_json(args.file, args.json_out, topics=args.topics)
+        print(f"wrote {counts['messages']} JSON messages to {args.json_out}"
+              + (f" (skipped {counts['skipped']} undecodable)" if counts["skipped"] else ""))
+        return 0
+    from hil_bridge.export import EXPORTERS, run_exporter
+
+    kind = next(k for k in EXPORTERS if getattr(args, k) is not None)
+    result = run_exporter(kind, args.file, getattr(args, kind), overwrite=args.overwrite)
+    skipped = ", ".join(f"{n} {why}" for why, n in result.skipped.items())
+    print(f"wrote {result.written} {kind} messages from {result.messages} recorded to "
+          f"{getattr(args, kind)}" + (f" (skipped: {skipped})" if skipped else "")
+          + (" (bag truncated: read up to its last complete chunk)" if result.truncated else ""))
     return 0
 
 
@@ -146,10 +159,16 @@ def main(argv: list[str]) -> int:
     info.add_argument("--json", action="store_true")
     info.set_defaults(run=_info)
 
-    exp = sub.add_parser("export", help="write a JSON-encoded MCAP that Foxglove opens")
+    exp = sub.add_parser("export", help="convert a recording for ROS 2, Foxglove or MATLAB")
     exp.add_argument("file")
-    exp.add_argument("--json", dest="json_out", required=True, metavar="OUT.mcap")
-    exp.add_argument("--topics", nargs="+", default=None)
+    fmt = exp.add_mutually_exclusive_group(required=True)
+    fmt.add_argument("--json", dest="json_out", metavar="OUT.mcap",
+                     help="JSON messages with JSON Schemas")
+    fmt.add_argument("--ros2", metavar="OUT.mcap", help="ROS 2 bag: CDR, ros2msg schemas")
+    fmt.add_argument("--foxglove", metavar="OUT.mcap", help="Foxglove well-known schemas")
+    fmt.add_argument("--mat", metavar="OUT.mat", help="MATLAB v5: echoes, pings, tracks")
+    exp.add_argument("--topics", nargs="+", default=None, help="--json only: these topics")
+    exp.add_argument("--overwrite", action="store_true", help="replace an existing output")
     exp.set_defaults(run=_export)
 
     args = parser.parse_args(argv)

@@ -1,0 +1,139 @@
+"""What every exporter needs: decoded messages of a recording, glider and sonar poses.
+
+Poses follow REP 103 (world ENU, body FLU, quaternions ``[w, x, y, z]`` world-from-body).
+A ``GliderState`` that carries its attitude (``qw, qx, qy, qz``, issue 10) is used as is;
+older states get it from their fields in :func:`glider_attitude`, the one place that derives
+it: yaw = heading, roll = −bank (positive bank is a left turn), pitch from the flight-path
+angle (``−atan2(vz, airspeed)``: FLU pitch is positive nose down). A ``SonarEcho`` that carries
+the sonar pose (``position``, ``orientation``, ``boresight``) is used as is; otherwise
+:func:`sonar_pose` rebuilds it as the server computes echoes today: at the mount vehicle's
+latest state, boresight at world azimuth ``heading + az`` and elevation ``el``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hil_bridge.bag import BagMessage, read_bag
+from hil_bridge.codec import decode_payload
+from hil_bridge.errors import CodecError
+from sim_core.pose import quat_from_euler
+
+__all__ = ["STATE_TOPIC", "Decoded", "ExportCounts", "SonarPose", "decoded", "glider_attitude",
+           "glider_velocity", "mount_id", "sonar_pose"]
+
+STATE_TOPIC = re.compile(r"^/glider/(\d+)/state$")
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class ExportCounts:
+    """What an export wrote and skipped (per reason), returned by every exporter."""
+
+    messages: int = 0
+    written: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
+    truncated: bool = False
+
+    def skip(self, reason: str) -> None:
+        self.skipped[reason] = self.skipped.get(reason, 0) + 1
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"messages": self.messages, "written": self.written,
+                "skipped": dict(sorted(self.skipped.items())), "truncated": self.truncated}
+
+
+@dataclass(frozen=True, slots=True)
+class Decoded:
+    """A recorded message and its decoded payload."""
+
+    raw: BagMessage
+    msg: Any
+
+    @property
+    def topic(self) -> str:
+        return self.raw.topic
+
+
+def decoded(src: str | os.PathLike[str], counts: ExportCounts,
+            topics: Iterable[str] | None = None) -> Iterator[Decoded]:
+    """Every decodable message of ``src`` in file order; undecodable ones are counted in
+    ``counts.skipped["undecodable"]`` and left out."""
+    from hil_bridge.bag import BagInfo
+
+    info = BagInfo(str(src))
+    for m in read_bag(Path(src), topics, info=info):
+        counts.messages += 1
+        try:
+            msg = decode_payload(m.header.type, m.header.v, m.payload)
+        except CodecError:
+            counts.skip("undecodable")
+            continue
+        yield Decoded(m, msg)
+    counts.truncated = info.truncated
+
+
+def mount_id(frame_id: str) -> int | None:
+    """The vehicle id of an echo's ``frame_id`` (``glider/<id>``), or None."""
+    head, _, tail = frame_id.partition("/")
+    return int(tail) if head == "glider" and tail.isdigit() else None
+
+
+def glider_attitude(state: Any) -> FloatArray:
+    """World-from-body ``[w, x, y, z]`` of a ``GliderState`` (module docstring)."""
+    q = [getattr(state, k, None) for k in ("qw", "qx", "qy", "qz")]
+    if all(v is not None for v in q):
+        return np.asarray(q, dtype=np.float64)
+    pitch = -math.atan2(float(state.vz), max(float(state.airspeed), 1e-9))
+    return quat_from_euler(-float(state.bank), pitch, float(state.heading))
+
+
+def glider_velocity(state: Any) -> FloatArray:
+    """World ENU velocity (m/s) of a ``GliderState``: airspeed along the heading, plus ``vz``."""
+    v, h = float(state.airspeed), float(state.heading)
+    return np.array([v * math.cos(h), v * math.sin(h), float(state.vz)])
+
+
+@dataclass(frozen=True, slots=True)
+class SonarPose:
+    """Where an echo was heard from: ``position`` (3,) m, ``orientation`` (4,) world-from-sonar
+    (sonar x = boresight), ``boresight`` (3,) unit vector, all world ENU."""
+
+    position: FloatArray
+    orientation: FloatArray
+    boresight: FloatArray
+
+
+def sonar_pose(echo: Any, ping: Any | None, mount_state: Any | None) -> SonarPose | None:
+    """The sonar pose of ``echo`` (module docstring); None when nothing locates it."""
+    pos = getattr(echo, "position", None)
+    ori = getattr(echo, "orientation", None)
+    if pos is not None and ori is not None:
+        q = np.asarray(ori, dtype=np.float64)
+        bore = getattr(echo, "boresight", None)
+        b = (np.asarray(bore, dtype=np.float64) if bore is not None
+             else _rotate_x(q))
+        return SonarPose(np.asarray(pos, dtype=np.float64), q, b)
+    if mount_state is None:
+        return None
+    az = float(ping.az) if ping is not None else 0.0
+    el = float(ping.el) if ping is not None else 0.0
+    yaw = float(mount_state.heading) + az
+    b = np.array([math.cos(el) * math.cos(yaw), math.cos(el) * math.sin(yaw), math.sin(el)])
+    return SonarPose(np.array([mount_state.x, mount_state.y, mount_state.z], dtype=np.float64),
+                     quat_from_euler(0.0, -el, yaw), b)
+
+
+def _rotate_x(q: FloatArray) -> FloatArray:
+    from sim_core.pose import quat_rotate
+
+    return quat_rotate(q, np.array([1.0, 0.0, 0.0]))
