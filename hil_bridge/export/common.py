@@ -2,7 +2,7 @@
 
 Poses follow REP 103 (world ENU, body FLU, quaternions ``[w, x, y, z]`` world-from-body).
 A ``GliderState`` that carries its attitude (``qw, qx, qy, qz``, issue 10) is used as is;
-older states get it from their fields in :func:`glider_attitude`, the one place that derives
+older states get it from their fields in :func:`glider_attitudes`, the one place that derives
 it: yaw = heading, roll = −bank (positive bank is a left turn), pitch from the flight-path
 angle (``−atan2(vz, airspeed)``: FLU pitch is positive nose down). A ``SonarEcho`` that carries
 the sonar pose (``position``, ``orientation``, ``boresight``) is used as is; otherwise
@@ -28,8 +28,8 @@ from hil_bridge.codec import decode_payload
 from hil_bridge.errors import CodecError
 from sim_core.pose import quat_from_euler
 
-__all__ = ["STATE_TOPIC", "Decoded", "ExportCounts", "SonarPose", "decoded", "glider_attitude",
-           "glider_velocity", "mount_id", "sonar_pose"]
+__all__ = ["STATE_TOPIC", "Decoded", "ExportCounts", "SonarPose", "batches", "decoded",
+           "glider_attitude", "glider_attitudes", "glider_velocities", "mount_id", "sonar_pose"]
 
 STATE_TOPIC = re.compile(r"^/glider/(\d+)/state$")
 FloatArray = NDArray[np.float64]
@@ -88,19 +88,43 @@ def mount_id(frame_id: str) -> int | None:
     return int(tail) if head == "glider" and tail.isdigit() else None
 
 
+def glider_attitudes(states: list[Any]) -> FloatArray:
+    """World-from-body ``[w, x, y, z]`` (K, 4) of K ``GliderState`` (module docstring)."""
+    if states and all(getattr(st, "qw", None) is not None for st in states):
+        return np.array([[st.qw, st.qx, st.qy, st.qz] for st in states], dtype=np.float64)
+    a = np.array([[st.heading, st.bank, st.airspeed, st.vz] for st in states],
+                 dtype=np.float64).reshape(-1, 4)
+    pitch = -np.arctan2(a[:, 3], np.maximum(a[:, 2], 1e-9))
+    q = quat_from_euler(-a[:, 1], pitch, a[:, 0])
+    for i, st in enumerate(states):
+        if getattr(st, "qw", None) is not None:
+            q[i] = (st.qw, st.qx, st.qy, st.qz)
+    return q
+
+
 def glider_attitude(state: Any) -> FloatArray:
-    """World-from-body ``[w, x, y, z]`` of a ``GliderState`` (module docstring)."""
-    q = [getattr(state, k, None) for k in ("qw", "qx", "qy", "qz")]
-    if all(v is not None for v in q):
-        return np.asarray(q, dtype=np.float64)
-    pitch = -math.atan2(float(state.vz), max(float(state.airspeed), 1e-9))
-    return quat_from_euler(-float(state.bank), pitch, float(state.heading))
+    """World-from-body ``[w, x, y, z]`` (4,) of one ``GliderState``."""
+    return glider_attitudes([state])[0]
 
 
-def glider_velocity(state: Any) -> FloatArray:
-    """World ENU velocity (m/s) of a ``GliderState``: airspeed along the heading, plus ``vz``."""
-    v, h = float(state.airspeed), float(state.heading)
-    return np.array([v * math.cos(h), v * math.sin(h), float(state.vz)])
+def glider_velocities(states: list[Any]) -> FloatArray:
+    """World ENU velocities (K, 3) m/s of K ``GliderState``: airspeed along the heading, plus
+    ``vz``."""
+    a = np.array([[st.heading, st.airspeed, st.vz] for st in states],
+                 dtype=np.float64).reshape(-1, 3)
+    return np.stack([a[:, 1] * np.cos(a[:, 0]), a[:, 1] * np.sin(a[:, 0]), a[:, 2]], axis=1)
+
+
+def batches(items: Iterator[Decoded], size: int = 4096) -> Iterator[list[Decoded]]:
+    """``items`` in lists of at most ``size`` (exporters vectorise the pose algebra per list)."""
+    batch: list[Decoded] = []
+    for item in items:
+        batch.append(item)
+        if len(batch) == size:
+            yield batch
+            batch = []
+    if batch:
+        yield batch
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,8 +30,9 @@ from mcap.writer import CompressionType, Writer
 from hil_bridge.export.common import (
     STATE_TOPIC,
     ExportCounts,
+    batches,
     decoded,
-    glider_attitude,
+    glider_attitudes,
     mount_id,
     sonar_pose,
 )
@@ -106,11 +107,11 @@ class _Mcap:
                                 data=json.dumps(obj, allow_nan=False).encode())
 
 
-def _glider_entity(gid: int, st: GliderState) -> Any:
+def _glider_entity(gid: int, st: GliderState, q: Any) -> Any:
     fx = _fx()
     color = fx.Color(r=0.1, g=0.45, b=0.9, a=1.0) if st.alive else fx.Color(r=0.5, g=0.5,
                                                                             b=0.5, a=0.6)
-    arrow = fx.ArrowPrimitive(pose=_pose((st.x, st.y, st.z), glider_attitude(st)),
+    arrow = fx.ArrowPrimitive(pose=_pose((st.x, st.y, st.z), q),
                               shaft_length=3.0, shaft_diameter=0.6, head_length=1.5,
                               head_diameter=1.5, color=color)
     return fx.SceneEntity(timestamp=_time(st.stamp_ns), frame_id=WORLD, id=f"glider_{gid}",
@@ -183,53 +184,71 @@ def _envelope(echo: SonarEcho) -> dict[str, Any]:
 def export_foxglove(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
                     overwrite: bool = False) -> ExportCounts:
     """Write ``dst`` from the recording ``src`` (module docstring)."""
-    fx = _fx()
     counts = ExportCounts()
-    last_state: dict[int, GliderState] = {}
-    pings: dict[tuple[int, int], Any] = {}
-    next_gliders = 0
     with atomic_output(Path(dst), overwrite=overwrite, inputs=[src]) as tmp, \
             open(tmp, "wb") as fh:
-        out = _Mcap(fh)
-        for d in decoded(src, counts):
-            msg, log_t, topic = d.msg, d.raw.log_time, d.topic
-            if isinstance(msg, GliderState):
-                hit = STATE_TOPIC.match(topic)
-                gid = int(hit.group(1)) if hit else msg.glider_id
-                last_state[gid] = msg
-                q = glider_attitude(msg)
-                tf = fx.FrameTransform(
-                    timestamp=_time(msg.stamp_ns), parent_frame_id=WORLD,
-                    child_frame_id=f"glider_{gid}",
-                    translation=fx.Vector3(x=msg.x, y=msg.y, z=msg.z),
-                    rotation=fx.Quaternion(x=q[1], y=q[2], z=q[3], w=q[0]))
-                out.proto("/tf", fx.FrameTransforms(transforms=[tf]), log_t, msg.stamp_ns)
-                if msg.stamp_ns >= next_gliders:
-                    entities = [_glider_entity(g, s) for g, s in sorted(last_state.items())]
-                    out.proto("/gliders", fx.SceneUpdate(entities=entities), log_t,
-                              msg.stamp_ns)
-                    next_gliders = msg.stamp_ns + GLIDER_PERIOD_NS
-                    counts.written += 1
-            elif isinstance(msg, ThermalMarkers):
-                out.proto(topic, _thermals(msg), log_t, msg.stamp_ns)
-            elif isinstance(msg, PointCloud):
-                out.proto(topic, _point_cloud(msg), log_t, msg.stamp_ns)
-            elif isinstance(msg, SonarPing):
-                pings[(msg.sonar_id, msg.ping_seq)] = msg
-                counts.skip("pings (drawn with their echo's beam)")
-                continue
-            elif isinstance(msg, SonarEcho):
-                ping = pings.get((msg.sonar_id, msg.ping_seq))
-                mount = mount_id(d.raw.header.frame_id)
-                pose = sonar_pose(msg, ping, None if mount is None else last_state.get(mount))
-                if pose is not None:
-                    out.proto(f"/sonar/{msg.sonar_id}/beam", _beam(msg, ping, pose), log_t,
-                              msg.stamp_ns)
-                    counts.written += 1
-                out.json(topic, _envelope(msg), log_t, msg.stamp_ns)
-            else:
-                counts.skip(f"no Foxglove schema for {d.raw.header.type}")
-                continue
-            counts.written += 1
-        out.writer.finish()
+        out = _Writer(fh, counts)
+        for batch in batches(decoded(src, counts)):
+            states = [d.msg for d in batch if isinstance(d.msg, GliderState)]
+            quats = iter(glider_attitudes(states))
+            for d in batch:
+                if isinstance(d.msg, GliderState):
+                    out.state(d, next(quats))
+                else:
+                    out.other(d)
+        out.mcap.writer.finish()
     return counts
+
+
+class _Writer:
+    """The export's state: last pose per glider, pings by (sonar, seq), glider update time."""
+
+    def __init__(self, stream: Any, counts: ExportCounts) -> None:
+        self.mcap = _Mcap(stream)
+        self.counts = counts
+        self.last: dict[int, tuple[GliderState, Any]] = {}
+        self.pings: dict[tuple[int, int], Any] = {}
+        self.next_gliders = 0
+
+    def state(self, d: Any, q: Any) -> None:
+        fx = _fx()
+        msg, log_t = d.msg, d.raw.log_time
+        hit = STATE_TOPIC.match(d.topic)
+        gid = int(hit.group(1)) if hit else msg.glider_id
+        self.last[gid] = (msg, q)
+        tf = fx.FrameTransform(timestamp=_time(msg.stamp_ns), parent_frame_id=WORLD,
+                               child_frame_id=f"glider_{gid}",
+                               translation=fx.Vector3(x=msg.x, y=msg.y, z=msg.z),
+                               rotation=fx.Quaternion(x=q[1], y=q[2], z=q[3], w=q[0]))
+        self.mcap.proto("/tf", fx.FrameTransforms(transforms=[tf]), log_t, msg.stamp_ns)
+        self.counts.written += 1
+        if msg.stamp_ns >= self.next_gliders:
+            entities = [_glider_entity(g, s, sq) for g, (s, sq) in sorted(self.last.items())]
+            self.mcap.proto("/gliders", fx.SceneUpdate(entities=entities), log_t, msg.stamp_ns)
+            self.next_gliders = msg.stamp_ns + GLIDER_PERIOD_NS
+            self.counts.written += 1
+
+    def other(self, d: Any) -> None:
+        msg, log_t, topic = d.msg, d.raw.log_time, d.topic
+        if isinstance(msg, ThermalMarkers):
+            self.mcap.proto(topic, _thermals(msg), log_t, msg.stamp_ns)
+        elif isinstance(msg, PointCloud):
+            self.mcap.proto(topic, _point_cloud(msg), log_t, msg.stamp_ns)
+        elif isinstance(msg, SonarPing):
+            self.pings[(msg.sonar_id, msg.ping_seq)] = msg
+            self.counts.skip("pings (drawn with their echo's beam)")
+            return
+        elif isinstance(msg, SonarEcho):
+            ping = self.pings.get((msg.sonar_id, msg.ping_seq))
+            mount = mount_id(d.raw.header.frame_id)
+            state = self.last.get(mount) if mount is not None else None
+            pose = sonar_pose(msg, ping, None if state is None else state[0])
+            if pose is not None:
+                self.mcap.proto(f"/sonar/{msg.sonar_id}/beam", _beam(msg, ping, pose), log_t,
+                                msg.stamp_ns)
+                self.counts.written += 1
+            self.mcap.json(topic, _envelope(msg), log_t, msg.stamp_ns)
+        else:
+            self.counts.skip(f"no Foxglove schema for {d.raw.header.type}")
+            return
+        self.counts.written += 1

@@ -29,8 +29,9 @@ import numpy as np
 from hil_bridge.export.common import (
     STATE_TOPIC,
     ExportCounts,
+    batches,
     decoded,
-    glider_attitude,
+    glider_attitudes,
     mount_id,
     sonar_pose,
 )
@@ -62,30 +63,33 @@ def export_mat(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
     pings: dict[tuple[int, int], Any] = {}
     echo_rows: list[dict[str, Any]] = []
     thermals: Any = None
-    for d in decoded(src, counts):
-        msg = d.msg
-        if isinstance(msg, GliderState):
-            hit = STATE_TOPIC.match(d.topic)
-            gid = int(hit.group(1)) if hit else msg.glider_id
-            states[gid].append([msg.stamp_ns, *(getattr(msg, f) for f in _STATE_FIELDS),
-                                float(msg.alive)])
-            quats[gid].append(glider_attitude(msg))
-            last_state[gid] = msg
-        elif isinstance(msg, GliderCmd):
-            cmds[msg.glider_id].append((msg.stamp_ns * 1e-9, msg.bank_cmd, msg.airspeed_cmd))
-        elif isinstance(msg, SonarPing):
-            pings[(msg.sonar_id, msg.ping_seq)] = msg
-        elif isinstance(msg, SonarEcho):
-            ping = pings.get((msg.sonar_id, msg.ping_seq))
-            mount = mount_id(d.raw.header.frame_id)
-            pose = sonar_pose(msg, ping, last_state.get(mount) if mount is not None else None)
-            echo_rows.append({"msg": msg, "ping": ping, "pose": pose})
-        elif isinstance(msg, ThermalMarkers):
-            thermals = msg
-        else:
-            counts.skip(f"no MATLAB field for {d.raw.header.type}")
-            continue
-        counts.written += 1
+    for batch in batches(decoded(src, counts)):
+        batch_quats = iter(glider_attitudes([d.msg for d in batch
+                                             if isinstance(d.msg, GliderState)]))
+        for d in batch:
+            msg = d.msg
+            if isinstance(msg, GliderState):
+                hit = STATE_TOPIC.match(d.topic)
+                gid = int(hit.group(1)) if hit else msg.glider_id
+                states[gid].append([msg.stamp_ns, *(getattr(msg, f) for f in _STATE_FIELDS),
+                                    float(msg.alive)])
+                quats[gid].append(next(batch_quats))
+                last_state[gid] = msg
+            elif isinstance(msg, GliderCmd):
+                cmds[msg.glider_id].append((msg.stamp_ns * 1e-9, msg.bank_cmd, msg.airspeed_cmd))
+            elif isinstance(msg, SonarPing):
+                pings[(msg.sonar_id, msg.ping_seq)] = msg
+            elif isinstance(msg, SonarEcho):
+                ping = pings.get((msg.sonar_id, msg.ping_seq))
+                mount = mount_id(d.raw.header.frame_id)
+                pose = sonar_pose(msg, ping, last_state.get(mount) if mount is not None else None)
+                echo_rows.append({"msg": msg, "ping": ping, "pose": pose})
+            elif isinstance(msg, ThermalMarkers):
+                thermals = msg
+            else:
+                counts.skip(f"no MATLAB field for {d.raw.header.type}")
+                continue
+            counts.written += 1
     data: dict[str, Any] = {
         "echoes": _echoes(echo_rows),
         "gliders": {f"glider_{g}": _track(rows, quats[g]) for g, rows in sorted(states.items())},

@@ -33,9 +33,10 @@ from hil_bridge.export.cdr import encoder, msgdef
 from hil_bridge.export.common import (
     STATE_TOPIC,
     ExportCounts,
+    batches,
     decoded,
-    glider_attitude,
-    glider_velocity,
+    glider_attitudes,
+    glider_velocities,
     mount_id,
     sonar_pose,
 )
@@ -108,8 +109,7 @@ class _Bag:
                                 publish_time=max(0, stamp_ns))
 
 
-def _odometry(gid: int, st: GliderState, q: Any) -> dict[str, Any]:
-    body_v = quat_rotate(quat_conjugate(q), glider_velocity(st))
+def _odometry(gid: int, st: GliderState, q: Any, body_v: Any) -> dict[str, Any]:
     rates = [getattr(st, k, 0.0) for k in ("roll_rate", "pitch_rate", "yaw_rate")]
     return {
         "header": _header(st.stamp_ns), "child_frame_id": f"glider_{gid}",
@@ -171,50 +171,67 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
     with atomic_output(Path(dst), overwrite=overwrite, inputs=[src]) as tmp, \
             open(tmp, "wb") as fh:
         bag = _Bag(fh)
-        for d in decoded(src, counts):
-            msg, log_t, topic = d.msg, d.raw.log_time, d.topic
-            if isinstance(msg, GliderState):
-                hit = STATE_TOPIC.match(topic)
-                gid = int(hit.group(1)) if hit else msg.glider_id
-                last_state[gid] = msg
-                q = glider_attitude(msg)
-                bag.write(topic, "nav_msgs/msg/Odometry", _odometry(gid, msg, q), log_t,
-                          msg.stamp_ns)
-                bag.write("/tf", "tf2_msgs/msg/TFMessage", {"transforms": [{
-                    "header": _header(msg.stamp_ns), "child_frame_id": f"glider_{gid}",
-                    "transform": {"translation": _xyz((msg.x, msg.y, msg.z)),
-                                  "rotation": _quat(q)}}]}, log_t, msg.stamp_ns)
-                counts.written += 2
-                continue
-            if isinstance(msg, Clock):
-                bag.write(topic, "rosgraph_msgs/msg/Clock", {"clock": _time(msg.stamp_ns)},
-                          log_t, msg.stamp_ns)
-            elif isinstance(msg, PointCloud):
-                bag.write(topic, "sensor_msgs/msg/PointCloud2", _point_cloud(msg), log_t,
-                          msg.stamp_ns, latched=True)
-            elif isinstance(msg, ThermalMarkers):
-                bag.write(topic, "visualization_msgs/msg/MarkerArray", _thermal_markers(msg),
-                          log_t, msg.stamp_ns, latched=True)
-            elif isinstance(msg, SonarPing):
-                pings[(msg.sonar_id, msg.ping_seq)] = msg
-                bag.write(topic, "echoloop_msgs/msg/SonarPing", {
-                    "header": _header(msg.stamp_ns), "sonar_id": msg.sonar_id,
-                    "ping_seq": msg.ping_seq, "az": msg.az, "el": msg.el,
-                    "beamwidth": msg.beamwidth, "encoding": msg.encoding}, log_t, msg.stamp_ns)
-            elif isinstance(msg, SonarEcho):
-                mount = mount_id(d.raw.header.frame_id)
-                pose = sonar_pose(msg, pings.get((msg.sonar_id, msg.ping_seq)),
-                                  None if mount is None else last_state.get(mount))
-                bag.write(topic, "echoloop_msgs/msg/SonarEcho", _sonar_echo(msg, pose), log_t,
-                          msg.stamp_ns)
-            elif isinstance(msg, GliderCmd):
-                bag.write(topic, "echoloop_msgs/msg/GliderCmd", {
-                    "header": _header(msg.stamp_ns), "glider_id": msg.glider_id,
-                    "bank_cmd": msg.bank_cmd, "airspeed_cmd": msg.airspeed_cmd,
-                    "step": msg.step}, log_t, msg.stamp_ns)
-            else:
-                counts.skip(f"no ROS 2 type for {d.raw.header.type}")
-                continue
-            counts.written += 1
+        for batch in batches(decoded(src, counts)):
+            states = [d.msg for d in batch if isinstance(d.msg, GliderState)]
+            quats = glider_attitudes(states)
+            body_v = quat_rotate(quat_conjugate(quats), glider_velocities(states))
+            k = 0
+            for d in batch:
+                if isinstance(d.msg, GliderState):
+                    _write_state(bag, d, quats[k], body_v[k], last_state)
+                    counts.written += 2
+                    k += 1
+                elif _write_other(bag, d, last_state, pings):
+                    counts.written += 1
+                else:
+                    counts.skip(f"no ROS 2 type for {d.raw.header.type}")
         bag.writer.finish()
     return counts
+
+
+def _write_state(bag: _Bag, d: Any, q: Any, body_v: Any, last_state: dict[int, Any]) -> None:
+    msg, log_t, topic = d.msg, d.raw.log_time, d.topic
+    hit = STATE_TOPIC.match(topic)
+    gid = int(hit.group(1)) if hit else msg.glider_id
+    last_state[gid] = msg
+    bag.write(topic, "nav_msgs/msg/Odometry", _odometry(gid, msg, q, body_v), log_t,
+              msg.stamp_ns)
+    bag.write("/tf", "tf2_msgs/msg/TFMessage", {"transforms": [{
+        "header": _header(msg.stamp_ns), "child_frame_id": f"glider_{gid}",
+        "transform": {"translation": _xyz((msg.x, msg.y, msg.z)), "rotation": _quat(q)}}]},
+        log_t, msg.stamp_ns)
+
+
+def _write_other(bag: _Bag, d: Any, last_state: dict[int, Any],
+                 pings: dict[tuple[int, int], Any]) -> bool:
+    """Write one non-state message; False when it has no ROS 2 type here."""
+    msg, log_t, topic = d.msg, d.raw.log_time, d.topic
+    if isinstance(msg, Clock):
+        bag.write(topic, "rosgraph_msgs/msg/Clock", {"clock": _time(msg.stamp_ns)},
+                  log_t, msg.stamp_ns)
+    elif isinstance(msg, PointCloud):
+        bag.write(topic, "sensor_msgs/msg/PointCloud2", _point_cloud(msg), log_t,
+                  msg.stamp_ns, latched=True)
+    elif isinstance(msg, ThermalMarkers):
+        bag.write(topic, "visualization_msgs/msg/MarkerArray", _thermal_markers(msg),
+                  log_t, msg.stamp_ns, latched=True)
+    elif isinstance(msg, SonarPing):
+        pings[(msg.sonar_id, msg.ping_seq)] = msg
+        bag.write(topic, "echoloop_msgs/msg/SonarPing", {
+            "header": _header(msg.stamp_ns), "sonar_id": msg.sonar_id,
+            "ping_seq": msg.ping_seq, "az": msg.az, "el": msg.el,
+            "beamwidth": msg.beamwidth, "encoding": msg.encoding}, log_t, msg.stamp_ns)
+    elif isinstance(msg, SonarEcho):
+        mount = mount_id(d.raw.header.frame_id)
+        pose = sonar_pose(msg, pings.get((msg.sonar_id, msg.ping_seq)),
+                          None if mount is None else last_state.get(mount))
+        bag.write(topic, "echoloop_msgs/msg/SonarEcho", _sonar_echo(msg, pose), log_t,
+                  msg.stamp_ns)
+    elif isinstance(msg, GliderCmd):
+        bag.write(topic, "echoloop_msgs/msg/GliderCmd", {
+            "header": _header(msg.stamp_ns), "glider_id": msg.glider_id,
+            "bank_cmd": msg.bank_cmd, "airspeed_cmd": msg.airspeed_cmd,
+            "step": msg.step}, log_t, msg.stamp_ns)
+    else:
+        return False
+    return True
