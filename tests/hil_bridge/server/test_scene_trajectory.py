@@ -146,3 +146,34 @@ def test_swarm_trace_csv_and_npz_replay_the_same_glider(tmp_path: Path) -> None:
         load_trajectory(tmp_path / "trace.npz")
     with pytest.raises(ValueError, match="no vehicle 5"):
         load_trajectory(tmp_path / "trace.npz", vehicle_id=5)
+
+
+def test_logged_attitude_is_carried_and_slerped() -> None:
+    from sim_core.pose import quat_from_euler
+
+    t = np.array([0.0, 1.0, 2.0])
+    yaw = np.array([0.0, 0.4, 0.8])
+    q = quat_from_euler(np.full(3, -0.2), np.zeros(3), yaw)
+    traj = Trajectory(t, np.zeros((3, 3)), yaw, np.full(3, 0.2), np.ones(3), quat=-q)
+    mid = traj.attitude(np.array([0.5, 1.5, 9.0]))
+    assert mid is not None
+    expected = quat_from_euler(np.full(3, -0.2), np.zeros(3), np.array([0.2, 0.6, 0.8]))
+    # stored with w >= 0 whatever the sign given; a constant-axis turn slerps exactly
+    np.testing.assert_allclose(mid, expected, atol=1e-12)
+    assert Trajectory(t, np.zeros((3, 3)), yaw, yaw, np.ones(3)).attitude(0.5) is None
+    with pytest.raises(ValueError, match=r"quat: expected shape \(3, 4\)"):
+        Trajectory(t, np.zeros((3, 3)), yaw, yaw, np.ones(3), quat=np.zeros((2, 4)))
+
+
+def test_a_scene_reads_logged_paths_only_through_its_reader(tmp_path: Path) -> None:
+    from sim_core.config import ConfigError
+    from sim_core.scene import load_scene
+
+    path = tmp_path / "one.csv"
+    path.write_text("t,x,y,z\n0,0,0,5\n2,20,0,5\n", encoding="utf-8")
+    spec = {"vehicles": [{"id": 3, "path": {"kind": "file", "file": str(path), "loop": False,
+                                            "origin": None}}]}
+    with pytest.raises(ConfigError, match="needs a trajectory reader"):
+        load_scene(spec)
+    scene = load_scene(spec, trajectory_reader=load_trajectory)
+    assert float(scene.trajectories[3].sample(1.0)["x"]) == pytest.approx(10.0)
