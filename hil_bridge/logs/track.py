@@ -89,10 +89,16 @@ class LogReport:
     jumps: list[tuple[float, float]] = field(default_factory=list)
     vehicle_id: int | None = None
     notes: list[str] = field(default_factory=list)
+    heading_from_track: bool = False
 
     def lines(self) -> list[str]:
         """The report as short lines for a terminal (first line: what was read)."""
-        att = f" + {self.att_source}" if self.att_source else " (no attitude: heading from track)"
+        if self.att_source:
+            att = f" + {self.att_source}"
+        elif self.heading_from_track:
+            att = " (no attitude: heading and bank from the track)"
+        else:
+            att = " (no attitude: heading and bank as logged)"
         out = [f"{self.path}: {self.format}, {self.source}{att}: {self.samples} poses over "
                f"{self.duration_s:.2f} s ({self.rate_hz:.1f} Hz)"]
         if self.origin is not None:
@@ -120,6 +126,7 @@ class LogReport:
             "nonfinite": self.nonfinite, "time_jumps_back": [list(b) for b in self.backward],
             "gaps": [list(g) for g in self.gaps], "position_jumps": [list(j) for j in self.jumps],
             "vehicle_id": self.vehicle_id, "notes": list(self.notes),
+            "heading_from_track": self.heading_from_track,
         }
 
 
@@ -215,6 +222,7 @@ def to_trajectory(
         quat is not None else "", samples=int(t.size), duration_s=float(t[-1] - t[0]),
         rate_hz=float(1.0 / np.median(dt)), origin=used_origin, nonfinite=nonfinite,
         backward=backward, gaps=gaps, jumps=jumps, vehicle_id=log.vehicle_id, notes=notes,
+        heading_from_track=quat is None and opt["heading"] is None,
     )
     return traj, report
 

@@ -143,6 +143,7 @@ def test_geodetic_csv_about_first_fix_and_given_origin(tmp_path: Path) -> None:
     traj, report = read_log(path)  # the first fix is the origin (the flight starts there)
     np.testing.assert_allclose(traj.xyz, flight.enu, atol=1e-6)
     assert report.origin == pytest.approx(ORIGIN)
+    assert "(no attitude: heading and bank from the track)" in report.lines()[0]
     # hand-computed: an origin 0.001 deg of longitude east of the first fix moves x by
     # -(N + h) cos(lat) sin(dlon) (WGS-84: N the prime vertical radius at the latitude)
     lat0 = math.radians(ORIGIN[0])
