@@ -52,7 +52,7 @@ def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sim_core.sonar.plots import envelope_db
+    from sim_core.sonar.baseband import envelope_db
 
     got = _read(mcap)
     tracks, mount, echo = got["tracks"], got["mount"], got["echo"]
@@ -95,7 +95,7 @@ def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
             ax.plot(sonar_path[-1, 0], sonar_path[-1, 1], "r^", ms=6)
         ax.set(title="sonar vehicle over the forest (top view)", xlabel="x (m)",
                ylabel="y (m)", aspect="equal")
-        ax.legend(loc="upper right", fontsize=8, markerscale=8)
+        ax.legend(loc="best", fontsize=8, markerscale=8)
     if "echo" in ax_of:
         ax = ax_of["echo"]
         samples = np.asarray(echo.samples, dtype=np.float64).reshape(-1, echo.samples.shape[-1])

@@ -164,7 +164,7 @@ def _point_cloud(pc: PointCloud) -> Any:
 
 
 def _envelope(echo: SonarEcho) -> dict[str, Any]:
-    from sim_core.sonar.plots import envelope_db
+    from sim_core.sonar.baseband import envelope_db
 
     x = np.atleast_2d(echo.samples).astype(np.float64)[0]
     n = x.size

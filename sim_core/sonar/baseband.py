@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["from_baseband", "to_baseband"]
+__all__ = ["envelope_db", "from_baseband", "to_baseband"]
 
 
 def _check(fs: float, f_center: float, decimation: int) -> None:
@@ -79,3 +79,12 @@ def from_baseband(
     ok = (k >= 0) & (k <= n // 2)
     full[..., k[ok]] = spec_iq[..., offsets[ok] % n_out]
     return np.asarray(np.fft.irfft(full, n=n, axis=-1), dtype=np.float64)
+
+
+def envelope_db(samples: NDArray[np.floating], floor_db: float = -160.0) -> NDArray[np.float64]:
+    """Hilbert envelope of ``samples`` (..., N) in dB re 1 (= re A0), floored at ``floor_db``."""
+    from scipy.signal import hilbert
+
+    env = np.abs(hilbert(np.asarray(samples, dtype=np.float64), axis=-1))
+    with np.errstate(divide="ignore"):
+        return np.maximum(20.0 * np.log10(env), floor_db)

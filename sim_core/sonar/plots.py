@@ -26,11 +26,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 from numpy.typing import NDArray
 
+from sim_core.sonar.baseband import envelope_db
 from sim_core.sonar.params import Echo, EchoParams
 from sim_core.sonar.scenarios import TABLE1_SEED_SECONDS, Ping
 from sim_core.world import Leaves
 
-__all__ = ["envelope_db", "in_contour", "plot_echo", "plot_fig6", "plot_fig7", "plot_table1"]
+__all__ = ["in_contour", "plot_echo", "plot_fig6", "plot_fig7", "plot_table1"]
 
 _MAX_POINTS = 30_000
 
@@ -153,15 +154,6 @@ def plot_table1(measured: Mapping[str, Mapping[int, Sequence[float]]], label: st
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def envelope_db(samples: NDArray[np.floating], floor_db: float = -160.0) -> NDArray[np.float64]:
-    """Hilbert envelope of ``samples`` (..., N) in dB re 1 (= re A0), floored at ``floor_db``."""
-    from scipy.signal import hilbert
-
-    env = np.abs(hilbert(np.asarray(samples, dtype=np.float64), axis=-1))
-    with np.errstate(divide="ignore"):
-        return np.maximum(20.0 * np.log10(env), floor_db)
 
 
 def plot_echo(
