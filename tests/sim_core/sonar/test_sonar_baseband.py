@@ -1,3 +1,8 @@
+"""Echo envelope (sim_core.sonar.baseband.envelope_db) against a closed form."""
+
+from __future__ import annotations
+
+import numpy as np
 
 
 def test_envelope_db_of_a_tone_burst_is_its_amplitude() -> None:
