@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from hil_bridge.logs.track import NoPoseError, PoseLog, describe
+from hil_bridge.logs.track import NoPoseError, PoseLog, describe, parser_chatter
 from sim_core.pose import quat_enu_flu_from_ned_frd, quat_from_euler
 
 __all__ = ["read_dataflash", "read_tlog"]
@@ -48,22 +48,24 @@ def read_dataflash(
     """The poses of an ArduPilot DataFlash log (module docstring)."""
     from pymavlink import DFReader
 
-    try:
-        reader = DFReader.DFReader_binary(str(path), zero_time_base=False)
-    except Exception as exc:  # pymavlink raises bare Exceptions on bad files
-        raise ValueError(f"{path}: cannot read DataFlash ({type(exc).__name__}: {exc})") from None
     msgs: dict[str, list[Any]] = defaultdict(list)
-    try:
-        while True:
-            m = reader.recv_match(type=_DF_TYPES)
-            if m is None:
-                break
-            if m.get_type() == "GPS" and getattr(m, "Status", 3) < 3:
-                continue
-            msgs[m.get_type()].append(m)
-    finally:
-        reader.filehandle.close()
-    log = _dataflash_position(path, msgs, reader)
+    with parser_chatter("pymavlink") as notes:
+        try:
+            reader = DFReader.DFReader_binary(str(path), zero_time_base=False)
+        except Exception as exc:  # pymavlink raises bare Exceptions on bad files
+            raise ValueError(f"{path}: cannot read DataFlash ({type(exc).__name__}: "
+                             f"{exc})") from None
+        try:
+            while True:
+                m = reader.recv_match(type=_DF_TYPES)
+                if m is None:
+                    break
+                if m.get_type() == "GPS" and getattr(m, "Status", 3) < 3:
+                    continue
+                msgs[m.get_type()].append(m)
+        finally:
+            reader.filehandle.close()
+    log = _dataflash_position(path, msgs, reader, notes)
     if msgs["ATT"]:
         a = _rows(msgs["ATT"], ("TimeUS", "Roll", "Pitch", "Yaw"))
         log.att_source = "ATT"
@@ -79,18 +81,21 @@ def read_dataflash(
     return log
 
 
-def _dataflash_position(path: Path, msgs: dict[str, list[Any]], reader: Any) -> PoseLog:
+def _dataflash_position(
+    path: Path, msgs: dict[str, list[Any]], reader: Any, notes: list[str]
+) -> PoseLog:
     for name in ("POS", "GPS", "AHR2"):
         if msgs[name]:
             break
     else:
         found = {n: int(c) for i, c in enumerate(getattr(reader, "counts", []))
                  if c and (n := getattr(reader, "id_to_name", {}).get(i))}
+        said = f" ({'; '.join(notes)})" if notes else ""
         raise NoPoseError(f"{path}: DataFlash log without a usable pose: no POS, GPS (3D fix) "
-                          f"or AHR2 messages; the log holds {describe(found)}")
+                          f"or AHR2 messages; the log holds {describe(found)}{said}")
     p = _rows(msgs[name], ("TimeUS", "Lat", "Lng", "Alt"))
     log = PoseLog(format="ArduPilot DataFlash", source=name, t=p[:, 0] * 1e-6,
-                  position=p[:, 1:4], frame="geodetic")
+                  position=p[:, 1:4], frame="geodetic", notes=list(notes))
     if name == "GPS" and all(hasattr(msgs[name][0], f) for f in ("Spd", "VZ")):
         s = _rows(msgs[name], ("Spd", "VZ"))
         log.speed = np.hypot(s[:, 0], s[:, 1])
@@ -106,23 +111,24 @@ def read_tlog(path: Path, *, vehicle_id: int | None = None, topic: str | None = 
     """The poses of a MAVLink telemetry log (module docstring)."""
     from pymavlink import mavutil
 
-    try:
-        conn = mavutil.mavlogfile(str(path), robust_parsing=True)
-    except Exception as exc:  # pymavlink raises bare Exceptions on bad files
-        raise ValueError(f"{path}: cannot read tlog ({type(exc).__name__}: {exc})") from None
     by_sys: dict[int, dict[str, list[Any]]] = defaultdict(lambda: defaultdict(list))
     found: dict[str, int] = defaultdict(int)
-    try:
-        while True:
-            m = conn.recv_msg()
-            if m is None:
-                break
-            kind = m.get_type()
-            found[kind] += 1
-            if kind in _TLOG_TYPES:
-                by_sys[m.get_srcSystem()][kind].append(m)
-    finally:
-        conn.close()
+    with parser_chatter("pymavlink") as notes:
+        try:
+            conn = mavutil.mavlogfile(str(path), robust_parsing=True)
+        except Exception as exc:  # pymavlink raises bare Exceptions on bad files
+            raise ValueError(f"{path}: cannot read tlog ({type(exc).__name__}: {exc})") from None
+        try:
+            while True:
+                m = conn.recv_msg()
+                if m is None:
+                    break
+                kind = m.get_type()
+                found[kind] += 1
+                if kind in _TLOG_TYPES:
+                    by_sys[m.get_srcSystem()][kind].append(m)
+        finally:
+            conn.close()
     with_pose = sorted(s for s, d in by_sys.items()
                        if d["GLOBAL_POSITION_INT"] or d["LOCAL_POSITION_NED"])
     if not with_pose:
@@ -159,4 +165,5 @@ def read_tlog(path: Path, *, vehicle_id: int | None = None, topic: str | None = 
         log.att_t, log.att_q = a[:, 0] * 1e-3, _ned_quat_from_euler(a[:, 1], a[:, 2], a[:, 3])
         log.att_source = "ATTITUDE"
     log.vehicle_id = sysid
+    log.notes.extend(notes)
     return log

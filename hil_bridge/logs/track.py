@@ -22,6 +22,12 @@ where the log has them.
 
 from __future__ import annotations
 
+import contextlib
+import io
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -32,7 +38,7 @@ from hil_bridge.errors import HilError
 from sim_core.pose import enu_from_ned, euler_from_quat, quat_normalize, quat_slerp
 from sim_core.scene import Trajectory
 
-__all__ = ["LogReport", "NoPoseError", "PoseLog", "describe", "to_trajectory"]
+__all__ = ["LogReport", "NoPoseError", "PoseLog", "describe", "parser_chatter", "to_trajectory"]
 
 FloatArray = NDArray[np.float64]
 G = 9.81
@@ -258,3 +264,28 @@ def describe(found: dict[str, int]) -> str:
     if not found:
         return "nothing"
     return ", ".join(f"{k} ({v})" for k, v in sorted(found.items()))
+
+
+@contextlib.contextmanager
+def parser_chatter(name: str) -> Iterator[list[str]]:
+    """Collect what a third-party parser prints (pyulog and pymavlink print their warnings,
+    pymavlink's C indexer straight to file descriptor 2) as report notes ``"<name>: <line>"``
+    instead of letting it reach the terminal."""
+    notes: list[str] = []
+    buf = io.StringIO()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as raw:
+            os.dup2(raw.fileno(), 2)
+            try:
+                with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+                    yield notes
+            finally:
+                os.dup2(saved, 2)
+                raw.seek(0)
+                text = buf.getvalue() + raw.read().decode("utf-8", "replace")
+                lines = dict.fromkeys(ln.strip() for ln in text.splitlines() if ln.strip())
+                notes.extend(f"{name}: {ln}" for ln in list(lines)[:3])
+    finally:
+        os.close(saved)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from hil_bridge.logs.track import NoPoseError, PoseLog, describe
+from hil_bridge.logs.track import NoPoseError, PoseLog, describe, parser_chatter
 from sim_core.pose import quat_enu_flu_from_ned_frd
 
 __all__ = ["read_ulog"]
@@ -22,18 +22,23 @@ __all__ = ["read_ulog"]
 _TOPICS = ["vehicle_global_position", "vehicle_local_position", "vehicle_attitude"]
 
 
-def _load(path: Path, topics: list[str] | None) -> Any:
+def _load(path: Path, topics: list[str] | None, notes: list[str]) -> Any:
     from pyulog import ULog
 
     try:
-        return ULog(str(path), message_name_filter_list=topics, disable_str_exceptions=True)
+        with parser_chatter("pyulog") as chatter:
+            ulog = ULog(str(path), message_name_filter_list=topics, disable_str_exceptions=True)
     except Exception as exc:  # pyulog raises bare Exception/struct.error/IndexError on bad files
         raise ValueError(f"{path}: cannot read ULog ({type(exc).__name__}: {exc})") from None
+    finally:
+        notes[:] = chatter
+    return ulog
 
 
 def read_ulog(path: Path, *, vehicle_id: int | None = None, topic: str | None = None) -> PoseLog:
     """The poses of a PX4 ULog (module docstring)."""
-    ulog = _load(path, _TOPICS)
+    notes: list[str] = []
+    ulog = _load(path, _TOPICS, notes)
     data = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
     glob, local, att = (data.get(n) for n in _TOPICS)
     if glob is not None and len(glob["timestamp"]):
@@ -58,13 +63,14 @@ def read_ulog(path: Path, *, vehicle_id: int | None = None, topic: str | None = 
             log.notes.append(f"vehicle_local_position: {int((~valid).sum())} sample(s) with "
                              "xy_valid/z_valid false dropped")
     else:
-        everything = _load(path, None)
+        everything = _load(path, None, notes)
         found: dict[str, int] = {}
         for d in everything.data_list:
             found[d.name] = found.get(d.name, 0) + len(d.data["timestamp"])
+        said = f" ({'; '.join(notes)})" if notes else ""
         raise NoPoseError(f"{path}: PX4 ULog without a usable pose: no vehicle_global_position "
                           "or vehicle_local_position messages; the log holds "
-                          f"{describe(found)}")
+                          f"{describe(found)}{said}")
     if att is not None and all(f"q[{i}]" in att for i in range(4)) and len(att["timestamp"]):
         q_ned = np.stack([att[f"q[{i}]"] for i in range(4)], axis=1).astype(np.float64)
         ok = np.linalg.norm(q_ned, axis=1) > 0
@@ -72,4 +78,5 @@ def read_ulog(path: Path, *, vehicle_id: int | None = None, topic: str | None = 
         log.att_q = quat_enu_flu_from_ned_frd(q_ned[ok])
         log.att_source = "vehicle_attitude"
     log.vehicle_id = vehicle_id
+    log.notes.extend(notes)
     return log

@@ -229,3 +229,47 @@ def test_replay_cli_flies_a_tlog_and_reports_what_it_read(
     assert summary["log"]["origin"] == pytest.approx(list(ORIGIN))
     assert summary["nodes"]["server"]["sim_time_s"] == pytest.approx(4.0)
     assert summary["nodes"]["server"]["states_published"] >= 200  # 50 Hz over 4 s of sim time
+
+
+def _bad_files(d: Path) -> dict[str, Path]:
+    import os
+
+    write_ulog(d / "good.ulg", truth(POS_T), truth(ATT_T), local=True, glob=False)
+    write_dataflash(d / "good.bin", truth(POS_T), truth(ATT_T))
+    ulg, df = (d / "good.ulg").read_bytes(), (d / "good.bin").read_bytes()
+    rng = np.random.default_rng(4)
+    files = {
+        "ulog cut in its header": ulg[:20],
+        "random bytes named .ulg": bytes(rng.integers(0, 256, 300, dtype=np.uint8)),
+        "dataflash magic then garbage": b"\xa3\x95" + bytes(rng.integers(0, 256, 500,
+                                                                         dtype=np.uint8)),
+        "empty tlog": b"",
+        "sqlite magic then garbage": b"SQLite format 3\x00" + os.urandom(200),
+        "mcap magic then garbage": b"\x89MCAP0\r\n" + os.urandom(200),
+        "empty csv": b"",
+        "csv header only": b"t,x,y,z\n",
+    }
+    names = ["a.ulg", "b.ulg", "c.bin", "d.tlog", "e.db3", "f.mcap", "g.csv", "h.csv"]
+    out = {}
+    for (label, data), name in zip(files.items(), names, strict=True):
+        (d / name).write_bytes(data)
+        out[label] = d / name
+    (d / "cut.ulg").write_bytes(ulg[: len(ulg) // 2 + 3])
+    (d / "cut.bin").write_bytes(df[: len(df) // 2 + 5])
+    return out
+
+
+def test_bad_files_fail_with_one_line_naming_the_file_and_parsers_stay_quiet(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    for label, path in _bad_files(tmp_path).items():
+        with pytest.raises(ValueError) as info:
+            read_log(path)
+        msg = str(info.value)
+        assert msg.startswith(f"{path}: ") and "\n" not in msg, (label, msg)
+    for cut in ("cut.ulg", "cut.bin"):  # cut mid-record: every complete record is read
+        traj, _ = read_log(tmp_path / cut)
+        assert 15 <= len(traj) < len(POS_T)
+        np.testing.assert_allclose(traj.xyz, truth(POS_T).enu[: len(traj)], atol=0.012)
+    out = capfd.readouterr()
+    assert out.out == "" and out.err == ""  # pyulog's and pymavlink's prints became notes
