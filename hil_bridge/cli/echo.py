@@ -6,6 +6,9 @@ Example::
         --out echo.npz --plot echo.png --json
     echoloop echo ... --absorption --temperature 25 --humidity 80 --call fm --ears 0.03 \\
         --out echo.mat --plot echo.png --spectrogram     # .npz, .mat (MATLAB v5) or .wav
+
+``--seed2020`` gives the seed paper code's echo (``--beam-lookup``, ``--spreading`` override its
+parts; docs/sonar.md, "The seed's own code").
 """
 
 from __future__ import annotations
@@ -83,7 +86,14 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--fidelity", default="fast", choices=sorted(FIDELITIES))
     parser.add_argument("--samples", type=int, default=EchoParams().samples, metavar="N",
                         help="echo length in samples at 400 kHz (default 24000 = 60 ms)")
-    parser.add_argument("--no-spreading", action="store_true", help="drop the 1/r^2 loss")
+    parser.add_argument("--spreading", action=argparse.BooleanOptionalAction, default=None,
+                        help="the 1/r^2 spreading loss (default: on; off with --seed2020)")
+    parser.add_argument("--seed2020", action="store_true",
+                        help="the seed paper's echo code (Demonstration_code_for_Paper): "
+                             "Gaussian in raw az/el read from its 1 deg grid, no 1/r^2")
+    parser.add_argument("--beam-lookup", choices=("exact", "grid"),
+                        help="with --seed2020: the seed's 1 deg grid (default) or the Gaussian "
+                             "at each leaf's own angles")
     parser.add_argument("--out", type=Path,
                         help="write the echo, fs and the ping's parameters to .npz, .mat "
                              "(MATLAB v5) or .wav, by extension")
@@ -103,8 +113,10 @@ def main(argv: list[str]) -> int:
         raise ValueError(f"--beamwidth must be in (0, 180) degrees, got {args.beamwidth!r}")
     beam = Beam.from_az_el(position, math.radians(az), math.radians(el),
                            math.radians(args.beamwidth))
-    params = EchoParams(samples=args.samples, spreading=not args.no_spreading,
-                        **physics_params(args))
+    if args.beam_lookup is not None and not args.seed2020:
+        raise ValueError(f"--beam-lookup {args.beam_lookup} needs --seed2020 (docs/sonar.md)")
+    params = EchoParams(samples=args.samples, spreading=args.spreading, seed2020=args.seed2020,
+                        beam_lookup=args.beam_lookup, **physics_params(args))
     if args.out is not None:
         check_echo_output(args.out, overwrite=args.overwrite)
     leaves = load_leaves(args.leaves)
@@ -116,7 +128,8 @@ def main(argv: list[str]) -> int:
         meta = {"position": list(position), "az_deg": az, "el_deg": el,
                 "beamwidth_deg": args.beamwidth, "fidelity": echo.fidelity,
                 "leaves_in_beam": echo.leaves_in_beam, "sound_speed": params.sound_speed,
-                "spreading": params.spreading, **physics_meta(args)}
+                "spreading": params.spreading, "seed2020": params.seed2020,
+                "beam_lookup": params.beam_lookup, **physics_meta(args)}
         written = write_echo(args.out, echo.samples, echo.fs, meta, overwrite=args.overwrite,
                              wav_format=args.wav_format)
     if args.plot is not None:

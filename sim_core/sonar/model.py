@@ -26,6 +26,7 @@ from sim_core.sonar.physics import (
     incident_freq_sigma,
     shading_factor,
 )
+from sim_core.sonar.seedbeam import off_axis
 
 __all__ = [
     "Cut",
@@ -146,16 +147,15 @@ def _rowdot(x: F64, v: F64) -> F64:
     return np.einsum("ij,j->i", x, v)
 
 
-def _theta2(u: F64, axis: F64, seed2020: bool) -> F64:
-    """Squared off-axis angle, rad^2, shape (M,): arccos(u.b)^2, or (seed2020) daz^2 + del^2."""
-    if not seed2020:
+def _theta2(u: F64, axis: F64, params: EchoParams) -> F64:
+    """Squared off-axis angle, rad^2, (M,), of leaves in unit directions ``u`` (M,3) from a beam
+    along unit ``axis``: arccos(u.b)^2, or with ``seed2020`` daz^2 + del^2 (exact or on the
+    seed's grid, :mod:`sim_core.sonar.seedbeam`; these need only the direction, so any positive
+    multiple of ``u`` gives the same)."""
+    if not params.seed2020:
         return np.arccos(np.clip(_rowdot(u, axis), -1.0, 1.0)) ** 2
-    az = np.arctan2(u[:, 1], u[:, 0])
-    el = np.arcsin(np.clip(u[:, 2], -1.0, 1.0))
-    az0 = math.atan2(float(axis[1]), float(axis[0]))
-    el0 = math.asin(float(np.clip(axis[2], -1.0, 1.0)))
-    daz = np.mod(az - az0 + np.pi, 2.0 * np.pi) - np.pi
-    return daz * daz + (el - el0) ** 2
+    daz, dele = off_axis(u[:, 0], u[:, 1], u[:, 2], axis, params.beam_lookup or "exact")
+    return daz * daz + dele * dele
 
 
 def _ear_geometry(beam: Beam, params: EchoParams) -> list[tuple[F64, F64, float]]:
@@ -469,8 +469,7 @@ def _select(
         tested += r.shape[0]
         if params.seed2020:
             d = np.stack([dx, dy, dz], 1)
-            u = (d if everyone else d.compress(valid, axis=0)) / r[:, None]
-            th2 = _theta2(u, sel.axis, True)
+            th2 = _theta2(d if everyone else d.compress(valid, axis=0), sel.axis, params)
         else:
             proj /= r
             np.clip(proj, -1.0, 1.0, out=proj)
@@ -598,7 +597,7 @@ def prepare(
                 rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
                 rr = np.maximum(rr, params.r_min)
                 ur = dr / rr[:, None]
-                th2r = _theta2(ur, axis_rx, params.seed2020)
+                th2r = _theta2(ur, axis_rx, params)
                 s1r = a0 * np.exp(-th2r / (2.0 * sig * sig))
                 bis = u + ur
                 bis_n = np.sqrt(np.einsum("ij,ij->i", bis, bis))
@@ -606,7 +605,7 @@ def prepare(
                 bis = np.where(ok[:, None], bis / np.where(ok, bis_n, 1.0)[:, None], u)
                 nhat_bis = np.abs(np.einsum("ij,ij->i", nb, bis)) / nn
                 beta[ch, blk] = np.arccos(np.clip(nhat_bis, 0.0, 1.0))
-            spread = 1.0 if (not params.spreading or params.seed2020) else 1.0 / (rb * rr)
+            spread = 1.0 / (rb * rr) if params.spreading else 1.0
             gain = np.multiply(s1b, s1r, out=beam_gain[ch, blk])
             if incident:
                 np.multiply(shade, spread, out=rest[ch, blk])
@@ -688,7 +687,7 @@ def _cut_amax(params: EchoParams, r: F64, a: F64, s1: F64) -> F64:
         else:
             w *= s1
             w *= a0 if params.ears else s1
-        if params.spreading and not params.seed2020:
+        if params.spreading:
             w /= r
             if params.ears:
                 off = float(np.linalg.norm(params.ears[ch].offset))

@@ -15,6 +15,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sim_core.sonar.seedbeam import BeamLookup
+
 __all__ = ["Beam", "Call", "Ear", "Echo", "EchoParams", "FrequencyGrid"]
 
 #: relative slack on f*N/fs being an integer (floating-point band edges such as fs/N)
@@ -103,8 +105,9 @@ class EchoParams:
     """All model parameters (defaults = ``docs/spec/echo_model.md``); physics switches are opt-in.
 
     Core (reference): ``sound_speed`` m/s, band ``f_lo``..``f_hi`` Hz, sample rate ``fs`` Hz,
-    ``samples`` N, gain constant ``g0``, ``spreading`` (1/r^2), selection threshold
-    ``threshold_db`` (G), ``a_min`` m, ``r_min`` m, ``peak_amplitude`` (A0).
+    ``samples`` N, gain constant ``g0``, ``spreading`` (1/r^2; None = on, off under
+    ``seed2020``), selection threshold ``threshold_db`` (G), ``a_min`` m, ``r_min`` m,
+    ``peak_amplitude`` (A0).
 
     Opt-in physics (all off by default):
     - ``absorption``: ISO 9613-1 air absorption over the two-way path, from ``temperature_c``,
@@ -117,8 +120,12 @@ class EchoParams:
     - ``shading`` with ``shading_opacity``: nearer leaves occlude farther ones (docs/sonar.md).
     - ``near_field_cap``: |g0 L / k| <= r / 2 (a leaf cannot return more than a mirror).
     - ``ears``: receivers (e.g. :meth:`Ear.binaural`) -> one echo channel per ear.
-    - ``seed2020``: parity with the seed's 2020 scripts: no 1/r^2 and a Gaussian in raw
-      azimuth/elevation differences.
+    - ``seed2020``: parity with the seed's 2020 paper code (``Demonstration_code_for_Paper``):
+      a Gaussian in raw azimuth/elevation differences read from the code's 1° grid, and no
+      1/r^2. ``beam_lookup`` ("grid" or "exact": the Gaussian at each leaf's own angles) and
+      ``spreading`` override its parts; unset (None) they take the paper code's values under
+      ``seed2020`` and the spec's otherwise (exact, spreading on), and read back resolved.
+      The grid exists only in the seed's az/el form. See :mod:`sim_core.sonar.seedbeam`.
     - ``beam_model="incident_freq"``: the horseshoe-bat beamwidth BW(f) of the seed code
       replaces the beam's fixed beamwidth at each frequency.
     - ``budget_s``: per-echo time budget of the ``realtime`` fidelity.
@@ -130,7 +137,7 @@ class EchoParams:
     fs: float = 400e3
     samples: int = 24000
     g0: float = 0.2
-    spreading: bool = True
+    spreading: bool | None = None
     threshold_db: float = 20.0
     a_min: float = 1e-3
     r_min: float = 0.1
@@ -148,6 +155,7 @@ class EchoParams:
     near_field_cap: bool = False
     ears: tuple[Ear, ...] = ()
     seed2020: bool = False
+    beam_lookup: BeamLookup | None = None
     beam_model: Literal["fixed", "incident_freq"] = "fixed"
     budget_s: float = 5e-3
     grid: FrequencyGrid = field(init=False, repr=False, compare=False)
@@ -183,6 +191,19 @@ class EchoParams:
             raise ValueError(
                 f"EchoParams.shading_opacity must be in [0, 1], got {self.shading_opacity!r}"
             )
+        if self.beam_lookup not in (None, "exact", "grid"):
+            raise ValueError(
+                f"EchoParams.beam_lookup must be 'exact' or 'grid', got {self.beam_lookup!r}"
+            )
+        if self.beam_lookup == "grid" and not self.seed2020:
+            raise ValueError(
+                "EchoParams.beam_lookup='grid' needs seed2020=True (the seed's 1° grid is over "
+                "raw azimuth/elevation differences)"
+            )
+        if self.beam_lookup is None:
+            object.__setattr__(self, "beam_lookup", "grid" if self.seed2020 else "exact")
+        if self.spreading is None:
+            object.__setattr__(self, "spreading", not self.seed2020)
         if self.beam_model not in ("fixed", "incident_freq"):
             raise ValueError(
                 f"EchoParams.beam_model must be 'fixed' or 'incident_freq', got {self.beam_model!r}"
