@@ -121,11 +121,11 @@ class Law:
     thermalBankFactor: float = 0.0
     neighborRadius: float = 1000.0
     k: int = 10
-    fov: float = 5.759587
+    fov: float = 5.759586531581287
     forwardSpeedMin: float = 8.0
     forwardSpeedMax: float = 13.0
-    bankMin: float = -0.261799
-    bankMax: float = 0.261799
+    bankMin: float = -0.2617993877991494
+    bankMax: float = 0.2617993877991494
     Sink_A: float = -0.01843
     Sink_B: float = 0.3782
     Sink_C: float = -2.3782
