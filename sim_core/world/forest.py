@@ -130,7 +130,9 @@ class SpeciesSpec:
 
     Tree: ``tree`` names a model of :data:`sim_core.world.trees.TREE_MODELS`; ``grammar`` swaps in
     an ``.l++`` file (an L++ model), ``growth_level`` fixes the growth level, ``scale`` multiplies
-    the metre scale, ``template`` dresses a GMT3 skeleton with CAD templates.
+    the metre scale, ``leaf_size`` picks an L++ model's leaf-size rule (``metres`` or ``seed``,
+    see :class:`~sim_core.world.trees.LppTree`), ``template`` dresses a GMT3 skeleton with CAD
+    templates.
 
     Placement (exactly one, unless the forest's ``tree_map`` places this species):
     ``kernels`` (SE mixture), ``rate`` (homogeneous, trees/m²), ``kde`` (from a tree map),
@@ -144,6 +146,7 @@ class SpeciesSpec:
     grammar: str | None = None
     growth_level: int | None = None
     scale: float = 1.0
+    leaf_size: Literal["metres", "seed"] | None = None
     template: TemplateSpec | None = None
     kernels: tuple[KernelSpec, ...] = ()
     rate: float | None = None
@@ -163,6 +166,12 @@ class SpeciesSpec:
             )
         if self.growth_level is not None and self.growth_level < 0:
             raise ValueError(f"species {self.name!r}: growth_level must be >= 0")
+        lpp = self.grammar is not None or isinstance(TREE_MODELS[self.tree], LppTree)
+        if self.leaf_size is not None and not lpp:
+            raise ValueError(
+                f"species {self.name!r}: leaf_size applies to L++ models (tree4..tree7 or a "
+                f"grammar), not {self.tree!r}"
+            )
         if not (math.isfinite(self.scale) and self.scale > 0):
             raise ValueError(f"species {self.name!r}: scale must be > 0, got {self.scale}")
         if self.rate is not None and not (math.isfinite(self.rate) and self.rate >= 0):
@@ -383,6 +392,8 @@ def _model_for(s: SpeciesSpec) -> TreeModel | CadTree:
         model = model.with_growth_level(s.growth_level)
     if s.scale != 1.0:
         model = dataclasses.replace(model, unit_m=model.unit_m * s.scale)
+    if s.leaf_size is not None and isinstance(model, LppTree):
+        model = dataclasses.replace(model, leaf_size=s.leaf_size)
     if s.template is None:
         return model
     if not isinstance(model, GMT3Tree):

@@ -15,6 +15,7 @@ Semantics (spec §2B.3-2B.5), all randomness from the ``rng`` argument:
 * growth level: iterations − 1 / + 1 with probabilities 0.33 / 0.33, once per tree;
 * ``&``, ``^``, ``\\``, ``/`` angles are N(a, 0.1 a) clipped at ±2σ;
 * ``*`` is a leaf kept with probability 0.5; ``|`` turns by 180° (the seed's 3.14° is a units bug);
+* ``<`` ``>`` ``=`` ``%`` change the branch thickness and reduction (:func:`branch_radii`);
 * the turtle frame (position, heading, right vector) starts fresh for every tree.
 
 The turtle is evaluated without a Python loop over commands: every command is a rigid transform
@@ -25,13 +26,22 @@ and nesting is resolved level by level.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Grammar", "GrammarError", "TurtleResult", "expand", "interpret", "parse_grammar"]
+__all__ = [
+    "Grammar",
+    "GrammarError",
+    "TurtleResult",
+    "branch_radii",
+    "expand",
+    "interpret",
+    "parse_grammar",
+]
 
 F64 = NDArray[np.float64]
 
@@ -266,7 +276,7 @@ def expand(
 
 # --- turtle ----------------------------------------------------------------------------------
 
-_OPEN, _CLOSE, _ROT, _MOVE, _LEAF = 1, 2, 3, 4, 5
+_OPEN, _CLOSE, _ROT, _MOVE, _LEAF, _THICK = 1, 2, 3, 4, 5, 6
 
 #: tokens per vectorised block in the scan (bounds the temporaries to a few MB)
 _CHUNK = 32768
@@ -316,6 +326,77 @@ def _qrot(q: F64, v: F64) -> F64:
             vz + w * tz + (x * ty - y * tx),
         ]
     )
+
+
+def _scopes(is_open: NDArray[np.bool_], is_close: NDArray[np.bool_]
+            ) -> tuple[NDArray[np.int64], list[NDArray[np.int64]]]:
+    """Bracket scopes of a token sequence: for every token the index of the '[' that opens its
+    level (-1 at the top), and the tokens that are not ']' grouped by bracket depth."""
+    n = is_open.size
+    step = is_open.astype(np.int64) - is_close
+    level = np.cumsum(step) - step  # bracket depth before each token
+    pos = np.arange(n)
+    seg = np.full(n, -1, dtype=np.int64)
+    body = ~is_close
+    by_level = pos[body][np.argsort(level[body], kind="stable")]
+    bounds = np.searchsorted(level[by_level], np.arange(int(level.max()) + 2 if n else 1))
+    groups = [by_level[bounds[d] : bounds[d + 1]] for d in range(bounds.size - 1)]
+    for d in range(1, len(groups)):
+        at = groups[d]
+        parents = groups[d - 1]
+        opens = parents[is_open[parents]]
+        if at.size:
+            seg[at] = opens[np.searchsorted(opens, at, side="right") - 1]
+    return seg, groups
+
+
+Compose = Callable[[F64, F64], F64]
+
+
+def _compose_frames(prev: F64, cur: F64) -> F64:
+    """Turtle frames as rows (quaternion (4,), translation (3,)): ``prev`` then ``cur``."""
+    out = np.empty_like(cur)
+    out[4:] = prev[4:] + _qrot(prev[:4], cur[4:])
+    out[:4] = _qmul(prev[:4], cur[:4])
+    return out
+
+
+def _nested_scan(
+    state: F64,
+    seg: NDArray[np.int64],
+    groups: list[NDArray[np.int64]],
+    order: NDArray[np.int64],
+    use: NDArray[np.bool_],
+    compose: Compose,
+) -> None:
+    """In place: ``state[:, i]`` (a local transform per token, rows R) becomes the composition,
+    in command order, of every transform visible at token i (those of its own bracket level up
+    to i, after those of the levels enclosing it up to their '[').
+
+    ``order``: the tokens taking part (``use``), sorted by scope (``seg``) keeping command order.
+    A segmented inclusive scan (log-step) inside every scope, then nesting resolved level by
+    level: world(i) = world('[' opening i's level) then prefix(i).
+    """
+    st = state[:, order]
+    sseg = seg[order]
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = sseg[1:] != sseg[:-1]
+    rank = np.arange(order.size) - np.maximum.accumulate(np.where(first, np.arange(order.size), 0))
+    k = 1
+    while order.size and k <= int(rank.max()):
+        active = np.nonzero(rank >= k)[0]
+        # chunks from the top down: a chunk reads only lower indices, which are still unchanged
+        for blk in range((active.size - 1) // _CHUNK, -1, -1):
+            i = active[blk * _CHUNK : (blk + 1) * _CHUNK]
+            st[:, i] = compose(st[:, i - k], st[:, i])
+        k *= 2
+    state[:, order] = st
+    del st
+    for level_all in groups[1:]:
+        level_tokens = level_all[use[level_all]]
+        for blk in range(0, level_tokens.size, _CHUNK):
+            at = level_tokens[blk : blk + _CHUNK]
+            state[:, at] = compose(state[:, seg[at]], state[:, at])
 
 
 def interpret(
@@ -370,38 +451,24 @@ def interpret(
     n = kind.size
     is_open = kind == _OPEN
     is_close = kind == _CLOSE
-    step = is_open.astype(np.int64) - is_close
-    level = np.cumsum(step) - step  # bracket depth before each token
 
-    # local transforms: unit quaternion q (4, n) and translation t (3, n) in the turtle frame
+    # local transforms as rows: unit quaternion (0-3) and translation (4-6) in the turtle frame
     # (columns right, heading, right × heading); every command right-multiplies the frame
-    q = np.zeros((4, n))
-    q[0] = 1.0
-    t = np.zeros((3, n))
+    frames = np.zeros((7, n))
+    frames[0] = 1.0
     ridx = np.flatnonzero(rot)
-    q[0, ridx] = np.cos(val[ridx] / 2.0)
-    q[1 + axis[ridx], ridx] = np.sin(val[ridx] / 2.0)
+    frames[0, ridx] = np.cos(val[ridx] / 2.0)
+    frames[1 + axis[ridx], ridx] = np.sin(val[ridx] / 2.0)
     mv = kind == _MOVE
-    t[1, mv] = val[mv]
+    frames[5, mv] = val[mv]
 
-    # segment (enclosing '[') of every token that is not ']'; tokens grouped by bracket level
-    pos = np.arange(n)
-    seg = np.full(n, -1, dtype=np.int64)
-    body = ~is_close
-    by_level = pos[body][np.argsort(level[body], kind="stable")]
-    bounds = np.searchsorted(level[by_level], np.arange(int(level.max()) + 2 if n else 1))
-    groups = [by_level[bounds[d] : bounds[d + 1]] for d in range(bounds.size - 1)]
-    for d in range(1, len(groups)):
-        at = groups[d]
-        parents = groups[d - 1]
-        opens = parents[is_open[parents]]
-        if at.size:
-            seg[at] = opens[np.searchsorted(opens, at, side="right") - 1]
+    seg, groups = _scopes(is_open, is_close)
 
     # a leaf changes nothing: it takes the state of the last non-leaf token before it in its
     # bracket level, or of the '[' opening the level (-1: the start state); leaves skip the scan
     leaf = kind == _LEAF
-    members = pos[body]
+    pos = np.arange(n)
+    members = pos[~is_close]
     order_all = members[np.argsort(seg[members], kind="stable")]
     seg_sorted = seg[order_all]
     idx = np.arange(order_all.size)
@@ -415,38 +482,10 @@ def interpret(
         within, order_all[np.maximum(last_state, 0)], seg_sorted[leaf_sorted]
     )[np.argsort(order_all[leaf_sorted])]  # back to command order
 
-    # segmented inclusive scan (log-step) of the local transforms inside every bracket level
-    order = order_all[~leaf_sorted]
     draw = is_draw & mv
-    draw_len = t[1, draw].copy()
-    qs, ts = q[:, order], t[:, order]
-    sseg = seg[order]
-    first = np.ones(order.size, dtype=bool)
-    first[1:] = sseg[1:] != sseg[:-1]
-    rank = np.arange(order.size) - np.maximum.accumulate(np.where(first, np.arange(order.size), 0))
-    k = 1
-    while order.size and k <= int(rank.max()):
-        active = np.nonzero(rank >= k)[0]
-        # chunks from the top down: a chunk reads only lower indices, which are still unchanged
-        for blk in range((active.size - 1) // _CHUNK, -1, -1):
-            i = active[blk * _CHUNK : (blk + 1) * _CHUNK]
-            prev_q, prev_t = qs[:, i - k], ts[:, i - k]
-            ts[:, i] = prev_t + _qrot(prev_q, ts[:, i])
-            qs[:, i] = _qmul(prev_q, qs[:, i])
-        k *= 2
-    Wq, Wt = q, t  # the local transforms are no longer needed: reuse their memory
-    Wq[:, order], Wt[:, order] = qs, ts
-    del qs, ts
-
-    # resolve nesting: world = world('[' that opens the level) ∘ prefix inside the level
-    for level_all in groups[1:]:
-        level_tokens = level_all[~leaf[level_all]]
-        for blk in range(0, level_tokens.size, _CHUNK):
-            at = level_tokens[blk : blk + _CHUNK]
-            parent = seg[at]
-            pq = Wq[:, parent]
-            Wt[:, at] = Wt[:, parent] + _qrot(pq, Wt[:, at])
-            Wq[:, at] = _qmul(pq, Wq[:, at])
+    draw_len = frames[5, draw].copy()
+    _nested_scan(frames, seg, groups, order_all[~leaf_sorted], ~leaf, _compose_frames)
+    Wq, Wt = frames[:4], frames[4:]
 
     yhat = np.array([[0.0], [1.0], [0.0]])
     # column -1 of the extended arrays is the start state (identity at the origin)
@@ -462,3 +501,82 @@ def interpret(
         seg_start=seg_start,
         seg_end=seg_end,
     )
+
+
+#: the turtle's initial reduction, the ratio of a segment's top to base radius (turtle.cpp)
+REDUCTION = 0.95
+
+
+def _compose_affine(prev: F64, cur: F64) -> F64:
+    """Pairs of affine maps x -> a x + b as rows (a, b, c, d) (thickness, reduction): ``prev``
+    then ``cur``."""
+    out = np.empty_like(cur)
+    out[0::2] = cur[0::2] * prev[0::2]
+    out[1::2] = cur[0::2] * prev[1::2] + cur[1::2]
+    return out
+
+
+def branch_radii(
+    seq: NDArray[np.int32],
+    table: list[tuple[str, float | None]],
+    default_angle_deg: float,
+    thickness_pct: float,
+    rng: np.random.Generator,
+    *,
+    narrow_noise: float = 0.1,
+) -> F64:
+    """Base and top radius of every drawn segment, (S, 2), grammar units, the seed's way.
+
+    The segments are the ``F``/``f`` commands of ``seq`` in order (those of
+    :func:`interpret`). As in the seed's turtle (``lplus.cpp``, ``turtle.cpp``): the thickness
+    starts at ``thickness_pct``/100 and the reduction at 0.95; ``<(p)`` multiplies the thickness
+    by 1 + p/100, ``>(p)`` by 1 − p'/100 with p' ~ N(p, (``narrow_noise``·p)²) clipped at ±2σ
+    (drawn from ``rng``), ``=(p)`` sets it to p/100 and ``%(p)`` the reduction to p/100; ``[``
+    and ``]`` save and restore both. For ``<`` and ``>`` a parameter of 1 or none means the
+    default angle (the seed's rule for every parametric command), for ``=`` and ``%`` it is 1.
+    A segment of length L has base radius L·thickness and top radius base·reduction; the
+    thickness never shrinks by itself. A thickness narrowed below 0 gives radius 0.
+    """
+    kinds = np.zeros(len(table), dtype=np.int8)
+    local = np.tile(np.array([[1.0], [0.0], [1.0], [0.0]]), (1, len(table)))
+    noisy = np.zeros(len(table), dtype=bool)
+    length = np.zeros(len(table))
+    for j, (c, p) in enumerate(table):
+        num = default_angle_deg if p is None or p == 1 else p
+        raw = 1.0 if p is None else p
+        if c == "[":
+            kinds[j] = _OPEN
+        elif c == "]":
+            kinds[j] = _CLOSE
+        elif c in "Ff":
+            kinds[j] = _MOVE
+            length[j] = raw
+        elif c in "<>%=":
+            kinds[j] = _THICK
+            if c == "<":
+                local[0, j] = 1.0 + num / 100.0
+            elif c == ">":
+                local[0, j] = num  # the narrowing in percent, drawn per command below
+                noisy[j] = True
+            elif c == "=":
+                local[:2, j] = 0.0, raw / 100.0
+            else:
+                local[2:, j] = 0.0, raw / 100.0
+    ids = seq[kinds[seq] > 0]
+    kind = kinds[ids]
+    state = local[:, ids]
+    jitter = noisy[ids]
+    if jitter.any():
+        pct = state[0, jitter]
+        pct *= 1.0 + narrow_noise * np.clip(rng.standard_normal(pct.size), -2.0, 2.0)
+        state[0, jitter] = 1.0 - pct / 100.0
+    is_open, is_close = kind == _OPEN, kind == _CLOSE
+    seg, groups = _scopes(is_open, is_close)
+    members = np.flatnonzero(~is_close)
+    order = members[np.argsort(seg[members], kind="stable")]
+    _nested_scan(state, seg, groups, order, ~is_close, _compose_affine)
+    draw = kind == _MOVE
+    a, b, c, d = state[:, draw]
+    base = np.maximum(length[ids[draw]] * (a * (thickness_pct / 100.0) + b), 0.0)
+    return np.stack([base, base * (c * REDUCTION + d)], axis=1)
+

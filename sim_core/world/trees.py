@@ -28,7 +28,14 @@ from numpy.typing import NDArray
 
 from sim_core.world.geometry import clipped_normal, rotate, truncated_normal
 from sim_core.world.gmt3 import Skeleton, grow_skeleton, skeleton_leaves
-from sim_core.world.lpp import Grammar, expand, growth_level, interpret, load_grammar
+from sim_core.world.lpp import (
+    Grammar,
+    branch_radii,
+    expand,
+    growth_level,
+    interpret,
+    load_grammar,
+)
 
 __all__ = [
     "LEAF_DISC_RATIO",
@@ -197,7 +204,19 @@ class LppTree:
         iterations: growth level override (``None``: the grammar's header).
         growth_jitter: apply the seed's ±1 growth-level draw.
         keep_prob: probability that a ``*`` command makes a leaf (seed: 0.5).
-        angle_noise: relative sd of the ``& ^ \\ /`` angles (seed: 0.1).
+        angle_noise: relative sd of the ``& ^ \\ /`` angles and of the ``>`` narrowing (seed:
+            0.1).
+        leaf_size: ``"metres"`` (default): acoustic radius N(``leaf_radius_mean_m``,
+            ``leaf_radius_sd_m``²) truncated at ±2σ (and ≥ 1 mm), metres, whatever ``unit_m``;
+            ``"seed"``: the seed's rule, leaf length N(``seed_leaf_size``, (0.15
+            ``seed_leaf_size``)²) clipped at ±2σ in grammar units, radius 0.3206 × length
+            × ``unit_m`` (docs/world.md says why the default differs).
+        seed_leaf_size: the seed's ``leafSize`` for this species (tree4..7: 1.5, 1.6, 1.1, 1.4).
+
+    Branches (``grow(branches=True)``) have the seed's radius (:func:`~.lpp.branch_radii`):
+    ``seg_radius`` is each segment's base radius in metres (its top is the reduction, 0.95 by
+    default, times that). Their ``>`` draws come after every leaf draw, so asking for branches
+    leaves the leaves unchanged.
     """
 
     grammar: str
@@ -208,6 +227,8 @@ class LppTree:
     angle_noise: float = 0.1
     leaf_radius_mean_m: float = 0.025
     leaf_radius_sd_m: float = 0.005
+    leaf_size: Literal["metres", "seed"] = "metres"
+    seed_leaf_size: float = 1.4
 
     def __post_init__(self) -> None:
         if not self.unit_m > 0:
@@ -219,6 +240,10 @@ class LppTree:
         if not (0.0 <= self.angle_noise < 1.0):
             raise ValueError(f"angle_noise must be in [0, 1), got {self.angle_noise}")
         _check_leaf_radius(self.leaf_radius_mean_m, self.leaf_radius_sd_m)
+        if self.leaf_size not in ("metres", "seed"):
+            raise ValueError(f"leaf_size must be 'metres' or 'seed', got {self.leaf_size!r}")
+        if not (self.seed_leaf_size > 0 and np.isfinite(self.seed_leaf_size)):
+            raise ValueError(f"seed_leaf_size must be > 0, got {self.seed_leaf_size}")
 
     @property
     def path(self) -> Path:
@@ -243,7 +268,11 @@ class LppTree:
         keep = rng.random(tr.leaf_pos.shape[0]) < self.keep_prob
         pos, d = tr.leaf_pos[keep], tr.leaf_dir[keep]
         n = pos.shape[0]
-        radii = _leaf_radii(rng, self.leaf_radius_mean_m, self.leaf_radius_sd_m, n)
+        if self.leaf_size == "seed":
+            size = self.seed_leaf_size
+            radii = LEAF_DISC_RATIO * self.unit_m * clipped_normal(rng, size, 0.15 * size, n)
+        else:
+            radii = _leaf_radii(rng, self.leaf_radius_mean_m, self.leaf_radius_sd_m, n)
         bend = d[:, 1] / 4.0
         flat = d[:, 1] == 0.0
         if flat.any():
@@ -261,11 +290,13 @@ class LppTree:
         centre = pos * self.unit_m + offset
         geo = TreeGeometry(_to_enu(centre), _to_enu(normal), radii)
         if branches:
+            radius = branch_radii(seq, table, g.default_angle_deg, g.thickness_pct, rng,
+                                  narrow_noise=self.angle_noise)
             geo = dataclasses.replace(
                 geo,
                 seg_start=_to_enu(tr.seg_start * self.unit_m),
                 seg_end=_to_enu(tr.seg_end * self.unit_m),
-                seg_radius=np.full(tr.seg_start.shape[0], 0.05 * self.unit_m),
+                seg_radius=radius[:, 0] * self.unit_m,
             )
         return geo
 
@@ -304,7 +335,7 @@ TREE_MODELS: dict[str, TreeModel] = {
     # seed 001 species (spec §2B.2); unit_m chosen so heights fall in 5-25 m
     **{
         name: LppTree(name, unit_m=unit, leaf_radius_mean_m=size * _R,
-                      leaf_radius_sd_m=0.2 * size * _R)
+                      leaf_radius_sd_m=0.2 * size * _R, seed_leaf_size=size)
         for name, unit, size in (
             ("tree4", 0.4, 1.5), ("tree5", 0.5, 1.6), ("tree6", 0.45, 1.1), ("tree7", 0.35, 1.4)
         )

@@ -11,6 +11,7 @@ import pytest
 
 from sim_core.world.lpp import (
     GrammarError,
+    branch_radii,
     expand,
     growth_level,
     interpret,
@@ -181,3 +182,76 @@ def test_turtle_edge_cases_match_sequential_turtle() -> None:
     assert pos.shape == (11, 3)
     np.testing.assert_allclose(out.leaf_pos, pos, atol=1e-12)
     np.testing.assert_allclose(out.leaf_dir, dirs, atol=1e-12)
+
+
+def test_branch_radius_commands_on_a_small_grammar() -> None:
+    """Worked by hand from turtle.cpp: thickness 60 % of a unit segment, reduction 0.95."""
+    g = parse_grammar("1\n15\n60\nA\nA=f[>(50)f=(10)ff%(50)f]<(100)f>f%f=f(2)\n")
+    seq, table = expand(g, 1, np.random.default_rng(0))
+    got = branch_radii(seq, table, g.default_angle_deg, g.thickness_pct,
+                       np.random.default_rng(0), narrow_noise=0.0)
+    expected = [
+        (0.6, 0.57),      # f: base L*0.6, top *0.95
+        (0.3, 0.285),     # [>(50) narrows by 50 %
+        (0.1, 0.095),     # =(10) sets the thickness to 0.1
+        (0.1, 0.095),
+        (0.1, 0.05),      # %(50) sets the reduction to 0.5
+        (1.2, 1.14),      # ] restores 0.6 and 0.95; <(100) doubles
+        (1.02, 0.969),    # bare '>' narrows by the default angle, 15 %
+        (1.02, 0.0102),   # bare '%' sets the reduction to 1/100
+        (0.02, 0.0002),   # bare '=' sets the thickness to 1/100; f(2) doubles the radius
+    ]
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+
+def test_narrowing_is_drawn_per_command_and_clipped_at_two_sigma() -> None:
+    g = parse_grammar("0\n15\n100\n" + ">(30)f" * 400 + "\n")
+    seq, table = expand(g, 0, np.random.default_rng(0))
+    base = branch_radii(seq, table, g.default_angle_deg, g.thickness_pct,
+                        np.random.default_rng(3))[:, 0]
+    factor = base[1:] / base[:-1]  # 1 - p'/100, p' ~ N(30, 3) clipped to [24, 36]
+    assert factor.min() >= 0.64 - 1e-12 and factor.max() <= 0.76 + 1e-12
+    assert abs(factor.mean() - 0.7) < 0.006 and 0.025 < factor.std() < 0.033
+    # narrowing past 100 % gives radius 0, not a negative one
+    g0 = parse_grammar("0\n15\n60\nf>(150)f\n")
+    seq0, table0 = expand(g0, 0, np.random.default_rng(0))
+    r0 = branch_radii(seq0, table0, 15.0, 60.0, np.random.default_rng(0), narrow_noise=0.0)
+    np.testing.assert_array_equal(r0[1], [0.0, 0.0])
+
+
+def _reference_radii(seq: np.ndarray, table: list, co: float, pct: float) -> np.ndarray:
+    """The seed's thickness state (turtle.cpp, lplus.cpp) step by step, noise off."""
+    thick, red, stack, out = pct / 100.0, 0.95, [], []
+    for i in seq:
+        c, p = table[i]
+        num = co if p is None or p == 1 else p
+        raw = 1.0 if p is None else p
+        if c == "<":
+            thick += thick * num / 100.0
+        elif c == ">":
+            thick -= thick * num / 100.0
+        elif c == "=":
+            thick = raw / 100.0
+        elif c == "%":
+            red = raw / 100.0
+        elif c == "[":
+            stack.append((thick, red))
+        elif c == "]":
+            thick, red = stack.pop()
+        elif c in "Ff":
+            out.append((raw * thick, raw * thick * red))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("name", SPECIES)
+def test_branch_radii_match_the_sequential_turtle(name: str) -> None:
+    g = load_grammar(packaged_grammar(name))
+    seq, table = expand(g, 4, np.random.default_rng(2))
+    got = branch_radii(seq, table, g.default_angle_deg, g.thickness_pct,
+                       np.random.default_rng(0), narrow_noise=0.0)
+    want = _reference_radii(seq, table, g.default_angle_deg, g.thickness_pct)
+    out = interpret(seq, table, g.default_angle_deg, np.random.default_rng(0))
+    assert got.shape == want.shape == (out.seg_start.shape[0], 2) and got.shape[0] > 10
+    assert np.unique(np.round(got[:, 0], 12)).size > 2  # the '>' commands do narrow
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+

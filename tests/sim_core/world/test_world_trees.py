@@ -7,8 +7,17 @@ import dataclasses
 import numpy as np
 import pytest
 
+from sim_core.world.forest import SpeciesSpec
 from sim_core.world.gmt3 import grow_skeleton
-from sim_core.world.trees import TREE_MODELS, GMT3Tree, LppTree, get_tree_model
+from sim_core.world.trees import (
+    LEAF_DISC_RATIO,
+    TREE_MODELS,
+    GMT3Tree,
+    LppTree,
+    get_tree_model,
+)
+
+SEED_LEAF_SIZE = {"tree4": 1.5, "tree5": 1.6, "tree6": 1.1, "tree7": 1.4}  # R3Mesh.cpp
 
 
 def test_gmt3_forest_variant_counts() -> None:
@@ -100,6 +109,48 @@ def test_growth_level_zero_is_the_axiom() -> None:
     gmt = GMT3Tree(levels=0)
     bare = gmt.grow(np.random.default_rng(0), branches=True)
     assert bare.seg_start.shape[0] == 1 and bare.centers.shape[0] > 0
+
+
+@pytest.mark.parametrize("name", sorted(SEED_LEAF_SIZE))
+def test_lpp_seed_leaf_size_is_the_seeds_clipped_normal_in_grammar_units(name: str) -> None:
+    """leaf_size 'seed': length N(leafSize, 15 %) clipped at ±2σ in grammar units, radius
+    0.3206 × length × unit_m; the default stays N(μ, 20 %) truncated, in metres."""
+    model = get_tree_model(name)
+    assert isinstance(model, LppTree) and model.seed_leaf_size == SEED_LEAF_SIZE[name]
+    seed = dataclasses.replace(model, leaf_size="seed", growth_jitter=False,
+                               iterations=model.load().iterations - 1)
+    length = np.concatenate([seed.grow(np.random.default_rng(s)).radii for s in range(4)])
+    length /= LEAF_DISC_RATIO * model.unit_m
+    size = SEED_LEAF_SIZE[name]
+    assert length.size > 400
+    assert length.min() == pytest.approx(0.7 * size) and length.max() == pytest.approx(1.3 * size)
+    clipped = np.mean(np.isclose(length, 0.7 * size) | np.isclose(length, 1.3 * size))
+    assert 0.02 < clipped < 0.08  # 4.6 % of a normal lies beyond ±2σ
+    assert abs(length.mean() / size - 1.0) < 0.02
+    assert abs(length.std() / size - 0.15 * 0.96) < 0.02  # sd of the clipped deviate: 0.96 σ
+
+
+def test_lpp_branches_have_the_seed_radius_and_leave_the_leaves_alone() -> None:
+    tree4 = get_tree_model("tree4")
+    assert isinstance(tree4, LppTree)
+    model = dataclasses.replace(tree4, growth_jitter=False, iterations=3)
+    bare = model.grow(np.random.default_rng(4))
+    full = model.grow(np.random.default_rng(4), branches=True)
+    for name in ("centers", "normals", "radii"):
+        np.testing.assert_array_equal(getattr(bare, name), getattr(full, name))
+    # the trunk "fffffffff" before any '>': 60 % of a 0.4 m segment
+    np.testing.assert_allclose(full.seg_radius[:9], 0.6 * model.unit_m, rtol=1e-12)
+    assert full.seg_radius.min() > 0 and full.seg_radius.max() == full.seg_radius[0]
+    assert np.unique(np.round(full.seg_radius, 12)).size > 3  # narrowed by '>(30)' per level
+
+
+def test_species_leaf_size_applies_to_lpp_models_only() -> None:
+    assert SpeciesSpec("a", tree="tree5", leaf_size="seed", rate=0.01).leaf_size == "seed"
+    assert SpeciesSpec("g", tree="maple", grammar="tree4", leaf_size="seed", rate=0.01)
+    with pytest.raises(ValueError, match="leaf_size applies to L\\+\\+ models"):
+        SpeciesSpec("b", tree="maple", leaf_size="seed", rate=0.01)
+    with pytest.raises(ValueError, match="leaf_size must be 'metres' or 'seed'"):
+        LppTree("tree4", leaf_size="huge")  # type: ignore[arg-type]
 
 
 def test_unknown_model_and_bad_params() -> None:
