@@ -126,24 +126,33 @@ def test_cli_run_matches_the_seed_trace_and_metrics(data_dir: Path, tmp_path: Pa
             assert got[name] == pytest.approx(want, rel=rtol, abs=0), name
 
 
+def fly(path: Path, steps: int) -> tuple[dict[str, np.ndarray], np.ndarray, bool]:
+    """Step ``SwarmSim`` on the case law ``steps`` times: each STATE field and ``alive`` as
+    (N, steps) arrays (column k after step k + 1, as the seed records), the thermal strengths
+    (T, steps), and whether the run was done exactly after the last step."""
+    sim = SwarmSim(Law.from_yaml(path))
+    n = sim.state.x.shape[1]
+    got = {name: np.empty((n, steps)) for name in (*STATE, "alive")}
+    strength = np.empty((sim.thermals.strength.shape[1], steps))
+    on_time = True
+    for k in range(steps):
+        on_time &= not sim.done
+        sim.step()
+        state = sim.state
+        for name in got:
+            got[name][:, k] = getattr(state, name)[0]
+        strength[:, k] = sim.thermals.strength[0]
+    return got, strength, on_time and sim.done
+
+
 @pytest.mark.parametrize("case", CASES)
 def test_swarmsim_steps_like_the_seed(data_dir: Path, case: str) -> None:
     """``SwarmSim.step`` (what the simulation server calls) gives the seed's state after every
     step, turn rate included, and is done exactly when the seed stopped."""
     path, seed = case_files(data_dir, case)
     steps = seed["aliveData"].shape[1]
-    sim = SwarmSim(Law.from_yaml(path))
-    n = seed["aliveData"].shape[0]
-    got = {name: np.empty((n, steps)) for name in (*STATE, "alive")}
-    strength = np.empty((sim.thermals.strength.shape[1], steps))
-    for k in range(steps):
-        assert not sim.done
-        sim.step()
-        state = sim.state
-        for name in got:
-            got[name][:, k] = getattr(state, name)[0]
-        strength[:, k] = sim.thermals.strength[0]
-    assert sim.done
+    got, strength, on_time = fly(path, steps)
+    assert on_time
     np.testing.assert_array_equal(got["alive"], seed["aliveData"])
     if "thermalStrength" in seed:
         np.testing.assert_array_equal(strength, seed["thermalStrength"])
