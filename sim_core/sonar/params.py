@@ -124,8 +124,10 @@ class EchoParams:
       a Gaussian in raw azimuth/elevation differences read from the code's 1° grid, and no
       1/r^2. ``beam_lookup`` ("grid" or "exact": the Gaussian at each leaf's own angles) and
       ``spreading`` override its parts; unset (None) they take the paper code's values under
-      ``seed2020`` and the spec's otherwise (exact, spreading on), and read back resolved.
-      The grid exists only in the seed's az/el form. See :mod:`sim_core.sonar.seedbeam`.
+      ``seed2020`` and the spec's otherwise (exact, spreading on), and read back resolved
+      (so ``dataclasses.replace(p, seed2020=False)`` keeps them: give ``beam_lookup="exact"``
+      and ``spreading`` too). The grid exists only in the seed's az/el form; see
+      :mod:`sim_core.sonar.seedbeam`.
     - ``beam_model="incident_freq"``: the horseshoe-bat beamwidth BW(f) of the seed code
       replaces the beam's fixed beamwidth at each frequency.
     - ``budget_s``: per-echo time budget of the ``realtime`` fidelity.
