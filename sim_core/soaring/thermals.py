@@ -5,7 +5,8 @@ u = (3d/R)², w = W·e^(−u)·(1 − u) if d < R, else 0; where several thermal
 the first in list order wins. No altitude dependence, no sink outside thermals.
 
 All arrays of a :class:`Thermals` have shape (B, T): B runs (the batch), T thermal slots;
-slots with ``valid == False`` are padding and never contain a point.
+slots with ``valid == False`` are padding and never contain a point. The profile and the fade
+are computed by :mod:`sim_core.soaring.kernels` (the swarm's own code).
 """
 
 from __future__ import annotations
@@ -17,13 +18,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_core.soaring.glider import scalar_if_uniform
+from sim_core.soaring import kernels
 from sim_core.soaring.law import Law
 
 __all__ = [
-    "Fader",
     "Thermals",
-    "UpdraftField",
     "fade_step",
     "spawn_thermals",
     "stack_thermals",
@@ -69,6 +68,22 @@ class Thermals:
     def select(self, runs: NDArray[np.intp]) -> Thermals:
         """The thermals of the given runs (batch rows)."""
         return Thermals(*(getattr(self, f)[runs] for f in self.__slots__))
+
+    def block(self) -> tuple[F8, B8]:
+        """The kernels' layout: floats (TH_ROWS, B, T) (rows ``kernels.TH_*``) and flags
+        (2, B, T) (valid, fade), new arrays."""
+        th = np.stack([self.x, self.y, self.radius, self.strength, self.w_max, self.direction,
+                       self.timer]).astype(np.float64)
+        return th, np.stack([self.valid, self.fade]).astype(bool)
+
+    @classmethod
+    def from_block(cls, th: F8, on: B8) -> Thermals:
+        """Copies of the rows of a :meth:`block` layout."""
+        k = kernels
+        return cls(x=th[k.TH_X].copy(), y=th[k.TH_Y].copy(), radius=th[k.TH_R].copy(),
+                   strength=th[k.TH_W].copy(), w_max=th[k.TH_WMAX].copy(),
+                   direction=th[k.TH_DIR].copy(), timer=th[k.TH_TIMER].copy(),
+                   fade=on[k.ON_FADE].copy(), valid=on[k.ON_VALID].copy())
 
 
 def _rand_ir(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -187,111 +202,14 @@ def updraft(xy: NDArray[np.floating], thermals: Thermals) -> F8:
                 f"xy of shape {pts.shape} needs one run of thermals, got B={thermals.shape[0]}"
             )
         pts = pts[None]
-    if pts.ndim != 3 or pts.shape[-1] != 2:
-        raise ValueError(f"xy must have shape (B, M, 2) or (M, 2), got {np.shape(xy)}")
-    w = _updraft_xy(pts[..., 0], pts[..., 1], thermals)
+    if pts.ndim != 3 or pts.shape[-1] != 2 or pts.shape[0] != thermals.shape[0]:
+        raise ValueError(
+            f"xy must have shape (B, M, 2) or (M, 2) with B={thermals.shape[0]}, "
+            f"got {np.shape(xy)}"
+        )
+    th, on = thermals.block()
+    w = np.asarray(kernels.updraft_many(np.array(pts[..., 0]), np.array(pts[..., 1]), th, on))
     return w[0] if single else w
-
-
-def _updraft_xy(x: F8, y: F8, th: Thermals) -> F8:
-    """w at points (B, M) for thermals (B, T)."""
-    return UpdraftField(th, x.shape[1])(np.stack([x, y]))
-
-
-class UpdraftField:
-    """The updraft profile of a batch's thermals at M points per run, with the parts that do
-    not change while the thermals only fade (centres, radii, slots) computed once.
-
-    ``field(xy)`` with xy (2, B, M) m → w (B, M) m/s, from the thermals' current strength.
-    """
-
-    def __init__(self, th: Thermals, m: int) -> None:
-        self.th = th
-        b, t = th.shape
-        self.b, self.m, self.t = b, m, t
-        self._txy = np.stack([th.x, th.y])[:, :, None, :]  # (2, B, 1, T)
-        # padding slots never contain a point: d² < −inf is False, as d² < R² & valid was
-        self._r2 = np.where(th.valid, th.radius2, -np.inf)[:, None, :]
-        self._radius = th.radius.ravel()
-        self._dxy = np.empty((2, b, m, t))
-        self._d2 = np.empty((b, m, t))
-        self._inside = np.empty((b, m, t), dtype=bool)
-        self._base = (np.arange(b * m) * t).reshape(b, m)
-        self._run_base = np.arange(b)[:, None] * t
-
-    def __call__(self, xy: F8) -> F8:
-        b, m, t = self.b, self.m, self.t
-        if t == 0 or m == 0:
-            return np.zeros((b, m))
-        dxy, d2, inside = self._dxy, self._d2, self._inside
-        np.subtract(xy[:, :, :, None], self._txy, out=dxy)
-        np.multiply(dxy, dxy, out=dxy)
-        np.add(dxy[0], dxy[1], out=d2)
-        np.less(d2, self._r2, out=inside)
-        first = np.argmax(inside, axis=2)
-        flat = self._base + first
-        hit = np.take(inside.ravel(), flat)
-        dsel = np.sqrt(np.take(d2.ravel(), flat))
-        run_t = self._run_base + first
-        rsel = np.take(self._radius, run_t)
-        wsel = np.take(self.th.strength.ravel(), run_t)
-        q = 3.0 * dsel / rsel
-        u = q * q
-        w = wsel * np.exp(-u) * (1.0 - u)
-        return np.where(hit, w, 0.0)
-
-
-class Fader:
-    """The fade cycle of a batch's thermals (seed ``fadeThermals``, §3.2), advanced in place
-    by :meth:`step`; per-run parameters (B, 1) as in :func:`fade_step`."""
-
-    def __init__(
-        self, th: Thermals, *, by_time: NDArray[Any], rate: F8, top: F8, bottom: F8, dt: float
-    ) -> None:
-        self.th = th
-        self.active = th.fade & th.valid
-        self.any_active = bool(self.active.any())
-        self.all_active = bool(self.active.all())
-        self.rate = scalar_if_uniform(rate)
-        self.incr = scalar_if_uniform(np.where(by_time, dt, 1.0))
-        tol = np.where(by_time, 1e-9, 0.0)
-        self.top_lim = scalar_if_uniform(top - tol)
-        self.bottom_lim = scalar_if_uniform(bottom - tol)
-        self.w_top = th.w_max - 1e-5
-
-    def step(self) -> None:
-        """Advance every active thermal by one step."""
-        if not self.any_active:
-            return
-        th, act = self.th, self.active
-        w, timer, direction = th.strength, th.timer, th.direction
-        at_top = w >= self.w_top
-        # round(w, 1) <= 1e-5 (half away from zero) <=> 10·w + 0.5 < 1: w < 0.05, or w < 0
-        low = w * 10.0
-        low += 0.5
-        # on booleans, a > b is a & ~b and a >= b is a | ~b
-        at_bottom = (low < 1.0) > at_top
-        if self.all_active:
-            top_done = at_top & (timer >= self.top_lim)
-            bottom_done = at_bottom & (timer >= self.bottom_lim)
-            np.copyto(direction, -1.0, where=top_done)
-            np.copyto(direction, 1.0, where=bottom_done)
-            done = top_done | bottom_done
-            edge = at_top | at_bottom
-            np.copyto(w, w + direction * self.rate, where=done >= edge)
-            np.add(timer, self.incr, out=timer, where=edge > done)
-            np.copyto(timer, 0.0, where=done)
-            return
-        top_done = at_top & (timer >= self.top_lim) & act
-        bottom_done = at_bottom & (timer >= self.bottom_lim) & act
-        np.copyto(direction, -1.0, where=top_done)
-        np.copyto(direction, 1.0, where=bottom_done)
-        done = top_done | bottom_done
-        edge = at_top | at_bottom
-        moving = (act & ~edge) | done
-        np.copyto(w, w + direction * self.rate, where=moving)
-        np.add(timer, self.incr, out=timer, where=edge & act & ~done)
-        np.copyto(timer, 0.0, where=done)
 
 
 def fade_step(
@@ -303,4 +221,20 @@ def fade_step(
     plateau lengths, in steps (``by_time`` False: the timer counts steps) or seconds (True: the
     timer counts seconds, ``dt`` per step, so the cycle does not depend on dt).
     """
-    Fader(th, by_time=by_time, rate=rate, top=top, bottom=bottom, dt=dt).step()
+    b = th.shape[0]
+
+    def col(v: NDArray[Any]) -> NDArray[Any]:
+        return np.broadcast_to(v, (b, 1))[:, 0]
+
+    seconds = col(by_time).astype(bool)
+    tol = np.where(seconds, kernels.FADE_TOLERANCE, 0.0)
+    par = np.zeros((b, len(kernels.PAR)))
+    par[:, kernels.P_FADE_RATE] = col(rate)
+    par[:, kernels.P_FADE_INCR] = np.where(seconds, dt, 1.0)
+    par[:, kernels.P_FADE_TOP] = col(top) - tol
+    par[:, kernels.P_FADE_BOTTOM] = col(bottom) - tol
+    block, on = th.block()
+    kernels.fade_many(block, on, par)
+    th.strength[...] = block[kernels.TH_W]
+    th.direction[...] = block[kernels.TH_DIR]
+    th.timer[...] = block[kernels.TH_TIMER]

@@ -78,7 +78,7 @@ def _short(name: str) -> dict[str, np.ndarray]:
 
 def _batch() -> dict[str, np.ndarray]:
     laws = [CASES[k] for k in BATCH_NAMES] + [SHORT.replace(numAgents=1, numThermals=12)]
-    res = run_batch(laws, seeds=[1, 2, 3, 4, 5], compact_every=7)
+    res = run_batch(laws, seeds=[1, 2, 3, 4, 5])
     return {k: _metrics(r.metrics) for k, r in zip(BATCH_NAMES, res, strict=False)}
 
 

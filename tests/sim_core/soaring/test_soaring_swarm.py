@@ -45,7 +45,7 @@ def test_batch_equals_one_by_one_with_mixed_laws() -> None:
         SHORT.replace(rngSeed=4, numAgents=25, separation=1.0, alignment=-1e-3, waggle=0.5),
         SHORT.replace(rngSeed=5, numAgents=1, numThermals=12),
     ]
-    batch = run_batch(laws, compact_every=7)
+    batch = run_batch(laws)
     for law, res in zip(laws, batch, strict=True):
         alone = run(law)
         assert _same(alone.metrics, res.metrics), law.rngSeed
