@@ -221,10 +221,13 @@ def _seed002() -> tuple[list[str], list[str]]:
         "",
         traces,
         "",
-        "`swarm5`'s remainder is numpy's SIMD exp/cos/tan against glibc and `norm` against a "
-        "sqrt of sums, amplified by the controller while its bank chatters at the limits; it "
-        "stays near 1e-7 m after step ~1200. The thermal strengths and every integer metric "
-        "are identical in all three cases.",
+        "The soaring kernels evaluate the seed's expressions as GNU Octave does (`norm` as "
+        "Octave's scaled sum of squares, a scalar `x^2` as libm `pow`, `./` as a division, "
+        "`dot` as one fused multiply-add; docs/soaring.md, 'How the step is computed'), so "
+        "with this machine's libm the cases can match to the last bit. Before, the numpy "
+        "step left `swarm5` 1.0e-7 m (AVX-512) / 1.2e-7 m (AVX2) away, the controller "
+        "amplifying last-bit differences while its bank chatters at the limits. The thermal "
+        "strengths and every integer metric are identical in all three cases.",
         "",
         "The law: the packaged `law_40survivors.yaml` holds the spreadsheet's values as stored "
         "(fov 5.7595865315812871, bank limits ±0.26179938779914941); tested against every "

@@ -114,7 +114,7 @@ def law_params(laws: Sequence[Law]) -> LawParams:
     derived: dict[str, list[float]] = {
         "unified": [float(law.controller == "unified") for law in laws],
         "fov_limited": [float(law.fov < 2 * math.pi) for law in laws],
-        "cos_half_fov": [math.cos(law.fov / 2.0) for law in laws],
+        "half_fov": [law.fov / 2 for law in laws],
         "fade_incr": [dt if t else 1.0 for t in by_time],
         "fade_top": [c[1] - e for c, e in zip(chosen, tol, strict=True)],
         "fade_bottom": [c[2] - e for c, e in zip(chosen, tol, strict=True)],
@@ -185,11 +185,12 @@ def boids_accel(
     """
     B, N = np.shape(own["x"])
     M = B * N
+    heading = np.array(own["heading"], dtype=np.float64).ravel()
     if "cos" in own:
         c = np.array(own["cos"], dtype=np.float64).ravel()
         s = np.array(own["sin"], dtype=np.float64).ravel()
     else:
-        c, s = kernels.cos_sin(np.array(own["heading"], dtype=np.float64).ravel())
+        c, s = kernels.cos_sin(heading)
     speed = np.asarray(own["speed"], dtype=np.float64).ravel()
     rows = (speed * c, speed * s, *(np.asarray(own[k], dtype=np.float64).ravel()
                                     for k in ("x", "y", "z", "vz")))
@@ -201,7 +202,7 @@ def boids_accel(
     start = np.zeros(M + 1, dtype=np.int64)
     np.cumsum(np.bincount(owner, minlength=M), out=start[1:])
     out = np.asarray(kernels.accel_many(
-        G, np.arange(owner.size, dtype=np.int64), start, own_rows, np.stack([c, s]),
+        G, np.arange(owner.size, dtype=np.int64), start, own_rows, heading,
         np.broadcast_to(np.asarray(waggle_sign, dtype=np.float64), (B, N)).ravel().copy(),
         np.repeat(P.table, N, axis=0),
     ))

@@ -9,9 +9,14 @@ All kernels live in this one module because numba invalidates a cached function 
 own file changes, not when a function it calls does.
 
 Per glider, a step is a scalar loop over float64 with the seed's operations in the seed's order
-(``docs/spec/seed_models.md`` §3): no fast-math, no reordered sums, libm for exp, cos, sin, tan,
-atan and pow. Sums over neighbours and over gliders run in index order. So a run's result does not
-depend on the batch it is stepped in, and one machine gives the same bits every time.
+(``docs/spec/seed_models.md`` §3), each evaluated as GNU Octave evaluates the seed's MATLAB:
+``norm`` of a vector is Octave's scaled 2-norm (:func:`norm2`), a scalar ``x^p`` is libm's
+``pow`` and an elementwise ``.^`` follows Octave's special cases (:func:`epow`), ``./`` divides,
+``dot`` is the fused multiply-add of the reference run's BLAS; exp, cos, sin, tan, atan and acos
+are libm's. No fast-math, no reordered sums; sums over neighbours and gliders run in index order.
+So a run's result does not depend on the batch it is stepped in, one machine gives the same bits
+every time, and the seed's own Octave run (``tests/data/seed002_matlab``) is reproduced to the
+last bit where this machine's libm is the one it used.
 
 Layouts (B runs, N glider slots, T thermal slots, K list slots):
 
@@ -25,9 +30,13 @@ Layouts (B runs, N glider slots, T thermal slots, K list slots):
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 #: Rows of the glider state block. VX, VY (v cos ψ, v sin ψ) are derived at the start of a
 #: step; VX..VZ are the rows a neighbour is read from.
@@ -51,13 +60,13 @@ PAR: tuple[str, ...] = (
     "thermalBankFactor", "neighborRadius", "forwardSpeedMin", "forwardSpeedMax", "bankMin",
     "bankMax", "Sink_A", "Sink_B", "Sink_C", "collisionKillDistance", "agentCeiling",
     "agentFloor", "k", "unified", "target_x", "target_y", "bank_rate_max", "speed_rate_max",
-    "fov_limited", "cos_half_fov", "fade_rate", "fade_incr", "fade_top", "fade_bottom",
+    "fov_limited", "half_fov", "fade_rate", "fade_incr", "fade_top", "fade_bottom",
     "map_min", "map_cell",
 )
 (P_G, P_KC, P_HFP, P_ASC_IGN, P_ASC_MAX, P_AFP, P_COH_P, P_KS, P_SEP_W, P_SEP_P, P_KA, P_ALI_W,
  P_ALI_P, P_KM, P_MIG_P, P_KW, P_TBF, P_RADIUS, P_V_MIN, P_V_MAX, P_B_MIN, P_B_MAX, P_SINK_A,
  P_SINK_B, P_SINK_C, P_KILL, P_CEIL, P_FLOOR, P_K, P_UNIFIED, P_TX, P_TY, P_BANK_RATE,
- P_SPEED_RATE, P_FOV_LIMITED, P_COS_HALF, P_FADE_RATE, P_FADE_INCR, P_FADE_TOP, P_FADE_BOTTOM,
+ P_SPEED_RATE, P_FOV_LIMITED, P_HALF_FOV, P_FADE_RATE, P_FADE_INCR, P_FADE_TOP, P_FADE_BOTTOM,
  P_MAP_MIN, P_MAP_CELL) = range(len(PAR))
 
 #: Cap of a neighbour's distance weight (d/R)^p, reached only as d → 0 with p < 0.
@@ -73,7 +82,89 @@ FADE_TOLERANCE = 1e-9
 _jit = njit(cache=True, error_model="numpy")
 
 
-# -- scalar helpers (numpy's NaN rules for minimum, maximum, clip and sign) ---------------------
+# -- scalar helpers (numpy's NaN rules for minimum, maximum, clip and sign; Octave's arithmetic) --
+def _fma(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
+    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
+        return builder.fma(*args)
+
+    return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+def _spow(typingctx: Any, x: Any, y: Any) -> Any:
+    def codegen(context: Any, builder: Any, sig: Any, args: Any) -> Any:
+        dbl = ir.DoubleType()
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(dbl, [dbl, dbl]),
+                                            "pow")
+        fn.attributes.add("nobuiltin")
+        return builder.call(fn, args)
+
+    return types.float64(types.float64, types.float64), codegen
+
+
+#: fma(a, b, c) = a·b + c with one rounding (llvm.fma: the CPU's instruction, or libm's fma).
+fma: Any = intrinsic(_fma)
+#: spow(x, y): libm ``pow`` as called, never rewritten by the optimiser (which turns
+#: pow(x, 2.0) into x·x; glibc's pow rounds that differently about once in a thousand):
+#: Octave's scalar ``x^y``.
+spow: Any = intrinsic(_spow)
+
+
+@_jit
+def epow(x: float, e: float, count: int) -> float:
+    """Element of Octave's ``v.^e`` for a vector v of ``count`` elements: a 1-element v is a
+    scalar (``pow``); otherwise integer e = 2, 3, −1 are products or 1/x, the rest ``pow``."""
+    if count != 1:
+        if e == 2.0:
+            return x * x
+        if e == 3.0:
+            return x * x * x
+        if e == -1.0:
+            return 1.0 / x
+    return spow(x, e)
+
+
+@_jit
+def _accum(scl: float, ssq: float, v: float) -> tuple[float, float]:
+    t = abs(v)
+    if scl == t:
+        ssq += 1.0
+    elif scl < t:
+        r = scl / t
+        ssq *= r * r
+        ssq += 1.0
+        scl = t
+    elif t != 0.0:
+        r = t / scl
+        ssq += r * r
+    return scl, ssq
+
+
+@_jit
+def norm2(a: float, b: float) -> float:
+    """Octave's ``norm([a b])``: the scaled sum of squares, scl·sqrt(ssq)."""
+    scl, ssq = _accum(0.0, 1.0, a)
+    scl, ssq = _accum(scl, ssq, b)
+    return scl * math.sqrt(ssq)
+
+
+@_jit
+def norm3(a: float, b: float, c: float) -> float:
+    """Octave's ``norm([a b c])``."""
+    scl, ssq = _accum(0.0, 1.0, a)
+    scl, ssq = _accum(scl, ssq, b)
+    scl, ssq = _accum(scl, ssq, c)
+    return scl * math.sqrt(ssq)
+
+
+@_jit
+def _round(x: float) -> float:
+    """C ``round``: halves away from zero."""
+    r = np.floor(abs(x))
+    if abs(x) - r >= 0.5:
+        r += 1.0
+    return -r if x < 0.0 else r
+
+
 @_jit
 def _lower(a: float, b: float) -> float:
     return a if (a <= b or a != a) else b
@@ -93,43 +184,24 @@ def _sign(a: float) -> float:
     return 0.0 if a == 0.0 else a
 
 
-@_jit
-def power(x: float, e: float) -> float:
-    """x ** e: exact or correctly rounded paths for e in {0, 1, 2, −1, −2, 0.5} (0 ** 0 = 1, as
-    in MATLAB), libm ``pow`` otherwise."""
-    if e == 0.0:
-        return 1.0
-    if e == 1.0:
-        return x
-    if e == 2.0:
-        return x * x
-    if e == -1.0:
-        return 1.0 / x
-    if e == -2.0:
-        return 1.0 / (x * x)
-    if e == 0.5:
-        return math.sqrt(x)
-    return math.pow(x, e)
-
-
 # -- glider (spec §3.3) --------------------------------------------------------------------------
 @_jit
 def sink(v: float, bank: float, a: float, b: float, c: float) -> float:
     """Polar sink, m/s (< 0 = sinking): (A v² + B v + C) / sqrt(cos φ)."""
-    return (a * (v * v) + b * v + c) / math.sqrt(math.cos(bank))
+    return (a * spow(v, 2.0) + b * v + c) / math.sqrt(math.cos(bank))
 
 
 @_jit
 def command(ax: float, ay: float, c: float, s: float, speed: float, dt: float, g: float,
             tbf: float, w: float) -> tuple[float, float]:
     """Desired planar acceleration → (airspeed_cmd m/s, bank_cmd rad), unclipped."""
-    norm = math.hypot(ax, ay)
+    norm = norm2(ax, ay)
     if not norm <= A_MAX:
         ax = 0.0 if ax != ax else min(max(ax, -A_MAX), A_MAX)
         ay = 0.0 if ay != ay else min(max(ay, -A_MAX), A_MAX)
-        norm = math.hypot(ax, ay)
-    a_f = ax * c + ay * s
-    a_c = math.sqrt(_upper(norm * norm - a_f * a_f, 0.0))
+        norm = norm2(ax, ay)
+    a_f = fma(ay, s, ax * c)
+    a_c = math.sqrt(_upper(spow(norm, 2.0) - spow(a_f, 2.0), 0.0))
     if norm - abs(a_f) < 1e-6:
         a_c = 0.0
     a_c = a_c * _sign(ay * c - ax * s)
@@ -181,13 +253,10 @@ def updraft(x: float, y: float, th: np.ndarray, on: np.ndarray, b: int) -> float
     for t in range(th.shape[2]):
         if not on[ON_VALID, b, t]:
             continue
-        dx = x - th[TH_X, b, t]
-        dy = y - th[TH_Y, b, t]
-        d2 = dx * dx + dy * dy
+        d = norm2(th[TH_X, b, t] - x, th[TH_Y, b, t] - y)
         r = th[TH_R, b, t]
-        if d2 < r * r:
-            q = 3.0 * math.sqrt(d2) / r
-            u = q * q
+        if d < r:
+            u = spow(3.0 * d / r, 2.0)
             return th[TH_W, b, t] * math.exp(-u) * (1.0 - u)
     return 0.0
 
@@ -201,8 +270,7 @@ def fade(th: np.ndarray, on: np.ndarray, b: int, p: np.ndarray) -> None:
             continue
         w = th[TH_W, b, t]
         at_top = w >= th[TH_WMAX, b, t] - 1e-5
-        # round(w, 1) <= 1e-5 (half away from zero) <=> 10·w + 0.5 < 1
-        if at_top or w * 10.0 + 0.5 < 1.0:
+        if at_top or _round(10.0 * w) / 10.0 <= 1e-5:  # round(w, 1), as the Octave run did
             if th[TH_TIMER, b, t] >= (p[P_FADE_TOP] if at_top else p[P_FADE_BOTTOM]):
                 th[TH_DIR, b, t] = -1.0 if at_top else 1.0
                 th[TH_W, b, t] = w + th[TH_DIR, b, t] * rate
@@ -215,63 +283,76 @@ def fade(th: np.ndarray, on: np.ndarray, b: int, p: np.ndarray) -> None:
 
 # -- Boids (spec §3.4, §3.6) ---------------------------------------------------------------------
 @_jit
-def accel(G: np.ndarray, ids: np.ndarray, n: int, own: np.ndarray, c: float, s: float,
+def accel(G: np.ndarray, ids: np.ndarray, n: int, own: np.ndarray, heading: float,
           wsign: float, p: np.ndarray) -> tuple[float, float, bool, float]:
     """The Boids controller of one glider (``agentControl_Unified``/``_Baseline``).
 
     G (6, M): neighbour rows VX, VY, X, Y, Z, VZ; the neighbours are columns ids[:n], in list
-    order; own (6,) the glider's own values of those rows; (c, s) its (cos ψ, sin ψ). Returns
-    (ax, ay) m/s², collision (a neighbour closer than collisionKillDistance) and ‖K_c·c‖.
-    A neighbour straight above or below (dxy = 0) has ê = 0: no cohesion, separation or
-    alignment; distance weights are capped at W_MAX; a target at distance 0 adds no migration.
+    order; own (6,) the glider's own values of those rows, ``heading`` its saved heading (for
+    the waggle). Returns (ax, ay) m/s², collision (a neighbour closer than
+    collisionKillDistance) and ‖K_c·c‖. A neighbour straight above or below (dxy = 0) adds no
+    cohesion, separation or alignment (the seed's NaN); a distance weight (d/R)^p is capped at
+    W_MAX; a target at distance 0 adds no migration.
     """
     R, ign = p[P_RADIUS], p[P_ASC_IGN]
     wmax, unified = p[P_ASC_MAX], p[P_UNIFIED] != 0.0
     half_a, half_s = p[P_ALI_W] / 2, p[P_SEP_W] / 2
-    height = power(_upper(1.0 - own[ROW_Z] / p[P_CEIL], 0.0), p[P_HFP])
+    n_a = n_s = n  # elements of the vectors Octave raises to a power (1: a scalar pow)
+    if unified:
+        n_a = n_s = 0
+        for q in range(n):
+            rz = abs(G[ROW_Z, ids[q]] - own[ROW_Z])
+            if rz < half_a:
+                n_a += 1
+            if rz < half_s:
+                n_s += 1
+    height = spow(_upper(1.0 - own[ROW_Z] / p[P_CEIL], 0.0), p[P_HFP])
     cx = cy = sx = sy = lx = ly = 0.0
     collision = False
     for q in range(n):
         j = ids[q]
-        dvx = G[ROW_VX, j] - own[ROW_VX]
-        dvy = G[ROW_VY, j] - own[ROW_VY]
         dx = G[ROW_X, j] - own[ROW_X]
         dy = G[ROW_Y, j] - own[ROW_Y]
         dz = G[ROW_Z, j] - own[ROW_Z]
         dxy2 = dx * dx + dy * dy
         dxy = math.sqrt(dxy2)
         d3 = math.sqrt(dxy2 + dz * dz)
-        flat = dxy > 0.0
-        inv = 1.0 / dxy if flat else 0.0
-        ex, ey = dx * inv, dy * inv
         if d3 < p[P_KILL]:
             collision = True
-        dwc = _upper(_lower(G[ROW_VZ, j] - own[ROW_VZ], wmax), ign)
-        weight = height * power((dwc - ign) / (wmax - ign), p[P_AFP]) if unified else 1.0
-        w_c = weight * power(dxy / R, p[P_COH_P]) if flat else 0.0
+        if not dxy > 0.0:
+            continue
+        ex, ey = dx / dxy, dy / dxy
+        if unified:
+            dwc = _upper(_lower(G[ROW_VZ, j] - own[ROW_VZ], wmax), ign)
+            weight = height * epow((dwc - ign) / (wmax - ign), p[P_AFP], n)
+            ex_c, ey_c = weight * ex, weight * ey
+        else:
+            ex_c, ey_c = ex, ey
+        w = _lower(epow(dxy / R, p[P_COH_P], n), W_MAX)
+        cx += ex_c * w
+        cy += ey_c * w
         rz = abs(dz)
-        w_a = power(dxy / R, p[P_ALI_P]) if flat and (rz < half_a or not unified) else 0.0
-        w_s = power(d3 / R, p[P_SEP_P]) if flat and (rz < half_s or not unified) else 0.0
-        w_c, w_a, w_s = _lower(w_c, W_MAX), _lower(w_a, W_MAX), _lower(w_s, W_MAX)
-        cx += ex * w_c
-        cy += ey * w_c
-        sx += ex * w_s
-        sy += ey * w_s
-        lx += dvx * w_a
-        ly += dvy * w_a
-    inv_n = 1.0 / max(n, 1)  # 1 without neighbours, where every sum is +0.0
+        if rz < half_s or not unified:
+            w = _lower(epow(d3 / R, p[P_SEP_P], n_s), W_MAX)
+            sx += -ex * w
+            sy += -ey * w
+        if rz < half_a or not unified:
+            w = _lower(epow(dxy / R, p[P_ALI_P], n_a), W_MAX)
+            lx += (G[ROW_VX, j] - own[ROW_VX]) * w
+            ly += (G[ROW_VY, j] - own[ROW_VY]) * w
+    nn = float(max(n, 1))  # 1 without neighbours, where every sum is +0.0
     tx, ty = p[P_TX] - own[ROW_X], p[P_TY] - own[ROW_Y]
-    dist = math.sqrt(tx * tx + ty * ty)
-    mig = power(dist, p[P_MIG_P]) if dist > 0.0 else 0.0
-    kcx, kcy = cx * inv_n * p[P_KC], cy * inv_n * p[P_KC]
-    ks, ka, km = -p[P_KS], p[P_KA], p[P_KM]
-    ax = sx * inv_n * ks + kcx + lx * inv_n * ka + tx * mig * km
-    ay = sy * inv_n * ks + kcy + ly * inv_n * ka + ty * mig * km
+    dist = norm2(tx, ty)
+    mig = spow(dist, p[P_MIG_P]) if dist > 0.0 else 0.0
+    kcx, kcy = cx / nn * p[P_KC], cy / nn * p[P_KC]
+    ks, ka, km = p[P_KS], p[P_KA], p[P_KM]
+    ax = sx / nn * ks + kcx + lx / nn * ka + tx * mig * km
+    ay = sy / nn * ks + kcy + ly / nn * ka + ty * mig * km
     kw = p[P_KW]
-    if kw != 0.0:
-        ax += -s * wsign * kw
-        ay += c * wsign * kw
-    return ax, ay, collision, math.sqrt(kcx * kcx + kcy * kcy)
+    if kw != 0.0:  # side unit (cos(ψ + π/2), sin(ψ + π/2)) times the waggle sign
+        ax += math.cos(heading + math.pi / 2) * wsign * kw
+        ay += math.sin(heading + math.pi / 2) * wsign * kw
+    return ax, ay, collision, norm2(kcx, kcy)
 
 
 @_jit
@@ -280,15 +361,16 @@ def find_lists(S: np.ndarray, alive: np.ndarray, cs: np.ndarray, b: int, p: np.n
     """KNN within radius and field of view of every glider of run b
     (``findNeighborhood_KNNInFixedRadius``), into nb[b] and cnt[b].
 
-    Candidates of i: alive j ≠ i with |Δx| <= R, |Δy| <= R, d3 <= R and, if fov < 2π,
-    (Δx cos ψ_i + Δy sin ψ_i)/d3 >= cos(fov/2) (d3 = 0 gives NaN and is kept, as the seed's
-    NaN comparison does); the nearest min(k, K) by d3, ties in index order. cs (2, B, N) holds
-    (cos ψ, sin ψ). With ``owners_alive`` a dead glider gets an empty list.
+    Candidates of i: alive j ≠ i with |Δx| <= R, |Δy| <= R, d3 = norm(Δ) <= R and, if
+    fov < 2π, acos((Δx cos ψ_i + Δy sin ψ_i)/d3) <= fov/2 (d3 = 0 gives NaN and is kept, as
+    the seed's NaN comparison does; beyond ±1 the cosine gives Octave's real part, π or 0);
+    the nearest min(k, K) by d3, ties in index order. cs (2, B, N) holds (cos ψ, sin ψ). With
+    ``owners_alive`` a dead glider gets an empty list.
     """
     n, K = alive.shape[1], nb.shape[2]
     R = p[P_RADIUS]
     k = min(int(p[P_K]), K)
-    limited, cos_half = p[P_FOV_LIMITED] != 0.0, p[P_COS_HALF]
+    limited, half_fov = p[P_FOV_LIMITED] != 0.0, p[P_HALF_FOV]
     keys = np.empty(K)
     for i in range(n):
         c = 0
@@ -300,11 +382,14 @@ def find_lists(S: np.ndarray, alive: np.ndarray, cs: np.ndarray, b: int, p: np.n
                 dx, dy, dz = S[ROW_X, b, j] - xi, S[ROW_Y, b, j] - yi, S[ROW_Z, b, j] - zi
                 if not (abs(dx) <= R and abs(dy) <= R):
                     continue
-                d3 = math.sqrt(dx * dx + dy * dy + dz * dz)
+                d3 = norm3(dx, dy, dz)
                 if not d3 <= R:
                     continue
-                if limited and (dx * cs[0, b, i] + dy * cs[1, b, i]) / d3 < cos_half:
-                    continue
+                if limited:
+                    cb = (dx * cs[0, b, i] + dy * cs[1, b, i]) / d3
+                    angle = math.pi if cb < -1.0 else (0.0 if cb > 1.0 else math.acos(cb))
+                    if angle > half_fov:
+                        continue
                 pos = c  # after every kept key <= d3: stable for ties
                 while pos > 0 and keys[pos - 1] > d3:
                     pos -= 1
@@ -342,7 +427,7 @@ def _step_run(b: int, step: int, dt: float, mfs: int, res: int, S: np.ndarray,
     n = S.shape[2]
     G = S[:, b, :]
     for i in range(n):  # every glider: the cohesion of a dead one is recorded too
-        ax, ay, hit, cm = accel(G, nb[b, i], cnt[b, i], G[:, i], sc[0, b, i], sc[1, b, i],
+        ax, ay, hit, cm = accel(G, nb[b, i], cnt[b, i], G[:, i], S[ROW_HEADING, b, i],
                                 wag[b, i], p)
         coh[b, i] = cm
         sc[2, b, i] = 1.0 if hit else 0.0
@@ -503,15 +588,15 @@ def lists_many(S: np.ndarray, alive: np.ndarray, par: np.ndarray, nb: np.ndarray
 
 @_jit
 def accel_many(G: np.ndarray, ids: np.ndarray, start: np.ndarray, own: np.ndarray,
-               cs: np.ndarray, wag: np.ndarray, par: np.ndarray) -> np.ndarray:
+               heading: np.ndarray, wag: np.ndarray, par: np.ndarray) -> np.ndarray:
     """Controller of M gliders: glider m's neighbours are columns ids[start[m]:start[m+1]] of
-    G (6, V); own (6, M), cs (2, M), wag (M,), par (M, len(PAR)). Returns (4, M): ax, ay,
+    G (6, V); own (6, M), heading (M,), wag (M,), par (M, len(PAR)). Returns (4, M): ax, ay,
     collision (1.0/0.0), ‖K_c·c‖."""
     M = own.shape[1]
     out = np.empty((4, M))
     for m in range(M):
         ax, ay, hit, cm = accel(G, ids[start[m]:], start[m + 1] - start[m], own[:, m],
-                                cs[0, m], cs[1, m], wag[m], par[m])
+                                heading[m], wag[m], par[m])
         out[0, m], out[1, m], out[2, m], out[3, m] = ax, ay, 1.0 if hit else 0.0, cm
     return out
 
@@ -528,7 +613,7 @@ def controller(own: np.ndarray, obs: np.ndarray, p: np.ndarray, dt: float, wsign
         G[ROW_VX, q] = o[4] * math.cos(o[3])
         G[ROW_VY, q] = o[4] * math.sin(o[3])
         G[ROW_X, q], G[ROW_Y, q], G[ROW_Z, q], G[ROW_VZ, q] = o[0], o[1], o[2], o[5]
-    c, s = math.cos(own[3]), math.sin(own[3])
-    ax, ay, _, _ = accel(G, np.arange(K), K, G[:, K].copy(), c, s, wsign, p)
-    v_cmd, b_cmd = command(ax, ay, c, s, own[4], dt, p[P_G], p[P_TBF], w)
+    ax, ay, _, _ = accel(G, np.arange(K), K, G[:, K].copy(), own[3], wsign, p)
+    v_cmd, b_cmd = command(ax, ay, math.cos(own[3]), math.sin(own[3]), own[4], dt, p[P_G],
+                           p[P_TBF], w)
     return b_cmd, v_cmd

@@ -9,17 +9,16 @@ one step at a time) and is compared step by step and on the final metrics.
 What is compared, and how closely:
 - ``glide_a`` (pure glide) and ``thermal_cross`` (one glider through one thermal): every
   recorded quantity at every step and every metric **exactly**. Both codes do the same float64
-  operations in the same order, and the few transcendentals (cos, sin, tan, exp of the thermal
-  profile, sqrt) round alike in numpy, with or without its AVX-512 kernels, and in Octave.
+  operations in the same order, with the same libm transcendentals.
 - ``swarm5`` (five gliders with Boids on, two fading thermals, 6638 steps until all land): who
   is alive and the thermal strengths at every step, the step count and every integer metric
-  exactly; the continuous state within SWARM_ATOL. Measured worst differences over all steps
-  (AVX-512 / AVX2 kernels): position 1.04e-7 / 1.23e-7 m, heading 1.5e-10 / 2.1e-10 rad, bank
-  2.1e-11 / 6.2e-12 rad, airspeed 2.6e-10 / 3.7e-10 m/s, turn rate 1.6e-11 / 5.9e-12 rad/s,
-  vertical speed 5.9e-9 / 8.3e-9 m/s, heightScore 5.8e-12 / 7.6e-12 relative. They come from
-  numpy's SIMD exp/cos/tan (vs glibc's) and from ``norm`` vs a sqrt of sums, amplified by the
-  controller (its bank chatters at the limits); they grow to ~3e-8 m by step 1200 and then
-  stay level (1.0e-7 m at the end), so SWARM_ATOL is about ten times the worst measured.
+  exactly; the continuous state within SWARM_ATOL. Since the soaring kernels evaluate the seed's
+  expressions as Octave does (``norm``, scalar ``^``, ``./``, BLAS ``dot``; see
+  ``sim_core.soaring.kernels``), every step is identical to the last bit on the development
+  machine (glibc 2.36, x86-64 with FMA). SWARM_ATOL stays at about ten times what the numpy
+  step measured before (1.04e-7 / 1.23e-7 m with numpy's AVX-512 / AVX2 exp/cos/tan, hypot
+  for ``norm``): the swarm amplifies a last-bit difference, and another libm may round
+  exp, cos or pow differently.
 - ``survivingPercent``: echoloop reports 0-100, the seed's ``MainScriptFunction`` a fraction
   (its analysis scripts multiply by 100): compared as 100 x the seed's value. A deliberate
   deviation, listed in docs/parity.md.
