@@ -118,7 +118,8 @@ def _run(law: Any, args: argparse.Namespace) -> int:
 
 
 def _sweep(law: Any, args: argparse.Namespace) -> int:
-    from sim_core.soaring.sweep import load_grid, sweep
+    from hil_bridge.sweep import sweep
+    from sim_core.soaring.sweep import load_grid
 
     grid = load_grid(args.grid)
     summary = sweep(
@@ -139,7 +140,7 @@ def _plot(args: argparse.Namespace) -> int:
     if args.table is not None:
         if not args.by:
             raise ValueError("--table needs --by PARAM (the column to split the histograms by)")
-        from sim_core.soaring.sweep import read_table
+        from hil_bridge.sweep import read_table
 
         out = plots.plot_survival_histograms(read_table(args.table), args.by, args.out,
                                              metric=args.metric)

@@ -1,4 +1,5 @@
-"""Sweeps: grid checks, resumable tables, CSV/Parquet, local processes and dask."""
+"""Parameter grids: file checks, the Megarun 7 grid, errors naming the point (execution:
+tests/hil_bridge/test_sweep.py)."""
 
 from __future__ import annotations
 
@@ -8,13 +9,11 @@ from typing import Any
 import pytest
 
 from sim_core.config import ConfigError
-from sim_core.soaring import Law, run
+from sim_core.soaring import Law
 from sim_core.soaring.law import default_grid_path
-from sim_core.soaring.sweep import expand_grid, load_grid, read_table, run_key, sweep
+from sim_core.soaring.sweep import expand_grid, load_grid, run_key
 
 BASE = Law().replace(totalTime=60.0, numAgents=6)
-GRID: dict[str, list[Any]] = {"numThermals": [3, 6], "rngSeed": [1, 2],
-                              "controller": ["unified", "baseline"]}
 
 
 def test_megarun7_grid_has_18000_runs(data_dir: Path) -> None:
@@ -43,47 +42,13 @@ def test_bad_grid_value_names_the_point() -> None:
         expand_grid(BASE, {"numAgents": [4, -1]})
 
 
-def test_sweep_rows_match_single_runs_and_resume(tmp_path: Path) -> None:
-    out = tmp_path / "res.csv"
-    seen: list[int] = []
-    s1 = sweep(BASE, {"numThermals": [3], "rngSeed": [1, 2]}, out, progress=False,
-               on_rows=lambda rows: seen.append(len(rows)))
-    assert (s1.total, s1.ran, s1.skipped) == (2, 2, 0)
-    s2 = sweep(BASE, GRID, tmp_path / "other.csv", progress=False, batch_size=3)
-    assert s2.ran == 8
-    # the first table resumes: its 2 finished runs are not recomputed
-    s3 = sweep(BASE, {"numThermals": [3, 6], "rngSeed": [1, 2]}, out, progress=False)
-    assert (s3.ran, s3.skipped) == (2, 2)
-    rows = read_table(out)
-    assert len(rows) == 4 and len({r["runKey"] for r in rows}) == 4
-    law = BASE.replace(numThermals=6, rngSeed=2)
-    row = next(r for r in rows if r["runKey"] == run_key(law))
-    m = run(law).metrics
-    assert row["heightScore"] == m.heightScore and row["surviving"] == m.surviving
-    with pytest.raises(ConfigError, match="columns"):
-        sweep(BASE, GRID, out, progress=False)
-
-
-def test_parquet_and_process_workers(tmp_path: Path) -> None:
-    out = tmp_path / "res.parquet"
-    summary = sweep(BASE, GRID, out, workers=2, progress=False, batch_size=4)
-    assert summary.ran == 8
-    rows = read_table(out)
-    assert len(rows) == 8 and not (tmp_path / "res.parquet.partial.csv").exists()
-    again = sweep(BASE, GRID, out, workers=2, progress=False)
-    assert (again.ran, again.skipped) == (0, 8)
-
-
-def test_dask_scheduler(tmp_path: Path) -> None:
-    from distributed import LocalCluster
-
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                      dashboard_address=None) as cluster:
-        summary = sweep(BASE, GRID, tmp_path / "d.csv", scheduler=cluster.scheduler_address,
-                        progress=False, batch_size=4)
-    assert summary.ran == 8
-    local = read_table(tmp_path / "d.csv")
-    sweep(BASE, GRID, tmp_path / "l.csv", progress=False, batch_size=4)
-    by_key = {r["runKey"]: r for r in read_table(tmp_path / "l.csv")}
-    for r in local:
-        assert r == by_key[r["runKey"]]
+def test_grid_points_and_keys() -> None:
+    grid: dict[str, list[Any]] = {"numThermals": [3, 6], "controller": ["unified", "baseline"]}
+    points = expand_grid(BASE, grid)
+    assert [p[0] for p in points] == [
+        {"numThermals": 3, "controller": "unified"}, {"numThermals": 3, "controller": "baseline"},
+        {"numThermals": 6, "controller": "unified"}, {"numThermals": 6, "controller": "baseline"},
+    ]
+    keys = [run_key(law) for _, law in points]
+    assert len(set(keys)) == 4 and all(len(k) == 16 for k in keys)
+    assert run_key(BASE.replace(numThermals=6, controller="baseline")) == keys[3]
