@@ -75,9 +75,6 @@ class LawParams:
     def batch(self) -> int:
         return int(self.table.shape[0])
 
-    def select(self, runs: NDArray[np.intp]) -> LawParams:
-        return LawParams({k: v[runs] for k, v in self.p.items()}, self.dt, self.table[runs])
-
 
 def law_params(laws: Sequence[Law]) -> LawParams:
     """Stack the per-run parameters of ``laws`` (all with the same dt) into (B, 1) arrays."""
