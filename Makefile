@@ -12,6 +12,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -c 'import sim_core.soaring as s; s.warm_up()'  # compile the soaring kernels once
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -25,6 +25,15 @@ def pytest_report_header() -> str:
     )
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the soaring kernels, or load them from numba's on-disk cache, before any test:
+    no test (least of all a realtime one) pays a compile inside its loop, and later processes
+    of the run load the cache instead of compiling again."""
+    from sim_core.soaring import warm_up
+
+    warm_up()
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     """``tests/data``: the seeds' data files and their code's outputs (see each README there)."""

@@ -47,6 +47,12 @@ def test_data_tests_pass_in_a_copy_with_nothing_beside_it(tmp_path: Path) -> Non
         dest.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / name, dest)
     assert not (repo.parent / "shared").exists()
+    # same source and file stamps in the copy, so numba's on-disk cache of the soaring kernels
+    # is valid there: the copy loads them instead of compiling them again
+    for cached in (ROOT / "sim_core" / "soaring" / "__pycache__").glob("kernels.*.nb[ic]"):
+        dest = repo / "sim_core" / "soaring" / "__pycache__" / cached.name
+        dest.parent.mkdir(exist_ok=True)
+        shutil.copy2(cached, dest)
     proc = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *DATA_TESTS],
         cwd=repo, capture_output=True, text=True, timeout=300,

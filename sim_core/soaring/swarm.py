@@ -284,6 +284,10 @@ class SwarmSim:
         self._trace: _TraceBuf | None = _TraceBuf() if trace else None
         if self._trace is not None:
             self._record()
+        # load the compiled step and search now (compile them, the first time on a machine),
+        # not in the first step of a realtime run
+        self._kernel(0, skip_finished=False)
+        self._next_lists()
 
     # -- read-only views ---------------------------------------------------------------------
     @property
@@ -347,14 +351,18 @@ class SwarmSim:
             raise ValueError(f"glider index {i} out of range 0..{n - 1}")
         if not 0 <= run < self.batch:
             raise ValueError(f"run index {run} out of range 0..{self.batch - 1}")
-        nb, cnt = self._nb, self._cnt
-        if self._refreshes(self.step_count + 1):
-            if self._peek is None or self._peek[0] != self.step_count:
-                nb, cnt = np.zeros_like(self._nb), np.zeros_like(self._cnt)
-                kernels.lists_many(self._S.copy(), self._alive, self.P.table, nb, cnt, True)
-                self._peek = (self.step_count, nb, cnt)
-            _, nb, cnt = self._peek
+        nb, cnt = self._next_lists()
         return [int(j) for j in nb[run, i, : cnt[run, i]]]
+
+    def _next_lists(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """The lists (B, N, K) and counts (B, N) the next step uses (computed once per step)."""
+        if not self._refreshes(self.step_count + 1):
+            return self._nb, self._cnt
+        if self._peek is None or self._peek[0] != self.step_count:
+            nb, cnt = np.zeros_like(self._nb), np.zeros_like(self._cnt)
+            kernels.lists_many(self._S.copy(), self._alive, self.P.table, nb, cnt, True)
+            self._peek = (self.step_count, nb, cnt)
+        return self._peek[1], self._peek[2]
 
     def metrics(self, run: int = 0) -> Metrics:
         """Metrics of one run so far (final once the run is finished)."""
