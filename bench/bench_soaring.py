@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: The baseline: the last commit whose soaring step was numpy (~150 calls per step), before the
 #: compiled kernel. Its ``sim_core`` is extracted with ``git archive`` and timed in the same run.
-BASELINE_COMMIT = "4e75037"
+BASELINE_COMMIT = "5f505f8"
 
 #: Timed in a subprocess against the ``sim_core`` in argv[1]: lone run, a batch of 32 seeds and
 #: 64 random Megarun 7 points, CPU seconds, after one short warm-up run (which loads compiled
