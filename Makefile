@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m hil_bridge.cli launch launch/demo.yaml --duration 20 \
+	$(PY) -m hil_bridge.cli launch launch/demo.yaml --domain auto --duration 20 \
 		--record out/demo.mcap --plot out/demo.png
 
 test: $(STAMP)

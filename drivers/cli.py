@@ -15,6 +15,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
+from hil_bridge.domain import use
+
 __all__ = ["SUBCOMMANDS", "main", "sonar_head"]
 
 #: device -> ("module:function", one-line summary)
@@ -69,7 +72,10 @@ def sonar_head(argv: list[str]) -> int:
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--port", metavar="URL", help="serial device or URL to act as the head on")
     where.add_argument("--pty", action="store_true", help="create a pty and act as its device")
-    parser.add_argument("--link", metavar="PATH", help="with --pty: symlink PATH to the pty slave")
+    parser.add_argument("--link", metavar="PATH",
+                        help="with --pty: symlink PATH to the pty slave (default: the domain's "
+                             "sonar0, where the sonar_head adapter looks by default)")
+    add_domain_argument(parser)
     parser.add_argument("--rate", type=float, default=10.0, metavar="HZ", help="pings per second")
     parser.add_argument("--beamwidth", type=_beamwidth, default="random", metavar="DEG|random",
                         help="full -3 dB beamwidth, or 'random' = uniform in [30, 65] per ping")
@@ -80,7 +86,7 @@ def sonar_head(argv: list[str]) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed of the beamwidth draws")
     parser.add_argument("--no-throttle", action="store_true",
                         help="do not pace bytes to the baud rate (real UARTs pace themselves)")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
+    parser.add_argument("--duration", type=seconds, default=None, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C)")
     parser.add_argument("--every", type=float, default=2.0, metavar="S",
                         help="print a status line every S seconds (0: only at the end)")
@@ -90,10 +96,11 @@ def sonar_head(argv: list[str]) -> int:
 
     from drivers.mocks.sonar_head import MockSonarHead
 
-    mock = MockSonarHead(
-        "sonar_head_mock", port=args.port, pty=args.pty, link=args.link, rate_hz=args.rate,
-        beamwidth=args.beamwidth, encoding=args.encoding, baudrate=args.baud,
-        channels=args.channels, seed=args.seed, throttle=not args.no_throttle)
+    with use(domain_from(args, "echoloop mock sonar-head")):
+        mock = MockSonarHead(
+            "sonar_head_mock", port=args.port, pty=args.pty, link=args.link, rate_hz=args.rate,
+            beamwidth=args.beamwidth, encoding=args.encoding, baudrate=args.baud,
+            channels=args.channels, seed=args.seed, throttle=not args.no_throttle)
     done = threading.Event()
     mock.start()
     try:

@@ -50,10 +50,11 @@ from hil_bridge.codec import (
     topic_frame,
     validate_topic,
 )
+from hil_bridge.domain import current as current_domain
 from hil_bridge.errors import CodecError
 from hil_bridge.messages import REGISTRY, Clock, Message
 from hil_bridge.topic_tools import TopicStats
-from hil_bridge.transport import DEFAULT_BUS, Transport, open_transport
+from hil_bridge.transport import Transport, open_transport
 
 __all__ = [
     "BagInfo",
@@ -330,7 +331,7 @@ class _BagWriter:
 class Recorder:
     """Record bus topics into an MCAP file; launchable-like: ``start()``, ``stop()``, ``stats()``.
 
-    ``Recorder(path, topics=None, *, bus=DEFAULT_BUS, chunk_size=65536, flush_period_s=1.0,
+    ``Recorder(path, topics=None, *, bus=None, chunk_size=65536, flush_period_s=1.0,
     compression="zstd")``; ``topics=None`` records every topic. ``wait_for(n, timeout)`` blocks
     until ``n`` messages are written (for tests and tools).
     """
@@ -340,7 +341,7 @@ class Recorder:
         path: str | Path,
         topics: Iterable[str] | None = None,
         *,
-        bus: str = DEFAULT_BUS,
+        bus: str | None = None,
         chunk_size: int = 64 * 1024,
         flush_period_s: float = 1.0,
         compression: str = "zstd",
@@ -348,7 +349,7 @@ class Recorder:
     ) -> None:
         self.path = Path(path)
         self.topics = None if topics is None else [validate_topic(t) for t in topics]
-        self.bus = bus
+        self.bus = bus if bus is not None else current_domain().bus_url
         self.name = name
         if not flush_period_s > 0:
             raise ValueError(f"flush_period_s must be > 0, got {flush_period_s}")
@@ -470,7 +471,7 @@ class Recorder:
 class Player:
     """Re-publish a bag on the bus (launchable-like: ``start()``, ``stop()``, ``stats()``).
 
-    ``Player(path, *, bus=DEFAULT_BUS, rate=1.0, loop=False, start_offset_s=0.0, topics=None,
+    ``Player(path, *, bus=None, rate=1.0, loop=False, start_offset_s=0.0, topics=None,
     clock=False, clock_hz=100.0, wait_for_subscribers_s=0.0)``. ``rate`` scales the recorded
     receive timing (``math.inf``: as fast as possible). ``loop`` repeats (each pass re-sends
     under ``src`` suffixed ``~loopK`` so receivers do not drop it as duplicates). ``clock``
@@ -483,7 +484,7 @@ class Player:
         self,
         path: str | Path,
         *,
-        bus: str = DEFAULT_BUS,
+        bus: str | None = None,
         rate: float = 1.0,
         loop: bool = False,
         start_offset_s: float = 0.0,
@@ -502,7 +503,7 @@ class Player:
         self.path = Path(path)
         if not self.path.is_file():
             raise ValueError(f"bag {str(self.path)!r} does not exist")
-        self.bus = bus
+        self.bus = bus if bus is not None else current_domain().bus_url
         self.rate = float(rate)
         self.loop = loop
         self.start_offset_s = start_offset_s

@@ -2,7 +2,7 @@
 
 A launch file is plain data (no substitutions, conditions or event handlers)::
 
-    bus: mem://demo              # optional; default the spec's tcp://127.0.0.1:7400
+    bus: mem://demo              # optional; default the domain's (hil_bridge.domain)
     duration: 20                 # optional default run time in seconds (CLI --duration wins)
     record: out/run.mcap         # optional MCAP recording of every topic (CLI --record wins)
     nodes:
@@ -24,13 +24,23 @@ head owns the master side of a pty whose slave path the serial adapter opens (bo
 created and torn down together), and the ``mem://`` bus used by tests is in-process. The heavy
 work (echo synthesis) is numpy/finufft code that releases the GIL.
 
-Precedence of settings: CLI arguments (``--param``, ``--duration``, ``--record``) > the file.
+Precedence of settings: CLI arguments (``--param``, ``--duration``, ``--record``, ``--bus``) >
+the file > the domain's defaults. The run's domain (``run(domain=...)``, ``--domain``, else
+``ECHOLOOP_DOMAIN``) is active while the nodes are constructed, so every default port, pty link
+and virtual CAN channel a node picks is the domain's (:mod:`hil_bridge.domain`).
+
+**Exit status** (:attr:`RunSummary.exit_status`, computed in one place, :func:`judge`, from the
+summary's ``failures``): 0 all well; otherwise the lowest code among the failures —
+:data:`EXIT_FAILED` (1) a node or the recorder failed, :data:`EXIT_DISCONNECTED` (3) a hardware
+link (a node's ``stats()["links"]`` entry) never connected, unless ``allow_disconnected``,
+:data:`EXIT_EXPECT` (4) an expectation (:mod:`hil_bridge.expect`) did not hold.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import math
 import signal
 import sys
 import threading
@@ -42,22 +52,53 @@ from pathlib import Path
 from types import FrameType
 from typing import Any, Protocol, runtime_checkable
 
+from hil_bridge.domain import Domain, resolve, use
+from hil_bridge.expect import Expectation, parse_expectations
 from hil_bridge.topic_tools import TopicStats
-from hil_bridge.transport import DEFAULT_BUS
 from sim_core.config import ConfigError, apply_overrides, from_dict, load_yaml, parse_override
 
 __all__ = [
+    "EXIT_DISCONNECTED",
+    "EXIT_EXPECT",
+    "EXIT_FAILED",
+    "EXIT_OK",
     "BusMonitor",
+    "Failure",
     "LaunchSpec",
     "Launchable",
     "NodeSpec",
     "RunSummary",
+    "check_duration",
+    "collect_links",
+    "judge",
     "load",
     "main",
     "parse_param_overrides",
     "resolve_entry",
     "run",
 ]
+
+
+#: exit status of a run that went well
+EXIT_OK = 0
+#: a node or the recorder failed
+EXIT_FAILED = 1
+#: a hardware link (serial port, CAN bus) never connected during the run
+EXIT_DISCONNECTED = 3
+#: an expectation (``--expect``) did not hold
+EXIT_EXPECT = 4
+
+
+def check_duration(seconds: float | str, *, where: str = "--duration") -> float:
+    """``seconds`` if it is a finite number > 0, else ``ValueError`` naming ``where``."""
+    prefix = f"{where}: " if where else ""
+    try:
+        value = float(seconds)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise ValueError(f"{prefix}expected a finite number of seconds > 0, got {seconds!r}")
+    return value
 
 
 @runtime_checkable
@@ -92,7 +133,7 @@ class LaunchSpec:
     """A validated launch file (see the module docstring)."""
 
     nodes: tuple[NodeSpec, ...]
-    bus: str = DEFAULT_BUS
+    bus: str | None = None
     duration: float | None = None
     record: str | None = None
     live: bool = False
@@ -106,8 +147,8 @@ class LaunchSpec:
             if node.name in seen:
                 raise ValueError(f"nodes: duplicate node name {node.name!r}")
             seen.add(node.name)
-        if self.duration is not None and not self.duration > 0:
-            raise ValueError(f"duration: expected seconds > 0, got {self.duration}")
+        if self.duration is not None:
+            check_duration(self.duration, where="duration")
 
     def node(self, name: str) -> NodeSpec:
         for node in self.nodes:
@@ -285,10 +326,22 @@ class BusMonitor:
             }
 
 
+@dataclass(frozen=True, slots=True)
+class Failure:
+    """One reason a run did not go well: its exit ``code``, where it came from (a node name,
+    ``node.link``, ``expect``) and one line saying what happened."""
+
+    code: int
+    source: str
+    message: str
+
+
 @dataclass(slots=True)
 class RunSummary:
     """What a run produced: wall time, why it stopped, per-node stats, bus-level monitor counts,
-    and the stats of the recorder / live view when they ran (``extras``, by name)."""
+    the stats of the recorder / live view when they ran (``extras``, by name), the run's domain
+    and bus, every hardware link's state (``links``, ``"node.label"`` -> the node's report) and
+    the ``failures`` that decide :attr:`exit_status`."""
 
     wall_s: float
     stopped_by: str
@@ -296,9 +349,57 @@ class RunSummary:
     monitor: dict[str, Any] = field(default_factory=dict)
     record: str | None = None
     extras: dict[str, dict[str, Any]] = field(default_factory=dict)
+    domain: str = ""
+    bus: str = ""
+    links: dict[str, dict[str, Any]] = field(default_factory=dict)
+    failures: list[Failure] = field(default_factory=list)
+
+    @property
+    def exit_status(self) -> int:
+        """0 when nothing failed, else the lowest code among :attr:`failures`."""
+        return min((f.code for f in self.failures), default=EXIT_OK)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        out = dataclasses.asdict(self)
+        out["exit_status"] = self.exit_status
+        return out
+
+
+def collect_links(nodes: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Every node's ``stats()["links"]`` under ``"node.label"``.
+
+    A link report is ``{"kind": "serial" | "can", "target": str, "connected": bool (ever during
+    the run), "state": str (at the end of the run), "error": str}``.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for name, stats in nodes.items():
+        links = stats.get("links")
+        if isinstance(links, Mapping):
+            for label, report in links.items():
+                out[f"{name}.{label}"] = dict(report)
+    return out
+
+
+def judge(
+    summary: RunSummary, *, expectations: Sequence[Expectation] = (),
+    allow_disconnected: bool = False,
+) -> list[Failure]:
+    """The one place that decides what failed in a run (and so its exit status)."""
+    failures: list[Failure] = []
+    if not allow_disconnected:
+        for key, link in summary.links.items():
+            if not link.get("connected"):
+                why = link.get("error") or "no error reported"
+                failures.append(Failure(
+                    EXIT_DISCONNECTED, key,
+                    f"{key}: {link.get('kind', 'hardware')} link {link.get('target', '?')} never "
+                    f"connected during the run ({why}); --allow-disconnected accepts that",
+                ))
+    for expectation in expectations:
+        problem = expectation.check(summary.nodes)
+        if problem is not None:
+            failures.append(Failure(EXIT_EXPECT, "expect", problem))
+    return failures
 
 
 class _StopFlag:
@@ -314,12 +415,12 @@ class _StopFlag:
             self.event.set()
 
 
-def _instantiate(spec: LaunchSpec, made: list[tuple[str, Any]]) -> None:
+def _instantiate(spec: LaunchSpec, bus: str, made: list[tuple[str, Any]]) -> None:
     """Construct every node into ``made`` (so the caller can stop those built before a failure)."""
     for i, node in enumerate(spec.nodes):
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry")
         try:
-            obj = cls(node.name, bus=spec.bus, **node.params)
+            obj = cls(node.name, bus=bus, **node.params)
         except TypeError as exc:
             raise ConfigError(f"nodes[{i}] ({node.name}).params: {exc}") from None
         made.append((node.name, obj))
@@ -336,6 +437,9 @@ def run(
     stop_event: threading.Event | None = None,
     handle_signals: bool = True,
     on_started: Callable[[LaunchSpec], None] | None = None,
+    domain: Domain | int | str | None = None,
+    expect: Sequence[str | Expectation] = (),
+    allow_disconnected: bool = False,
 ) -> RunSummary:
     """Start every node of a launch file in order, wait, stop them in reverse order.
 
@@ -343,13 +447,25 @@ def run(
     ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
     main thread and ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every
     topic to MCAP with :class:`hil_bridge.bag.Recorder`. ``live`` starts the Foxglove view
-    (:mod:`hil_bridge.live`). ``bus`` replaces the file's bus URL.
-    ``on_started(spec)`` is called once every node runs. A node that fails to construct or
-    start stops every node already constructed (reverse order) and re-raises.
+    (:mod:`hil_bridge.live`). ``bus`` replaces the file's bus URL. ``domain`` (default
+    ``ECHOLOOP_DOMAIN``, else 0) gives every default the file leaves out: the bus, pty links,
+    virtual CAN channels, the live-view port. ``on_started(spec)`` is called once every node
+    runs, with ``spec.bus`` the bus in use. A node that fails to construct or start stops every
+    node already constructed (reverse order) and re-raises.
+
+    ``expect`` (``"NODE.COUNTER OP VALUE"`` strings, checked for unknown nodes before anything
+    starts) and ``allow_disconnected`` decide the summary's ``failures`` and ``exit_status``
+    (the module docstring).
     """
     spec = path if isinstance(path, LaunchSpec) else load(path, params_overrides=params_overrides)
-    if bus is not None:
-        spec = dataclasses.replace(spec, bus=bus)
+    dom = resolve(domain)
+    bus_url = bus if bus is not None else spec.bus or dom.bus_url
+    spec = dataclasses.replace(spec, bus=bus_url)
+    expectations = parse_expectations(
+        [e for e in expect if isinstance(e, str)], nodes=[n.name for n in spec.nodes]
+    ) + [e for e in expect if isinstance(e, Expectation)]
+    if duration is not None:
+        check_duration(duration)
     run_for = duration if duration is not None else spec.duration
     record_path = str(record) if record is not None else spec.record
     want_live = spec.live if live is None else live
@@ -368,25 +484,26 @@ def run(
     extras: list[Any] = []
     t0 = time.monotonic()
     try:
-        monitor = BusMonitor("launch_monitor", bus=spec.bus)
-        monitor.start()
-        extras.append(monitor)
-        if record_path is not None:
-            from hil_bridge.bag import Recorder
+        with use(dom):
+            monitor = BusMonitor("launch_monitor", bus=bus_url)
+            monitor.start()
+            extras.append(monitor)
+            if record_path is not None:
+                from hil_bridge.bag import Recorder
 
-            Path(record_path).parent.mkdir(parents=True, exist_ok=True)
-            recorder = Recorder(record_path, bus=spec.bus)
-            recorder.start()
-            extras.append(recorder)
-        _instantiate(spec, made)
-        for _, obj in made:
-            obj.start()
-        if want_live:
-            from hil_bridge.live import LiveView
+                Path(record_path).parent.mkdir(parents=True, exist_ok=True)
+                recorder = Recorder(record_path, bus=bus_url)
+                recorder.start()
+                extras.append(recorder)
+            _instantiate(spec, bus_url, made)
+            for _, obj in made:
+                obj.start()
+            if want_live:
+                from hil_bridge.live import LiveView
 
-            view = LiveView("live", bus=spec.bus)
-            view.start()
-            extras.append(view)
+                view = LiveView("live", bus=bus_url)
+                view.start()
+                extras.append(view)
         if on_started is not None:
             on_started(spec)
         deadline = None if run_for is None else time.monotonic() + run_for
@@ -414,14 +531,22 @@ def run(
                 extra_stats[extra.name] = extra.stats()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    return RunSummary(
+    nodes = {name: node_stats[name] for name, _ in made}
+    summary = RunSummary(
         wall_s=time.monotonic() - t0,
         stopped_by=flag.reason,
-        nodes={name: node_stats[name] for name, _ in made},
+        nodes=nodes,
         monitor=monitor_stats,
         record=record_path,
         extras=extra_stats,
+        domain=str(dom),
+        bus=bus_url,
+        links=collect_links(nodes),
     )
+    summary.failures = judge(
+        summary, expectations=expectations, allow_disconnected=allow_disconnected
+    )
+    return summary
 
 
 def main(argv: Sequence[str] | None = None) -> int:

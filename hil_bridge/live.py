@@ -1,7 +1,8 @@
 """Live view: a Foxglove WebSocket server (foxglove-sdk) on loopback showing the bus.
 
 Off by default; ``echoloop launch FILE --live`` or ``live: true`` in a launch file starts it
-(open https://app.foxglove.dev, "Open connection", ``ws://127.0.0.1:8765``). Topics served:
+(open https://app.foxglove.dev, "Open connection", ``ws://127.0.0.1:8765`` in domain 0,
+``8765 + 10 N`` in domain N, :mod:`hil_bridge.domain`). Topics served:
 
 - ``/live/gliders`` (``foxglove.SceneUpdate``): one arrow per glider/vehicle at its pose (world
   frame ``world``, ENU metres; yaw = heading, roll = bank), dead gliders grey;
@@ -38,10 +39,11 @@ def _quaternion(yaw: float, roll: float) -> tuple[float, float, float, float]:
 
 
 class LiveView:
-    """Launchable Foxglove bridge: ``LiveView(name, *, bus, host="127.0.0.1", port=8765,
+    """Launchable Foxglove bridge: ``LiveView(name, *, bus, host="127.0.0.1", port=None,
     rate_hz=10.0, trail_points=200, echo_every=1, echo_points=2000)``.
 
-    ``port=0`` picks a free port (read :attr:`port` after :meth:`start`).
+    ``port`` None is the domain's live-view port; ``port=0`` picks a free port (read
+    :attr:`port` after :meth:`start`).
     """
 
     def __init__(
@@ -50,14 +52,17 @@ class LiveView:
         *,
         bus: str,
         host: str = "127.0.0.1",
-        port: int = 8765,
+        port: int | None = None,
         rate_hz: float = 10.0,
         trail_points: int = 200,
         echo_every: int = 1,
         echo_points: int = 2000,
     ) -> None:
+        from hil_bridge.domain import current as current_domain
         from hil_bridge.security import is_loopback_host
 
+        if port is None:
+            port = current_domain().live_port
         if not is_loopback_host(host):
             raise ValueError(f"host: the live view binds loopback only, got {host!r}")
         if not 0 <= port <= 65535:

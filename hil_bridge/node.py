@@ -49,12 +49,13 @@ from hil_bridge.codec import (
     encode_payload,
     validate_topic,
 )
+from hil_bridge.domain import current as current_domain
 from hil_bridge.errors import CodecError
 from hil_bridge.messages import Clock, CmdAck, Diagnostics, Message
 from hil_bridge.qos import LATCHED, SENSOR, QoSProfile, qos_profile
-from hil_bridge.transport import DEFAULT_BUS, Transport, open_transport
+from hil_bridge.transport import Transport, open_transport
 
-__all__ = ["DEFAULT_BUS", "Node", "Publisher", "Subscription", "Timer"]
+__all__ = ["Node", "Publisher", "Subscription", "Timer"]
 
 log = logging.getLogger(__name__)
 
@@ -252,7 +253,9 @@ class Timer:
 
 
 class Node:
-    """A bus participant: ``Node(name, *, bus=DEFAULT_BUS, clock=None, diagnostics_period_s=1.0)``.
+    """A bus participant: ``Node(name, *, bus=None, clock=None, diagnostics_period_s=1.0)``.
+
+    ``bus`` defaults to the current domain's bus (:mod:`hil_bridge.domain`).
 
     ``clock`` defaults to :func:`~hil_bridge.clock.default_clock`. ``diagnostics_period_s``
     (wall seconds; 0 disables) sets how often ``/diagnostics`` carries :meth:`stats`.
@@ -263,7 +266,7 @@ class Node:
         self,
         name: str,
         *,
-        bus: str = DEFAULT_BUS,
+        bus: str | None = None,
         clock: SimClock | None = None,
         diagnostics_period_s: float = 1.0,
     ) -> None:
@@ -272,7 +275,7 @@ class Node:
         if diagnostics_period_s < 0:
             raise ValueError(f"diagnostics_period_s must be >= 0, got {diagnostics_period_s}")
         self.name = name
-        self.bus = bus
+        self.bus = bus if bus is not None else current_domain().bus_url
         self.clock = clock if clock is not None else default_clock()
         self.src = f"{name}#{os.getpid():x}.{next(_NODE_IDS)}.{os.urandom(3).hex()}"
         self.diagnostics_period_s = diagnostics_period_s
@@ -294,7 +297,7 @@ class Node:
         self._stopped = False
         self._threads: list[threading.Thread] = []
         self._diag_pub: Publisher[Diagnostics] | None = None
-        self.transport: Transport = open_transport(bus)
+        self.transport: Transport = open_transport(self.bus)
         self.transport.on_subscribe = self._on_remote_subscribe
         self.clock.add_listener(self._wake_exec)
 

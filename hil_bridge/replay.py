@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 
-from hil_bridge.transport import DEFAULT_BUS
 from sim_core.config import ConfigError, from_dict, load_yaml
 from sim_core.rng import make_rng
 from sim_core.scene import SceneSpec
@@ -178,7 +177,7 @@ def build_replay_launch(
     pinger: Mapping[str, Any] | None = None,
     rate: float = 1.0,
     state_rate_hz: float = 50.0,
-    bus: str = DEFAULT_BUS,
+    bus: str | None = None,
     clock_mode: str = "realtime",
     topic: str | None = None,
     origin: tuple[float, float, float] | None = None,
@@ -240,4 +239,7 @@ def build_replay_launch(
             "name": "pinger", "entry": "hil_bridge.replay:Pinger",
             "params": {"sonar_id": 0, "rate_hz": float(sonar_rate_hz), **ping_params},
         })
-    return {"bus": bus, "nodes": nodes}, traj.duration / rate
+    launch: dict[str, Any] = {"nodes": nodes}
+    if bus is not None:
+        launch["bus"] = bus
+    return launch, traj.duration / rate

@@ -1,4 +1,4 @@
-"""Suite-wide fixtures: where the test data live, and a thread-leak guard."""
+"""Suite-wide fixtures: where the test data live, a private domain, and a thread-leak guard."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from hil_bridge.domain import Domain, use
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -38,6 +40,14 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 def data_dir() -> Path:
     """``tests/data``: the seeds' data files and their code's outputs (see each README there)."""
     return DATA
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _private_domain(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Domain]:
+    """Every default bus, pty link and virtual CAN channel of the suite belongs to this run
+    (hil_bridge.domain), so the suite never meets a demo or another run on the machine."""
+    with use(Domain.private(tmp_path_factory.mktemp("domain"))) as domain:
+        yield domain
 
 
 @pytest.fixture(autouse=True)

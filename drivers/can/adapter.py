@@ -45,7 +45,7 @@ from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
 from hil_bridge.clock import SimClock
 from hil_bridge.errors import CodecError
 from hil_bridge.messages import GliderCmd, GliderNeighbors, GliderState
-from hil_bridge.node import DEFAULT_BUS, Node, Publisher
+from hil_bridge.node import Node, Publisher
 from hil_bridge.qos import SENSOR
 from sim_core.soaring.law import Law
 
@@ -157,9 +157,9 @@ class AutopilotAdapter(Node):
         self,
         name: str = "autopilot",
         *,
-        bus: str = DEFAULT_BUS,
+        bus: str | None = None,
         interface: str = "virtual",
-        channel: str | int = "glider",
+        channel: str | int | None = None,
         bitrate: int | None = None,
         can_log: str | Path | None = None,
         gliders: Any = (0,),
@@ -266,6 +266,7 @@ class AutopilotAdapter(Node):
             out.update({f"can_{k}": v for k, v in link.items()})
             out["can_state"] = _LINK_STATE_CODES.get(state, -1)
             out["can_link"] = state
+            out["links"] = {"can": self._link.report()}
         sat = self.codec.saturation_counts()
         out["saturated_tx"] = sum(sat["tx"].values())
         out["saturated_rx"] = sum(sat["rx"].values())

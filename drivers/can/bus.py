@@ -23,6 +23,8 @@
 4. With ``log_path`` every frame sent and received (error frames too) is written by python-can's
    ``can.Logger`` (``.log`` = candump ``-L`` format, readable by ``can.LogReader``).
 5. ``close()`` is idempotent and flushes the log.
+6. :meth:`CanLink.report` says whether the bus was ever open and its state when closed (the run
+   summary's ``links``, :func:`hil_bridge.launch.collect_links`).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from drivers.faults.can_bus import (
     FaultInjectingBus,
     fault_rngs,
 )
+from hil_bridge.domain import current as current_domain
 from sim_core.config import from_dict
 
 log = logging.getLogger(__name__)
@@ -63,13 +66,16 @@ _BUS_DOWN = {errno.ENETDOWN, errno.ENETUNREACH, errno.ENODEV}
 class CanBusConfig:
     """Where the CAN bus is: python-can ``interface``, ``channel`` and ``bitrate``.
 
+    :meth:`from_params` (what launch parameters go through) gives a ``virtual`` bus without a
+    channel the domain's channel ``glider`` (``glider.d<N>``, :mod:`hil_bridge.domain`), so two
+    runs in one process never share a virtual bus by accident; other interfaces need one.
     ``bitrate`` None leaves the interface's own setting (socketcan takes it from
     ``ip link set can0 type can bitrate ...``). ``options`` are further ``can.Bus`` keyword
     arguments (e.g. ``{receive_own_messages: true}``). ``faults`` injects bus faults.
     """
 
     interface: str = "virtual"
-    channel: str = "glider"
+    channel: str = ""
     bitrate: int | None = None
     options: dict[str, Any] = field(default_factory=dict)
     faults: CanFaultConfig | None = None
@@ -80,6 +86,9 @@ class CanBusConfig:
                 f"interface: unknown python-can interface {self.interface!r}; "
                 f"expected one of {sorted(can.interfaces.BACKENDS)}"
             )
+        if not self.channel:
+            raise ValueError(f"channel: expected the {self.interface!r} channel to use, e.g. "
+                             "can0 (socketcan) or PCAN_USBBUS1 (pcan)")
         if self.bitrate is not None and not 0 < self.bitrate <= 8_000_000:
             raise ValueError(f"bitrate: expected bits/s in (0, 8e6], got {self.bitrate}")
 
@@ -88,7 +97,7 @@ class CanBusConfig:
         cls,
         *,
         interface: str = "virtual",
-        channel: str | int = "glider",
+        channel: str | int | None = None,
         bitrate: int | None = None,
         options: dict[str, Any] | None = None,
         faults: CanFaultConfig | dict[str, Any] | None = None,
@@ -96,8 +105,11 @@ class CanBusConfig:
         """Build from launch-style params (``faults`` may be a mapping of CanFaultConfig)."""
         if isinstance(faults, dict):
             faults = from_dict(CanFaultConfig, faults, path="faults")
+        if channel is None and interface == "virtual":
+            channel = current_domain().can_channel("glider")
         return cls(
-            interface=str(interface), channel=str(channel), bitrate=bitrate,
+            interface=str(interface), channel="" if channel is None else str(channel),
+            bitrate=bitrate,
             options=dict(options or {}), faults=faults,
         )
 
@@ -156,6 +168,9 @@ class CanLink:
         self._rx_fail = 0
         self._tx_fail = 0
         self._closed = False
+        self._ever_open = False
+        self._final_state: LinkState = "down"
+        self.last_error = ""
         self.counters: Counter[str] = Counter()
         self._logger: can.Listener | None = None
         if log_path is not None:
@@ -188,6 +203,16 @@ class CanLink:
         out["state"] = self._state
         return out
 
+    def report(self) -> dict[str, Any]:
+        """``{"kind": "can", "target": "interface:channel", "connected" (ever open), "state"
+        (now, or when closed), "reconnects", "error" (the last open error)}``."""
+        return {
+            "kind": "can", "target": f"{self.config.interface}:{self.config.channel}",
+            "connected": self._ever_open,
+            "state": self._final_state if self._closed else self._state,
+            "reconnects": self.counters.get("reopens", 0), "error": self.last_error,
+        }
+
     # -- open / re-open -----------------------------------------------------------------------
     def _make_bus(self) -> BusABC:
         cfg = self.config
@@ -211,6 +236,7 @@ class CanLink:
                         f"interface {self.config.interface!r} is not usable here: {exc}"
                     ) from None
                 self._inc("open_failures")
+                self.last_error = f"{type(exc).__name__}: {exc}"
                 if not self._open_warned:
                     self._open_warned = True
                     log.warning("CAN %s:%s cannot be opened (%s); retrying with back-off",
@@ -220,6 +246,7 @@ class CanLink:
                 self._open_backoff = min(2 * self._open_backoff, self.policy.max_backoff_s)
                 return False
             self._bus = bus
+            self._ever_open = True
             self._open_warned = False
             if self._state != "bus_off":
                 self._state = "up"
@@ -395,6 +422,7 @@ class CanLink:
             if self._closed:
                 return
             self._closed = True
+            self._final_state = self._state
             self._state = "closed"
             bus, self._bus = self._bus, None
         if bus is not None:

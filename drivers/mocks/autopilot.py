@@ -335,7 +335,7 @@ class MockAutopilot:
         *,
         bus: str = "",
         interface: str = "virtual",
-        channel: str | int = "glider",
+        channel: str | int | None = None,
         bitrate: int | None = None,
         gliders: Any = (0,),
         controller: str = "unified",
@@ -420,6 +420,7 @@ class MockAutopilot:
         out.update({f"rx_{k}": v for k, v in self.receiver.counts().items()})
         if self._link is not None:
             out.update({f"can_{k}": v for k, v in self._link.stats().items()})
+            out["links"] = {"can": self._link.report()}
         sat = self.codec.saturation_counts()
         out["saturated_tx"] = sum(sat["tx"].values())
         out["saturated_rx"] = sum(sat["rx"].values())

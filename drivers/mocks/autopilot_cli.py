@@ -13,6 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
+from hil_bridge.domain import use
+
 __all__ = ["main"]
 
 _STATUS_KEYS = ("commands_sent", "heartbeats_sent", "rx_states", "rx_nb_sets",
@@ -33,7 +36,9 @@ def main(argv: list[str]) -> int:
         "processes use socketcan on vcan0/can0.",
     )
     parser.add_argument("--interface", default="virtual", help="python-can interface")
-    parser.add_argument("--channel", default="glider", help="python-can channel")
+    parser.add_argument("--channel", default=None,
+                        help="python-can channel (virtual: default the domain's, glider.d<N>)")
+    add_domain_argument(parser)
     parser.add_argument("--bitrate", type=int, default=None, help="bits/s (default: interface's)")
     parser.add_argument("--gliders", default="0", metavar="N,N,...",
                         help="node ids to fly (0..15), e.g. 0,1,2")
@@ -50,7 +55,7 @@ def main(argv: list[str]) -> int:
                         help="path controller: pure-pursuit look-ahead distance")
     parser.add_argument("--can-log", default=None, metavar="PATH",
                         help="candump-format log of the mock's traffic (.log)")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
+    parser.add_argument("--duration", type=seconds, default=None, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C)")
     parser.add_argument("--every", type=float, default=2.0, metavar="S",
                         help="print a status line every S seconds (0: only at the end)")
@@ -66,16 +71,18 @@ def main(argv: list[str]) -> int:
         except ValueError as exc:
             raise ValueError(f"--waypoints {args.waypoints}: expected two numeric columns x y "
                              f"({exc})") from None
-    mock = MockAutopilot(
-        "mock_autopilot", interface=args.interface, channel=args.channel, bitrate=args.bitrate,
-        gliders=args.gliders, controller=args.controller, law=args.law, rate_hz=args.rate,
-        waypoints=waypoints, path_airspeed_mps=args.path_airspeed, lookahead_m=args.lookahead,
-        can_log=args.can_log,
-    )
+    with use(domain_from(args, "echoloop mock autopilot")):
+        mock = MockAutopilot(
+            "mock_autopilot", interface=args.interface, channel=args.channel,
+            bitrate=args.bitrate, gliders=args.gliders, controller=args.controller, law=args.law,
+            rate_hz=args.rate, waypoints=waypoints, path_airspeed_mps=args.path_airspeed,
+            lookahead_m=args.lookahead, can_log=args.can_log,
+        )
     mock.start()
     done = threading.Event()
     try:
-        print(f"mock autopilot on {args.interface}:{args.channel}, nodes {list(mock.nodes)}, "
+        print(f"mock autopilot on {args.interface}:{mock.bus_config.channel}, nodes "
+              f"{list(mock.nodes)}, "
               f"controller {args.controller}, {mock.rate_hz:g} Hz", flush=True)
         t_end = None if args.duration is None else time.monotonic() + args.duration
         while True:

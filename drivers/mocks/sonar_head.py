@@ -3,9 +3,10 @@
 :class:`MockSonarHead` is a launchable (``Cls(name, *, bus, **params)``, ``start``, ``stop``,
 ``stats``) and runs alone via ``echoloop mock sonar-head``. It
 
-1. owns a device port: a new pty (``pty=True``, optionally symlinked to ``link``), an existing
-   serial URL (``port=...``, e.g. one end of a null-modem cable or ``socket://``), or an
-   in-process pipe (the ``sonarsim://`` pyserial URL handler);
+1. owns a device port: a new pty (``pty=True``) symlinked to ``link`` (default the domain's
+   ``sonar<sonar_id>``, where ``SonarHeadAdapter`` looks by default; :mod:`hil_bridge.domain`),
+   an existing serial URL (``port=...``, e.g. one end of a null-modem cable or ``socket://``),
+   or an in-process pipe (the ``sonarsim://`` pyserial URL handler);
 2. sends CONFIG and HEARTBEAT once a second (CONFIG also as soon as a host (re)appears, i.e.
    its first frame after a second of silence) and a PING at ``rate_hz`` with a fixed beamwidth or
    one drawn uniformly from [30°, 65°] per ping (seed 000's scenario II) from its seeded rng;
@@ -48,6 +49,7 @@ from drivers.serial.protocol import (
     StatusPayload,
 )
 from drivers.serial.ptyport import PtyPort
+from hil_bridge.domain import current as current_domain
 from sim_core.config import from_dict
 from sim_core.rng import make_rng
 
@@ -243,6 +245,7 @@ class MockSonarHead:
         pty: bool = False,
         link: str | None = None,
         device: DevicePort | None = None,
+        sonar_id: int = 0,
         **params: Any,
     ) -> None:
         self.name = name
@@ -255,8 +258,10 @@ class MockSonarHead:
                 f"device; got port={port!r}, pty={pty!r}, link={link!r}"
             )
         self._port_url = port
-        self._pty_link = link
         self._use_pty = bool(pty) or link is not None
+        if self._use_pty and link is None:
+            link = str(current_domain().path(f"sonar{int(sonar_id)}"))
+        self._pty_link = link
         self._device = device
         self.pty: PtyPort | None = None
         self.encoding = Encoding.parse(self.cfg.encoding)

@@ -31,8 +31,9 @@ from drivers.serial.framing import Frame
 from drivers.serial.host import LinkBudget, SonarHeadHost, link_budget
 from drivers.serial.protocol import ConfigPayload, Encoding, ErrorCode, LinkState, PingPayload
 from hil_bridge.clock import SimClock
+from hil_bridge.domain import current as current_domain
 from hil_bridge.messages import SonarEcho, SonarPing
-from hil_bridge.node import DEFAULT_BUS, Node
+from hil_bridge.node import Node
 from sim_core.config import from_dict
 
 __all__ = ["SonarHeadAdapter", "SonarHeadParams"]
@@ -45,12 +46,14 @@ class SonarHeadParams:
     """Launch parameters of ``sonar_head`` (see docs/serial.md for how to choose them).
 
     ``port``: device path, pty path/symlink or URL (``loop://``, ``socket://h:p``,
-    ``sonarsim://?...``). ``capture``: path prefix for the raw byte capture (None: off).
+    ``sonarsim://?...``); default the domain's link ``sonar<sonar_id>``, where
+    ``MockSonarHead(pty=True)`` and ``echoloop mock sonar-head --pty`` put their pty
+    (:mod:`hil_bridge.domain`). ``capture``: path prefix for the raw byte capture (None: off).
     ``ping_rate_hz``/``echo_samples``/``channels``: what the link budget assumes (samples per
     channel at the echo rate, before IQ decimation).
     """
 
-    port: str
+    port: str | None = None
     baudrate: int = 921600
     capture: str | None = None
     sonar_id: int = 0
@@ -91,7 +94,7 @@ class SonarHeadAdapter(Node):
         self,
         name: str = "sonar_head",
         *,
-        bus: str = DEFAULT_BUS,
+        bus: str | None = None,
         clock: SimClock | None = None,
         **params: Any,
     ) -> None:
@@ -103,8 +106,10 @@ class SonarHeadAdapter(Node):
         self._check_budget(self.budget, refuse=p.budget == "refuse", source="parameters")
         super().__init__(name, bus=bus, clock=clock, diagnostics_period_s=p.diagnostics_period_s)
         self.sonar_id = p.sonar_id
+        self.port = p.port if p.port is not None else str(
+            current_domain().path(f"sonar{p.sonar_id}"))
         self.host = SonarHeadHost(
-            p.port, baudrate=p.baudrate, encoding=p.encoding, f_center_hz=p.f_center_hz,
+            self.port, baudrate=p.baudrate, encoding=p.encoding, f_center_hz=p.f_center_hz,
             decimation=p.decimation, follow_head_config=p.follow_head_config,
             capture=p.capture, on_ping=self._on_ping, on_config=self._on_config,
             backoff_initial_s=p.backoff_initial_s, backoff_max_s=p.backoff_max_s,
@@ -202,4 +207,5 @@ class SonarHeadAdapter(Node):
             "link_utilisation": round(self.budget.utilisation, 4),
         })
         out["serial"] = serial
+        out["links"] = {"serial": self.host.link.report()}
         return out

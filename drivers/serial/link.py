@@ -20,6 +20,8 @@ above never knows which.
    ``PREFIX.tx.bin``, byte-exact and in order, across reconnects; ``PREFIX.index.tsv`` has one
    line per read/write/open/close with a monotonic timestamp (format in docs/serial.md).
 5. ``stop()`` is idempotent, joins both threads and closes the port and capture files.
+6. :meth:`Link.report` says whether the port was ever open and its state when the link stopped
+   (the run summary's ``links``, :func:`hil_bridge.launch.collect_links`).
 """
 
 from __future__ import annotations
@@ -175,6 +177,7 @@ class Link:
         self.write_errors = 0
         self.tx_dropped_bytes = 0
         self.callback_errors = 0
+        self._connected_at_stop = False
 
     # ---- lifecycle -------------------------------------------------------------------------
 
@@ -207,6 +210,7 @@ class Link:
                 log.debug("%s: cancel_read failed", self.name, exc_info=True)
         for t in self._threads:
             t.join(timeout=5.0)
+        self._connected_at_stop = self.connected
         self._close_port()
         if self.capture is not None:
             self.capture.close()
@@ -245,6 +249,17 @@ class Link:
     def _notify_state(self) -> None:
         with self._state_cv:
             self._state_cv.notify_all()
+
+    def report(self) -> dict[str, Any]:
+        """``{"kind": "serial", "target", "connected" (ever), "state" (now, or when stopped),
+        "reconnects", "error" (the last open/read/write error)}``."""
+        now = self._connected_at_stop if self._stopped else self.connected
+        return {
+            "kind": "serial", "target": self.url, "connected": self.opens > 0,
+            "state": "connected" if now else ("failed" if self.failed else "disconnected"),
+            "reconnects": self.reconnects,
+            "error": "" if self.last_error is None else str(self.last_error),
+        }
 
     def stats(self) -> dict[str, int | bool]:
         return {

@@ -7,6 +7,10 @@ opens it are buffered (pyserial flushes them on open) and the host may close and
 
 ``unplug()`` closes both sides and removes the symlink: the host's reads fail the way they do
 when a USB adapter is pulled. ``replug()`` creates a new pty and points the symlink at it.
+
+The symlink never replaces a file that is not a symlink, nor a symlink to a pty that is still
+open (another mock holds it: two runs in one domain, see :mod:`hil_bridge.domain`); a symlink
+whose pty is gone (left by a crashed run) is replaced.
 """
 
 from __future__ import annotations
@@ -27,9 +31,14 @@ class PtyPort:
 
     def __init__(self, link: str | Path | None = None) -> None:
         self.link = Path(link) if link is not None else None
-        if self.link is not None and self.link.exists() and not self.link.is_symlink():
-            raise ValueError(f"link {str(self.link)!r} exists and is not a symlink; refusing to "
-                             "replace it")
+        if self.link is not None:
+            if self.link.exists() and not self.link.is_symlink():
+                raise ValueError(f"link {str(self.link)!r} exists and is not a symlink; refusing "
+                                 "to replace it")
+            if self.link.is_symlink() and self.link.exists():
+                raise ValueError(f"link {str(self.link)!r} points to a pty another process holds "
+                                 f"open ({os.readlink(self.link)}); stop it, or use another "
+                                 "link or domain")
         self._lock = threading.Lock()
         self._master = -1
         self._slave = -1

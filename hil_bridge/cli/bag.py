@@ -7,6 +7,9 @@
     echoloop bag export out.mcap --ros2 out_ros2.mcap      # ROS 2 bag (CDR, ros2msg schemas)
     echoloop bag export out.mcap --foxglove out_fox.mcap   # Foxglove well-known schemas (3D)
     echoloop bag export out.mcap --mat out.mat             # MATLAB v5: echoes, pings, tracks
+
+``record`` and ``play`` use the domain's bus (``--domain`` or ``ECHOLOOP_DOMAIN``) unless
+``--bus`` names one.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import time
 from types import FrameType
 
 from hil_bridge.bag import Player, Recorder, bag_info, export_json
-from hil_bridge.transport import DEFAULT_BUS
+from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
 
 
 def _rate(text: str) -> float:
@@ -132,9 +135,10 @@ def main(argv: list[str]) -> int:
 
     rec = sub.add_parser("record", help="record topics into an MCAP file")
     rec.add_argument("file")
-    rec.add_argument("--bus", default=DEFAULT_BUS)
+    rec.add_argument("--bus", default=None, help="bus URL (default: the domain's)")
+    add_domain_argument(rec)
     rec.add_argument("--topics", nargs="+", default=None, help="default: every topic")
-    rec.add_argument("--duration", type=float, default=None, help="seconds (default: Ctrl-C)")
+    rec.add_argument("--duration", type=seconds, default=None, help="seconds (default: Ctrl-C)")
     rec.add_argument("--chunk-size", type=int, default=64 * 1024, help="bytes per MCAP chunk")
     rec.add_argument("--flush-period", type=float, default=1.0,
                      help="seconds between forced chunk flushes (data at risk on a crash)")
@@ -143,7 +147,8 @@ def main(argv: list[str]) -> int:
 
     play = sub.add_parser("play", help="publish a recording on the bus")
     play.add_argument("file")
-    play.add_argument("--bus", default=DEFAULT_BUS)
+    play.add_argument("--bus", default=None, help="bus URL (default: the domain's)")
+    add_domain_argument(play)
     play.add_argument("--rate", type=_rate, default=1.0, help="speed factor (0: no pacing)")
     play.add_argument("--loop", action="store_true")
     play.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds")
@@ -172,4 +177,6 @@ def main(argv: list[str]) -> int:
     exp.set_defaults(run=_export)
 
     args = parser.parse_args(argv)
+    if args.cmd in ("record", "play") and args.bus is None:
+        args.bus = domain_from(args, f"echoloop bag {args.cmd}").bus_url
     return int(args.run(args))

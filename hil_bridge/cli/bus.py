@@ -1,6 +1,7 @@
 """``echoloop bus``: run the XSUB/XPUB bus proxy alone (multi-host set-ups), or make CURVE keys.
 
     echoloop bus                                   # tcp://127.0.0.1:7400 (pub) / :7401 (sub)
+    echoloop bus --domain 3                        # domain 3: tcp://127.0.0.1:7430 / :7431
     echoloop bus --pub tcp://0.0.0.0:7400 --curve-keys keys/   # off loopback: CURVE required
     echoloop bus --keygen keys/ --clients sim,viewer           # write server + client key pairs
 """
@@ -12,6 +13,7 @@ import signal
 import threading
 from types import FrameType
 
+from hil_bridge.cli._args import add_domain_argument, domain_from
 from hil_bridge.proxy import Proxy
 from hil_bridge.security import CurveKeys, generate_keys
 from hil_bridge.transport.zmq import parse_zmq_url
@@ -20,8 +22,10 @@ from hil_bridge.transport.zmq import parse_zmq_url
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="echoloop bus", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--pub", default="tcp://127.0.0.1:7400",
-                        help="publish endpoint (XSUB) to bind (default %(default)s)")
+    parser.add_argument("--pub", default=None,
+                        help="publish endpoint (XSUB) to bind (default: the domain's bus, "
+                             "tcp://127.0.0.1:7400 in domain 0)")
+    add_domain_argument(parser)
     parser.add_argument("--sub", default=None,
                         help="subscribe endpoint (XPUB) to bind (default: pub port + 1)")
     parser.add_argument("--curve-keys", metavar="DIR", default=None,
@@ -40,6 +44,8 @@ def main(argv: list[str]) -> int:
               + ", ".join(f"{n}.key(_secret)" for n in names) + "; authorized/ holds the clients")
         return 0
 
+    if args.pub is None:
+        args.pub = domain_from(args, "echoloop bus").bus_url
     sub = args.sub if args.sub is not None else parse_zmq_url(args.pub).sub
     curve = CurveKeys.from_dir(args.curve_keys) if args.curve_keys is not None else None
     stop = threading.Event()

@@ -1,9 +1,12 @@
-"""``echoloop launch FILE [--param NODE.KEY=VALUE ...] [--duration S] [--record F] [--json]``.
+"""``echoloop launch FILE [--param NODE.KEY=VALUE ...] [--duration S] [--expect CHECK ...]``.
 
 Runs the nodes of a launch file as threads of this process (see :mod:`hil_bridge.launch`) until
 ``--duration`` seconds have passed or Ctrl-C/SIGTERM arrives, then stops them in reverse order.
 ``--json`` prints the run summary (messages per topic, drops, stalls, latency percentiles, every
-node's ``stats()``) as one JSON document on stdout; otherwise a short human summary is printed.
+node's ``stats()``, link states, failures) as one JSON document on stdout; otherwise a short
+human summary is printed. What failed (an ``--expect`` that did not hold, a hardware link that
+never connected) is printed on stderr, one line each, and sets the exit status
+(:attr:`hil_bridge.launch.RunSummary.exit_status`).
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ import json
 import sys
 from typing import Any
 
+from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
+from hil_bridge.domain import Domain
 from hil_bridge.launch import LaunchSpec, RunSummary, parse_param_overrides, run
 from hil_bridge.recording_plot import plot_recording
 
@@ -26,12 +31,21 @@ def _parser() -> argparse.ArgumentParser:
         "--param", action="append", default=[], metavar="NODE.KEY=VALUE",
         help="override a node parameter (VALUE in YAML syntax); repeatable",
     )
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=seconds, default=None, metavar="S",
                    help="stop after S seconds (default: the file's, else run until Ctrl-C)")
+    p.add_argument(
+        "--expect", action="append", default=[], metavar="'NODE.COUNTER OP VALUE'",
+        help="a check of the run summary, e.g. 'server.stalls == 0' (OP: > >= < <= == !=); "
+             "the run exits 4 unless every one holds; repeatable",
+    )
+    p.add_argument("--allow-disconnected", action="store_true",
+                   help="exit 0 even if a hardware link (serial port, CAN bus) never connected "
+                        "(otherwise exit 3)")
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every topic to an MCAP file")
     p.add_argument("--bus", default=None, metavar="URL",
-                   help="bus URL replacing the file's (e.g. tcp://127.0.0.1:7410, mem://demo)")
+                   help="bus URL replacing the file's and the domain's (e.g. mem://demo)")
+    add_domain_argument(p, auto=True)
     p.add_argument("--live", action="store_true", help="serve a Foxglove live view on 127.0.0.1")
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     p.add_argument("--verbose", "-v", action="store_true",
@@ -116,6 +130,7 @@ def format_summary(summary: RunSummary, *, verbose: bool = False) -> str:
             f"bus: {mon.get('messages', 0)} messages seen, {mon.get('seq_gaps', 0)} lost "
             f"(sequence gaps), {mon.get('bad', 0)} undecodable; nodes dropped {dropped}"
         )
+    lines.extend(format_link(key, link) for key, link in summary.links.items())
     for key, label in (("ping_echo_ms", "ping -> echo"), ("state_latency_ms", "state pub -> recv")):
         pct = mon.get(key)
         if pct and pct.get("n"):
@@ -131,10 +146,31 @@ def format_summary(summary: RunSummary, *, verbose: bool = False) -> str:
     return "\n".join(lines)
 
 
-def _announce(spec: LaunchSpec) -> None:
-    names = ", ".join(n.name for n in spec.nodes)
-    print(f"echoloop launch: running {names} on {spec.bus} (Ctrl-C to stop)", file=sys.stderr,
-          flush=True)
+def format_link(key: str, link: dict[str, Any]) -> str:
+    """One line of a link report (:func:`hil_bridge.launch.collect_links`)."""
+    head = f"link {key}: {link.get('kind', '?')} {link.get('target', '?')}"
+    if not link.get("connected"):
+        return f"{head}: NEVER CONNECTED ({link.get('error') or 'no error reported'})"
+    extra = f", {link['reconnects']} reconnects" if link.get("reconnects") else ""
+    return f"{head}: {link.get('state', '?')} at the end of the run{extra}"
+
+
+def announcer(domain: Domain, prog: str = "echoloop launch") -> Any:
+    """``on_started`` callback printing what runs where (stderr)."""
+
+    def announce(spec: LaunchSpec) -> None:
+        names = ", ".join(n.name for n in spec.nodes)
+        print(f"{prog}: running {names} in {domain} on {spec.bus} (Ctrl-C to stop)",
+              file=sys.stderr, flush=True)
+
+    return announce
+
+
+def report_failures(summary: RunSummary, prog: str = "echoloop launch") -> int:
+    """Print each failure on stderr (one line each) and return the run's exit status."""
+    for failure in summary.failures:
+        print(f"{prog}: {failure.message}", file=sys.stderr)
+    return summary.exit_status
 
 
 
@@ -142,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     if args.plot and not args.record:
         raise ValueError("--plot needs --record FILE.mcap (the plot is drawn from the recording)")
+    domain = domain_from(args, "echoloop launch")
     summary = run(
         args.file,
         params_overrides=parse_param_overrides(args.param),
@@ -149,7 +186,10 @@ def main(argv: list[str] | None = None) -> int:
         record=args.record,
         live=True if args.live else None,
         bus=args.bus,
-        on_started=_announce,
+        on_started=announcer(domain),
+        domain=domain,
+        expect=args.expect,
+        allow_disconnected=args.allow_disconnected,
     )
     if args.json:
         print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))
@@ -159,4 +199,4 @@ def main(argv: list[str] | None = None) -> int:
         plot_recording(args.record, args.plot)
         if not args.json:
             print(f"plot: {args.plot}")
-    return 0
+    return report_failures(summary)

@@ -16,11 +16,11 @@ import argparse
 import json
 import sys
 
-from hil_bridge.cli.launch import _announce, _jsonable, format_summary
+from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
+from hil_bridge.cli.launch import _jsonable, announcer, format_summary, report_failures
 from hil_bridge.launch import run
 from hil_bridge.logs import read_log
 from hil_bridge.replay import build_replay_launch
-from hil_bridge.transport import DEFAULT_BUS
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -51,9 +51,10 @@ def _parser() -> argparse.ArgumentParser:
                         "forest)")
     p.add_argument("--state-rate", type=float, default=50.0, metavar="HZ",
                    help="state stream rate (default 50)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
+    p.add_argument("--duration", type=seconds, default=None, metavar="S",
                    help="wall seconds to run (default: the trajectory's length / rate)")
-    p.add_argument("--bus", default=DEFAULT_BUS, metavar="URL", help="bus URL")
+    p.add_argument("--bus", default=None, metavar="URL", help="bus URL (default: the domain's)")
+    add_domain_argument(p)
     p.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic")
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     return p
@@ -90,11 +91,13 @@ def main(argv: list[str] | None = None) -> int:
         origin=origin,
     )
     duration = args.duration if args.duration is not None else max(length_s, 0.5)
-    summary = run(launch, duration=duration, record=args.record, on_started=_announce)
+    domain = domain_from(args, "echoloop replay")
+    summary = run(launch, duration=duration, record=args.record, domain=domain,
+                  on_started=announcer(domain, "echoloop replay"))
     if args.json:
         out = _jsonable(summary.to_dict())
         out["log"] = report.as_dict()
         print(json.dumps(out, indent=2, sort_keys=True))
     else:
         print(format_summary(summary))
-    return 0
+    return report_failures(summary, "echoloop replay")

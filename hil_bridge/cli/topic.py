@@ -6,8 +6,9 @@
     echoloop topic bw /sonar/0/echo
     echoloop topic info /glider/0/state                # type, publishers, frame ids, rate
 
-Every command listens passively on the bus (``--bus``, default tcp://127.0.0.1:7400) for
-``--duration`` seconds (Ctrl-C ends earlier); latched topics answer at once.
+Every command listens passively on the bus (``--bus``, default the domain's: ``--domain`` or
+``ECHOLOOP_DOMAIN``, tcp://127.0.0.1:7400 in domain 0) for ``--duration`` seconds (Ctrl-C ends
+earlier); latched topics answer at once.
 """
 
 from __future__ import annotations
@@ -19,11 +20,12 @@ from typing import Any
 
 import numpy as np
 
+from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
 from hil_bridge.codec import Header, decode_payload, payload_to_jsonable, validate_topic
 from hil_bridge.errors import CodecError
 from hil_bridge.messages import Message
 from hil_bridge.topic_tools import TopicMonitor, TopicStats
-from hil_bridge.transport import DEFAULT_BUS, Frames
+from hil_bridge.transport import Frames
 
 
 def _fmt(x: float | None, unit: str, scale: float = 1.0) -> str:
@@ -154,8 +156,9 @@ def main(argv: list[str]) -> int:
     sub = parser.add_subparsers(dest="cmd", required=True)
 
     def common(p: argparse.ArgumentParser, duration: float | None) -> None:
-        p.add_argument("--bus", default=DEFAULT_BUS)
-        p.add_argument("--duration", type=float, default=duration,
+        p.add_argument("--bus", default=None, help="bus URL (default: the domain's)")
+        add_domain_argument(p)
+        p.add_argument("--duration", type=seconds, default=duration,
                        help="seconds to listen (default %(default)s; none: until Ctrl-C)")
         p.add_argument("--json", action="store_true", help="machine-readable output")
 
@@ -180,4 +183,6 @@ def main(argv: list[str]) -> int:
     common(p, 2.0)
     p.set_defaults(run=_info)
     args = parser.parse_args(argv)
+    if args.bus is None:
+        args.bus = domain_from(args, "echoloop topic").bus_url
     return int(args.run(args))

@@ -16,10 +16,7 @@ from urllib.parse import urlsplit
 
 from hil_bridge.transport.base import Frames, Transport
 
-__all__ = ["BACKENDS", "DEFAULT_BUS", "Frames", "Transport", "backend_class", "open_transport"]
-
-#: The spec's default bus: publish side of the proxy (the subscribe side is port + 1).
-DEFAULT_BUS = "tcp://127.0.0.1:7400"
+__all__ = ["BACKENDS", "Frames", "Transport", "backend_class", "open_transport"]
 
 BACKENDS: dict[str, str] = {
     "mem": "hil_bridge.transport.mem:MemTransport",

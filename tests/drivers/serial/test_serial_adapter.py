@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 
 from drivers.mocks.sonar_head import MockSonarHead
 from drivers.serial.adapter import SonarHeadAdapter
+from hil_bridge.domain import Domain, use
 from hil_bridge.messages import Diagnostics, SonarEcho, SonarPing
 from hil_bridge.node import Node
 from sim_core.config import ConfigError
@@ -126,7 +128,6 @@ def test_budget_refuse_fails_at_load_and_warn_marks_the_state(
 
 
 @pytest.mark.parametrize(("params", "match"), [
-    ({}, "port"),
     ({"port": "loop://", "budget": "maybe"}, "budget"),
     ({"port": "loop://", "baudrate": 0}, "baudrate"),
     ({"port": "loop://", "encoding": "mp3"}, "encoding"),
@@ -135,6 +136,24 @@ def test_budget_refuse_fails_at_load_and_warn_marks_the_state(
 def test_bad_params_fail_at_load(bus: str, params: dict[str, Any], match: str) -> None:
     with pytest.raises((ConfigError, ValueError), match=match):
         SonarHeadAdapter("sonar_head", bus=bus, **params)
+
+
+def test_default_port_is_the_domain_link_of_the_mock(bus: str, tmp_path: Path) -> None:
+    """Without ``port`` the adapter opens the pty a MockSonarHead made for its domain."""
+    with use(Domain.private(tmp_path)) as domain:
+        mock = MockSonarHead("mock", pty=True, sonar_id=2, rate_hz=20, encoding="int16")
+        adapter = SonarHeadAdapter("sonar_head", bus=bus, sonar_id=2, echo_samples=4000)
+    assert adapter.port == str(domain.path("sonar2"))
+    mock.start()
+    adapter.start()
+    try:
+        assert mock.path == adapter.port
+        assert adapter.host.link.wait_connected(5.0)
+        assert adapter.host.wait_for(lambda h: h.counts["pings_in"] > 0, 5.0)
+    finally:
+        adapter.stop()
+        mock.stop()
+    assert adapter.stats()["links"]["serial"]["connected"] is True
 
 
 def test_loop_port_reads_back_valid_frames(bus: str) -> None:

@@ -1,0 +1,57 @@
+"""Arguments shared by several ``echoloop`` commands: ``--domain`` and durations in seconds."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from hil_bridge.domain import DOMAIN_ENV, MAX_DOMAIN, Domain, current, first_free, parse_domain
+
+__all__ = ["add_domain_argument", "domain_from", "seconds"]
+
+
+def seconds(text: str) -> float:
+    """argparse type: a finite number of seconds > 0 (NaN, 0, negatives and inf rejected)."""
+    from hil_bridge.launch import check_duration
+
+    try:
+        return check_duration(text, where="")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _domain(text: str) -> str:
+    if text.strip() != "auto":
+        try:
+            parse_domain(text, where="--domain")
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc).removeprefix("--domain=")) from None
+    return text.strip()
+
+
+def add_domain_argument(parser: argparse.ArgumentParser, *, auto: bool = False) -> None:
+    """``--domain N`` (``auto`` too when ``auto``): the domain whose ports, pty links and
+    virtual CAN channels this command uses (default ``$ECHOLOOP_DOMAIN``, else 0)."""
+    extra = "; 'auto': the first free one from there" if auto else ""
+    parser.add_argument(
+        "--domain", type=_domain, default=None, metavar="N",
+        help=f"domain 0..{MAX_DOMAIN}: its bus ports, pty links and virtual CAN channels "
+             f"(default ${DOMAIN_ENV}, else 0{extra})",
+    )
+
+
+def domain_from(args: argparse.Namespace, prog: str) -> Domain:
+    """The domain an invocation asked for; with ``--domain auto`` the first free one, saying
+    on stderr which domains were busy."""
+    choice = getattr(args, "domain", None)
+    if choice is None:
+        return current()
+    if choice != "auto":
+        return Domain(parse_domain(choice, where="--domain"))
+    dom, skipped = first_free()
+    for busy, reason in skipped:
+        print(f"{prog}: {busy} is busy ({reason})", file=sys.stderr)
+    if skipped:
+        print(f"{prog}: using {dom} (set {DOMAIN_ENV}={dom.number} or pass --domain "
+              f"{dom.number} to reach it with other commands)", file=sys.stderr, flush=True)
+    return dom
