@@ -3,6 +3,7 @@
 Each sub-command module exposes ``main(argv: list[str]) -> int`` with its own ``argparse`` parser
 (``prog="echoloop <name>"``). User errors (``ValueError``, ``OSError``, :class:`HilError`) are
 printed as one line on stderr and exit with status 1; a usage error exits 2 (argparse).
+``echoloop --version`` prints the installed distribution's version.
 """
 
 from __future__ import annotations
@@ -29,9 +30,20 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def version() -> str:
+    """The installed ``echoloop`` distribution's version (``pyproject.toml``)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("echoloop")
+    except PackageNotFoundError:
+        return "unknown (not installed; pip install -e .)"
+
+
 def _usage() -> str:
     width = max(map(len, COMMANDS))
-    lines = ["usage: echoloop <command> [options]", "", "commands:"]
+    lines = ["usage: echoloop [--version] <command> [options]", "", "commands:"]
     lines += [f"  {name:<{width}}  {summary}" for name, (_, summary) in COMMANDS.items()]
     lines += ["", "Run 'echoloop <command> --help' for the options of one command."]
     return "\n".join(lines)
@@ -42,6 +54,9 @@ def main(argv: list[str] | None = None) -> int:
     if not args or args[0] in ("-h", "--help"):
         print(_usage())
         return 0 if args else 2
+    if args[0] == "--version":
+        print(f"echoloop {version()}")
+        return 0
     name, rest = args[0], args[1:]
     try:
         module_name, _ = COMMANDS[name]

@@ -48,3 +48,10 @@ def test_every_command_module_imports() -> None:
             capture_output=True, text=True, timeout=120,
         )
         assert proc.returncode == 0, f"{name} ({module}): {proc.stderr[-500:]}"
+
+
+def test_version_prints_the_distribution_version(capsys: pytest.CaptureFixture[str]) -> None:
+    from importlib.metadata import version
+
+    assert cli.main(["--version"]) == 0
+    assert capsys.readouterr().out == f"echoloop {version('echoloop')}\n"
