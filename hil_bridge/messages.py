@@ -121,12 +121,17 @@ def message_class(type_name: str) -> type[Message]:
 @register
 @dataclasses.dataclass(**_FROZEN)
 class Clock(Message):
-    """``/clock``: the current sim time (spec name ``EcholoopClock``)."""
+    """``/clock``: the current sim time (spec name ``EcholoopClock``).
+
+    ``lockstep``: the server waits for its lockstep participants at every step (docs/server.md,
+    :mod:`hil_bridge.lockstep`), so adapters drive their devices on sim time.
+    """
 
     TYPE: ClassVar[str] = "echoloop/Clock"
     VERSION: ClassVar[int] = 1
 
     stamp_ns: int
+    lockstep: bool = False
 
 
 EcholoopClock = Clock
@@ -219,7 +224,9 @@ class SonarPing(Message):
     """``/sonar/<id>/ping``: a ping request; az/el relative to the body's forward axis (rad).
 
     ``beamwidth`` is the full one-way −3 dB width (rad); ``encoding`` is the sample encoding the
-    head asked for (0 int16 real, 1 int16 IQ, 2 float32 real; spec §2).
+    head asked for (0 int16 real, 1 int16 IQ, 2 float32 real; spec §2). ``next_ns``: the sim
+    time of this sonar's next ping when its head pings on sim time (lockstep; the server waits
+    for that ping), -1 when unknown.
     """
 
     TYPE: ClassVar[str] = "echoloop/SonarPing"
@@ -232,6 +239,7 @@ class SonarPing(Message):
     beamwidth: float
     encoding: int = 2
     sonar_id: int = 0
+    next_ns: int = -1
 
 
 @register

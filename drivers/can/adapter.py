@@ -22,6 +22,17 @@ heartbeat and in ``/diagnostics``):
              (``failsafe_bank_rad`` = 0) at best-glide speed (``failsafe_airspeed_mps``, default
              sqrt(Sink_C / Sink_A) of the seed polar = 11.36 m/s). The next command frame ends it.
 
+**Lockstep** (``/clock`` says ``lockstep``; docs/can.md). The periodic state stream stops;
+instead each new state *step* of a glider is sent at once as one lockstep sample:
+GLIDER_STATE_POS with ``lockstep = 1``, the neighbour list of the same step (if one came), then
+GLIDER_STATE_MOTION, so the sample completes with its neighbours. The autopilot answers it with
+one AUTOPILOT_CMD (``answer = 1``, ``answer_counter`` = the sample's ``state_counter``), which
+is published as ``/glider/<id>/cmd`` with the ``step`` and stamp of the state it answers: the
+server waits for exactly that (:mod:`hil_bridge.lockstep`). A state the server sends again
+(the same tick again: same step and stamp) while its answer is missing is sent again. Command ages for HOLD and
+FAILSAFE are then measured in sim time, so a simulation that waits for something else never
+ages the commands; held and failsafe commands carry the step of the last command.
+
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
 recovery, re-open); no exception leaves the adapter's threads (anything unexpected is logged
 and counted as ``loop_errors``). Counters are in :meth:`stats`
@@ -36,7 +47,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +55,7 @@ from drivers.can.bus import CanBusConfig, CanLink, LinkPolicy
 from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
 from hil_bridge.clock import SimClock
 from hil_bridge.errors import CodecError
-from hil_bridge.messages import GliderCmd, GliderNeighbors, GliderState
+from hil_bridge.messages import Clock, GliderCmd, GliderNeighbors, GliderState
 from hil_bridge.node import Node, Publisher
 from hil_bridge.qos import SENSOR
 from sim_core.soaring.law import Law
@@ -132,6 +143,11 @@ class _Glider:
     ap_alive: bool = False
     cmd_state: int = 0
     hb_counter: int = 0
+    fwd_step: int = -1
+    answered_step: int = -1
+    cmd_step: int = -1
+    cmd_sim_ns: int = 0
+    sample_steps: dict[int, tuple[int, int]] = field(default_factory=dict)
 
 
 def _positive(name: str, value: float) -> float:
@@ -212,6 +228,8 @@ class AutopilotAdapter(Node):
         self._can_threads: list[threading.Thread] = []
         self._link: CanLink | None = None
         self._start_wall = time.monotonic()
+        self._lockstep = False
+        self._lockstep_since_ns = 0
         self._cmd_pubs: dict[int, Publisher[GliderCmd]] = {}
         for gid in self.gliders:
             self._cmd_pubs[gid] = self.create_publisher(GliderCmd, f"/glider/{gid}/cmd", SENSOR)
@@ -222,6 +240,7 @@ class AutopilotAdapter(Node):
                 GliderNeighbors, f"/glider/{gid}/neighbors", self._make_nb_cb(gid), SENSOR
             )
         self.follow_bus_clock()
+        self.create_subscription(Clock, "/clock", self._on_clock, SENSOR)
 
     # -- launchable contract ------------------------------------------------------------------
     def start(self) -> AutopilotAdapter:
@@ -279,12 +298,25 @@ class AutopilotAdapter(Node):
         return next(k for k, v in CMD_STATES.items() if v == code)
 
     # -- bus callbacks (node executor thread) -------------------------------------------------
+    def _on_clock(self, msg: Clock) -> None:
+        with self._glock:
+            if msg.lockstep and not self._lockstep:
+                self._lockstep_since_ns = msg.stamp_ns
+            self._lockstep = bool(msg.lockstep)
+
     def _make_state_cb(self, gid: int) -> Any:
         def on_state(msg: GliderState) -> None:
             with self._glock:
                 g = self._glider[gid]
+                resent = g.state is not None and msg.stamp_ns == g.state.stamp_ns and (
+                    g.answered_step < msg.step)
+                forward = self._lockstep and (msg.step != g.fwd_step or resent)
                 g.state, g.state_wall = msg, time.monotonic()
                 self._c["states_in"] += 1
+                if forward:
+                    g.fwd_step = msg.step
+            if forward:
+                self._send_lockstep_sample(g, msg)
 
         return on_state
 
@@ -336,7 +368,33 @@ class AutopilotAdapter(Node):
         with self._glock:
             self._c[key] += n
 
+    def _send_lockstep_sample(self, g: _Glider, st: GliderState) -> None:
+        """One lockstep sample: POS (lockstep = 1), the step's neighbour list, MOTION."""
+        with self._glock:
+            nbs = g.neighbours
+            if nbs is not None and nbs.step != st.step:
+                nbs = None
+            if nbs is not None:
+                g.nb_set, g.nb_new = (g.nb_set + 1) % 16, False
+            nb_set = g.nb_set
+            g.state_counter = (g.state_counter + 1) % 16
+            counter = g.state_counter
+            g.sample_steps[counter] = (st.step, st.stamp_ns)
+        ok = self._send(
+            "GLIDER_STATE_POS", g.node, {"x_m": st.x, "y_m": st.y, "z_m": st.z, "lockstep": 1}
+        )
+        if nbs is not None:
+            self._send_neighbours(g, st, nbs, nb_set)
+        ok &= self._send(
+            "GLIDER_STATE_MOTION", g.node,
+            {"heading_rad": st.heading, "bank_rad": st.bank, "airspeed_mps": st.airspeed,
+             "vz_mps": st.vz, "alive": float(st.alive), "state_counter": counter},
+        )
+        self._inc("lockstep_samples_sent" if ok else "states_dropped")
+
     def _send_states(self, now: float) -> None:
+        if self._lockstep:
+            return
         nb_period = 1.0 / self.neighbor_rate_hz
         for g in self._glider.values():
             with self._glock:
@@ -417,6 +475,13 @@ class AutopilotAdapter(Node):
             self._inc("heartbeats_sent" if ok else "heartbeats_dropped")
 
     # -- command supervision ------------------------------------------------------------------
+    def _cmd_age(self, g: _Glider, now: float) -> float:
+        """Seconds since the last command (or the start): sim seconds in lockstep, else wall."""
+        if self._lockstep:
+            ref = g.cmd_sim_ns if g.last_cmd is not None else self._lockstep_since_ns
+            return (self.now_ns() - ref) / 1e9
+        return now - (g.cmd_wall if g.last_cmd is not None else self._start_wall)
+
     def _supervise(self, now: float) -> None:
         for g in self._glider.values():
             with self._glock:
@@ -424,7 +489,7 @@ class AutopilotAdapter(Node):
                 if g.ap_alive and not ap_alive:
                     self._c["ap_heartbeat_lost"] += 1
                 g.ap_alive = ap_alive
-                age = now - (g.cmd_wall if g.last_cmd is not None else self._start_wall)
+                age = self._cmd_age(g, now)
                 if ap_alive and g.ap_mode == _AP_FAULT:
                     state = CMD_STATES["FAILSAFE"]
                 elif g.last_cmd is not None and age <= self.cmd_timeout_s:
@@ -439,18 +504,15 @@ class AutopilotAdapter(Node):
                     elif state == CMD_STATES["FAILSAFE"]:
                         self._c["failsafe_entries"] += 1
                 g.cmd_state = state
-                last = g.last_cmd
+                last, step, stamp = g.last_cmd, g.cmd_step, self._stamp(g)
             if state == CMD_STATES["HOLD"] and last is not None:
-                self._publish_cmd(g, last)
+                self._publish_cmd(g, last, step, stamp)
                 self._inc("cmd_hold_published")
             elif state == CMD_STATES["FAILSAFE"]:
-                self._publish_cmd(g, self.failsafe_cmd)
+                self._publish_cmd(g, self.failsafe_cmd, step, stamp)
                 self._inc("cmd_failsafe_published")
 
-    def _publish_cmd(self, g: _Glider, cmd: tuple[float, float]) -> None:
-        with self._glock:
-            step = g.state.step if g.state is not None else 0
-            stamp = self._stamp(g)
+    def _publish_cmd(self, g: _Glider, cmd: tuple[float, float], step: int, stamp: int) -> None:
         self._cmd_pubs[g.gid].publish(
             GliderCmd(
                 stamp_ns=stamp, bank_cmd=cmd[0], airspeed_cmd=cmd[1], glider_id=g.gid, step=step
@@ -495,7 +557,18 @@ class AutopilotAdapter(Node):
                     self._c["failsafe_exits"] += 1
                 g.cmd_state = CMD_STATES["FRESH"]
                 self._c["cmd_frames_in"] += 1
-            self._publish_cmd(g, cmd)
+                answered = g.sample_steps.get(int(s["answer_counter"])) if s["answer"] else None
+                if answered is not None:
+                    step, stamp = answered
+                    g.answered_step = max(g.answered_step, step)
+                    self._c["lockstep_answers"] += 1
+                else:
+                    step = g.state.step if g.state is not None else 0
+                    stamp = self._stamp(g)
+                    if s["answer"]:
+                        self._c["lockstep_answers_unknown"] += 1
+                g.cmd_step, g.cmd_sim_ns = step, stamp
+            self._publish_cmd(g, cmd, step, stamp)
             self._inc("cmd_forwarded")
         elif frame.name == "AUTOPILOT_HEARTBEAT":
             if g is None:

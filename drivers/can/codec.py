@@ -6,7 +6,9 @@ base id a multiple of 0x10, so the node id is the low nibble of the frame id.
 
 Contracts:
 
-1. ``encode`` takes physical values (SI units, radians). A value outside the signal's DBC
+1. ``encode`` takes physical values (SI units, radians); every signal is needed except the
+   lockstep signals added in profile revision 2 (:data:`OPTIONAL_SIGNALS`, 0 when left out,
+   which is what a revision-1 sender's unused bits say). A value outside the signal's DBC
    ``[min|max]`` (including ``±inf``) is clamped to the nearer limit and counted per signal in
    the ``tx`` saturation counters; it never wraps. NaN is refused with ``ValueError``.
    Angle signals (``heading_rad``, ``nb_heading_rad``) are first normalised to ``[-pi, pi)``.
@@ -40,6 +42,7 @@ __all__ = [
     "ANGLE_SIGNALS",
     "DBC_PATH",
     "MAX_NODE_ID",
+    "OPTIONAL_SIGNALS",
     "DecodedFrame",
     "GliderCanCodec",
     "SignalSpec",
@@ -53,6 +56,9 @@ DBC_PATH = Path(__file__).resolve().with_name("glider.dbc")
 MAX_NODE_ID = 15
 #: Signals that are angles and are normalised to [-pi, pi) before encoding.
 ANGLE_SIGNALS = frozenset({"heading_rad", "nb_heading_rad"})
+
+#: Signals of profile revision 2 (lockstep) that default to 0 when a caller leaves them out.
+OPTIONAL_SIGNALS = frozenset({"lockstep", "answer", "answer_counter"})
 
 _TWO_PI = 2.0 * math.pi
 
@@ -192,7 +198,10 @@ class GliderCanCodec:
             try:
                 raw = values[sig.name]
             except KeyError:
-                raise ValueError(f"{name}: missing value for signal {sig.name!r}") from None
+                if sig.name in OPTIONAL_SIGNALS:
+                    raw = 0.0
+                else:
+                    raise ValueError(f"{name}: missing value for signal {sig.name!r}") from None
             value = float(raw)
             if math.isnan(value):
                 raise ValueError(f"{name}: signal {sig.name!r} is NaN")

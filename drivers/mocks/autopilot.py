@@ -17,8 +17,17 @@ Controllers:
   vehicle; default control rate 10 Hz.
 
 A node without fresh state (older than ``state_timeout_s``), or whose glider is dead, is not
-commanded; its heartbeat says ``NO_STATE``. Launchable (``Cls(name, *, bus, **params)``): the
-``bus`` argument is part of the contract; a device mock has no use for the echoloop bus.
+commanded; its heartbeat says ``NO_STATE``.
+
+**Lockstep** (docs/can.md): a state sample whose GLIDER_STATE_POS has ``lockstep = 1`` is
+answered at once, on the receive thread, with one AUTOPILOT_CMD (``answer = 1``,
+``answer_counter`` = the sample's ``state_counter``) computed from that sample and the
+neighbour list sent with it: the autopilot acts on sim time, one command per state step,
+whatever the wall clock does. Its control timer leaves such nodes alone; a node whose latest
+sample is not a lockstep one is commanded at ``rate_hz`` again.
+
+Launchable (``Cls(name, *, bus, **params)``): the ``bus`` argument is part of the contract; a
+device mock has no use for the echoloop bus.
 """
 
 from __future__ import annotations
@@ -180,6 +189,7 @@ class NodeView:
     bridge_mode: int = 0
     cmd_state: int = 0
     sim_time_ms: int = 0
+    lockstep: bool = False
 
 
 class ProfileReceiver:
@@ -196,6 +206,7 @@ class ProfileReceiver:
         self._lock = threading.Lock()
         self._views = {int(n): NodeView() for n in nodes}
         self._pos: dict[int, tuple[float, float, float]] = {}
+        self._pos_lockstep: dict[int, bool] = {}
         self._nb_pos: dict[int, dict[int, tuple[float, float, float]]] = {n: {} for n in nodes}
         self._nb_rows: dict[int, dict[int, list[float]]] = {n: {} for n in nodes}
         self._nb_set: dict[int, int] = {}
@@ -211,6 +222,7 @@ class ProfileReceiver:
             view = self._views[node]
             if frame.name == "GLIDER_STATE_POS":
                 self._pos[node] = (s["x_m"], s["y_m"], s["z_m"])
+                self._pos_lockstep[node] = bool(s.get("lockstep", 0))
             elif frame.name == "GLIDER_STATE_MOTION":
                 pos = self._pos.get(node)
                 if pos is None:
@@ -222,6 +234,7 @@ class ProfileReceiver:
                 )
                 view.alive = bool(s["alive"])
                 view.state_counter = int(s["state_counter"])
+                view.lockstep = self._pos_lockstep.get(node, False)
                 view.state_time = now
                 self.counters["states"] += 1
             elif frame.name == "NEIGHBOR_POS":
@@ -285,7 +298,7 @@ class ProfileReceiver:
                 own=v.own, alive=v.alive, state_counter=v.state_counter, state_time=v.state_time,
                 neighbours=v.neighbours.copy(), neighbour_set=v.neighbour_set,
                 bridge_time=v.bridge_time, bridge_mode=v.bridge_mode, cmd_state=v.cmd_state,
-                sim_time_ms=v.sim_time_ms,
+                sim_time_ms=v.sim_time_ms, lockstep=v.lockstep,
             )
 
 
@@ -389,6 +402,7 @@ class MockAutopilot:
         self._counters: Counter[str] = Counter()
         self._count_lock = threading.Lock()
         self._cmd_counter = dict.fromkeys(self.nodes, 0)
+        self._ctl_lock = threading.Lock()  # the control timer and lockstep answers share state
         self._hb_counter = 0
         self._last_cmd: dict[int, tuple[float, float]] = {}
         self._started = False
@@ -454,6 +468,8 @@ class MockAutopilot:
             try:
                 if self.receiver.feed(frame, time.monotonic()):
                     self._inc("rx_frames_used")
+                    if frame.name == "GLIDER_STATE_MOTION":
+                        self._answer_lockstep(frame.node_id, int(frame.signals["state_counter"]))
             except Exception:
                 self._inc("loop_errors")
                 log.exception("%s: assembling CAN frame %s failed", self.name, frame.name)
@@ -482,26 +498,47 @@ class MockAutopilot:
 
     def _control(self, now: float) -> None:
         views = {n: self.receiver.view(n) for n in self.nodes}
-        fresh = [n for n in self.nodes if self._fresh(views[n], now)]
+        fresh = [n for n in self.nodes if self._fresh(views[n], now) and not views[n].lockstep]
         if not fresh:
             return
-        commands = self._commands(views, fresh)
+        with self._ctl_lock:
+            for node, (bank, speed) in self._commands(views, fresh).items():
+                self._send_cmd(node, bank, speed)
+
+    def _answer_lockstep(self, node: int, counter: int) -> None:
+        """Answer the lockstep sample ``counter`` of ``node`` just completed (module doc)."""
+        views = {n: self.receiver.view(n) for n in self.nodes}
+        view = views.get(node)
+        if view is None or not view.lockstep or view.state_counter != counter:
+            return
+        if view.own is None or not view.alive:
+            self._inc("lockstep_dead_samples")
+            return
+        with self._ctl_lock:
+            command = self._commands(views, [node]).get(node)
+            if command is not None:
+                self._send_cmd(node, *command, answer_counter=counter)
+                self._inc("lockstep_answers")
+
+    def _send_cmd(
+        self, node: int, bank: float, speed: float, *, answer_counter: int | None = None
+    ) -> None:
         link = self._link
         if link is None:
             return
-        for node, (bank, speed) in commands.items():
-            self._cmd_counter[node] = (self._cmd_counter[node] + 1) % 256
-            msg = self.codec.encode(
-                "AUTOPILOT_CMD", node,
-                {"bank_cmd_rad": bank, "airspeed_cmd_mps": speed,
-                 "cmd_counter": self._cmd_counter[node]},
-            )
-            if link.send(msg):
-                self._inc("commands_sent")
-                with self._count_lock:
-                    self._last_cmd[node] = (bank, speed)
-            else:
-                self._inc("commands_dropped")
+        self._cmd_counter[node] = (self._cmd_counter[node] + 1) % 256
+        msg = self.codec.encode(
+            "AUTOPILOT_CMD", node,
+            {"bank_cmd_rad": bank, "airspeed_cmd_mps": speed,
+             "cmd_counter": self._cmd_counter[node], "answer": int(answer_counter is not None),
+             "answer_counter": answer_counter or 0},
+        )
+        if link.send(msg):
+            self._inc("commands_sent")
+            with self._count_lock:
+                self._last_cmd[node] = (bank, speed)
+        else:
+            self._inc("commands_dropped")
 
     def _commands(
         self, views: Mapping[int, NodeView], fresh: Sequence[int]

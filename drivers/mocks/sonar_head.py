@@ -9,7 +9,14 @@
    or an in-process pipe (the ``sonarsim://`` pyserial URL handler);
 2. sends CONFIG and HEARTBEAT once a second (CONFIG also as soon as a host (re)appears, i.e.
    its first frame after a second of silence) and a PING at ``rate_hz`` with a fixed beamwidth or
-   one drawn uniformly from [30°, 65°] per ping (seed 000's scenario II) from its seeded rng;
+   one drawn uniformly from [30°, 65°] per ping (seed 000's scenario II) from its seeded rng —
+   on its own clock, or, once the host sends HEARTBEATs flagged ``LOCKSTEP``, on the host's sim
+   time (their frame stamps). Entering lockstep restarts the ping stream (``ping_seq`` 0, the
+   beamwidth rng re-seeded, pings in flight forgotten), so it does not depend on how many pings
+   the head fired on its own clock before; then ping ``n`` goes at ``n`` ping periods of sim
+   time, its PING frame stamped with that time, and ping ``n + 1`` only once the echo of ping
+   ``n`` is complete (or ``echo_timeout_s`` of wall time passed: counted in
+   ``echo_timeouts``), as the echo of a real ping returns before the next one;
 3. throttles both directions to ``baudrate`` (10 bits per byte, 8N1) — ptys and pipes move
    bytes instantly, a UART does not — so latencies are those of the real link;
 4. decodes and reassembles ECHO chunks (CRC, order, completeness, encoding = the one the ping
@@ -47,6 +54,7 @@ from drivers.serial.protocol import (
     HeartbeatPayload,
     PingPayload,
     StatusPayload,
+    ping_period_ns,
 )
 from drivers.serial.ptyport import PtyPort
 from hil_bridge.domain import current as current_domain
@@ -283,6 +291,14 @@ class MockSonarHead:
         self._seq = 0
         self._ping_seq = 0
         self._t0 = time.monotonic()
+        #: lockstep: the host's sim time, the next ping's sim time, and the wall deadline of
+        #: the echo the next ping waits for (None: none pending)
+        self._lockstep = False
+        self._lockstep_asked = False
+        self._host_ns = -1
+        self._next_ping_ns: int | None = None
+        self._period_ns = ping_period_ns(round(self.cfg.rate_hz * 1000))
+        self._echo_wait_until: float | None = None
         self._echo_done = threading.Condition(self._lock)
         self.last_status: StatusPayload | None = None
         self.last_error: ErrorPayload | None = None
@@ -366,11 +382,12 @@ class MockSonarHead:
 
     # ---- transmit side ---------------------------------------------------------------------
 
-    def _send(self, msg_type: MsgType, payload: bytes) -> None:
+    def _send(self, msg_type: MsgType, payload: bytes, stamp_ns: int | None = None) -> None:
         device = self._device
         if device is None:
             raise ValueError(f"{self.name}: not started")
-        data = frame_bytes(msg_type, self._seq, time.monotonic_ns(), payload)
+        stamp = time.monotonic_ns() if stamp_ns is None else stamp_ns
+        data = frame_bytes(msg_type, self._seq, stamp, payload)
         self._seq = (self._seq + 1) & 0xFFFF
         done = self._tx_uart.done_at(len(data), time.monotonic())
         delay = done - time.monotonic()
@@ -411,16 +428,59 @@ class MockSonarHead:
                 next_beat += 1.0
                 self._config_due = True
                 self._expire(now)
-            if now >= next_ping:
-                self._ping(now)
-                next_ping += period
-                if next_ping < now:  # fell behind (tiny period or a stall): skip, do not burst
-                    self._counts["pings_skipped"] += 1
-                    next_ping = now + period
-            self._tx_wake.wait(max(0.0, min(next_ping, next_beat) - time.monotonic()))
+            wake_at = next_beat
+            if self._lockstep_asked and not self._lockstep:
+                self._enter_lockstep()
+            if self._lockstep:
+                wake_at = min(wake_at, self._lockstep_ping(now))
+            else:
+                if now >= next_ping:
+                    self._ping(now)
+                    next_ping += period
+                    if next_ping < now:  # fell behind (tiny period or a stall): skip, no burst
+                        self._counts["pings_skipped"] += 1
+                        next_ping = now + period
+                wake_at = min(wake_at, next_ping)
+            self._tx_wake.wait(max(0.0, wake_at - time.monotonic()))
             self._tx_wake.clear()
 
-    def _ping(self, t_fire: float) -> None:
+    def _enter_lockstep(self) -> None:
+        """Restart the ping stream on the host's sim time (transmit thread; module doc)."""
+        with self._lock:
+            self._lockstep = True
+            self._ping_seq = 0
+            self._rng = make_rng(self.cfg.seed)
+            self._pending.clear()
+            self._next_ping_ns = None
+            self._echo_wait_until = None
+            self._counts["lockstep_starts"] += 1
+
+    def _lockstep_ping(self, now: float) -> float:
+        """Fire the ping due at the host's sim time, if the last echo is in; return when to
+        look again (wall, monotonic s) without a wake-up."""
+        with self._lock:
+            host_ns, due = self._host_ns, self._next_ping_ns
+            waiting = self._echo_wait_until
+            if waiting is not None and (not self._pending or now >= waiting):
+                if self._pending:
+                    self._counts["echo_timeouts"] += len(self._pending)
+                    self._pending.clear()
+                waiting = self._echo_wait_until = None
+        if host_ns < 0:
+            return now + 1.0
+        if due is None:
+            due = self._next_ping_ns = -(-host_ns // self._period_ns) * self._period_ns
+        if waiting is not None:
+            return waiting
+        if host_ns >= due:
+            self._ping(now, stamp_ns=due)
+            with self._lock:
+                self._next_ping_ns = due + self._period_ns
+                self._echo_wait_until = now + self.cfg.echo_timeout_s
+            return now
+        return now + 1.0
+
+    def _ping(self, t_fire: float, stamp_ns: int | None = None) -> None:
         seq = self._ping_seq
         self._ping_seq = (seq + 1) & 0xFFFF
         ping = PingPayload(seq, math.radians(self.cfg.az_deg), math.radians(self.cfg.el_deg),
@@ -428,7 +488,7 @@ class MockSonarHead:
         with self._lock:
             self._pending[seq] = (t_fire, self.encoding)
             self._counts["pings_sent"] += 1
-        self._send(MsgType.PING, ping.pack())
+        self._send(MsgType.PING, ping.pack(), stamp_ns)
 
     def _expire(self, now: float) -> None:
         with self._lock:
@@ -463,14 +523,22 @@ class MockSonarHead:
                     self._tx_wake.set()
                 self._host_seen_at = now
             for f in frames:
-                self._handle(f.msg_type, f.seq, f.payload)
+                self._handle(f.msg_type, f.seq, f.payload, f.stamp_ns)
 
     def _report(self, err: ErrorPayload) -> None:
         """Queue an ERROR frame for the host (sent by the transmit thread)."""
         self._errors.append(err)
         self._tx_wake.set()
 
-    def _handle(self, msg_type: int, seq: int, payload: bytes) -> None:
+    def _on_host_time(self, stamp_ns: int) -> None:
+        """A lockstep HEARTBEAT: the host's sim time is ``stamp_ns``; ping on it from now on."""
+        with self._lock:
+            self._lockstep_asked = True
+            if stamp_ns > self._host_ns:
+                self._host_ns = stamp_ns
+        self._tx_wake.set()
+
+    def _handle(self, msg_type: int, seq: int, payload: bytes, stamp_ns: int = 0) -> None:
         try:
             if msg_type == MsgType.ECHO:
                 self._on_chunk(EchoChunk.unpack(payload))
@@ -478,8 +546,10 @@ class MockSonarHead:
                 self.last_status = StatusPayload.unpack(payload)
                 self._counts["status_rx"] += 1
             elif msg_type == MsgType.HEARTBEAT:
-                HeartbeatPayload.unpack(payload)
+                beat = HeartbeatPayload.unpack(payload)
                 self._counts["heartbeats_rx"] += 1
+                if beat.lockstep:
+                    self._on_host_time(stamp_ns)
             elif msg_type == MsgType.ERROR:
                 self.last_error = ErrorPayload.unpack(payload)
                 self._counts["errors_rx"] += 1
@@ -514,4 +584,5 @@ class MockSonarHead:
                 threshold=self.cfg.threshold, threshold_rel=self.cfg.threshold_rel))
             self.last_echo = echo
             self._echo_done.notify_all()
+        self._tx_wake.set()  # a lockstep head may fire its next ping now
 

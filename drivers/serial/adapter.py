@@ -13,6 +13,15 @@ configured baud rate, ping rate and encoding is checked: ``budget: warn`` logs a
 ERROR frame to the head + STATUS state OVER_BUDGET). Heartbeat and STATUS go to the head every
 ``heartbeat_period_s`` wall seconds. The port is re-opened with back-off when it disappears.
 
+**Lockstep** (``/clock`` says ``lockstep``; docs/serial.md): every ``/clock`` goes to the head
+as a HEARTBEAT flagged ``LOCKSTEP`` whose frame stamp is the sim time; a head that supports it
+fires its pings on that time and stamps them with it. The ping is published with that stamp
+and ``next_ns`` = stamp + the head's ping period (its CONFIG rate, else ``ping_rate_hz``), so
+the server answers it at the pose of that sim time and waits for the next one. A ping stamped
+later than the sim time sent to the head was fired on the head's own clock (before it followed
+the host): it is published without ``next_ns`` (counted in ``pings_own_clock``), and the server
+does not answer such pings of a lockstep head.
+
 ``stats()`` adds to the node's bus counters: ``frames_in``, ``frames_out``, ``crc_errors``,
 ``frames_dropped`` (any decode failure), ``echoes_out``, ``echoes_dropped``, ``reconnects``,
 ``pings_in``, ``link_state`` (0 ok, 1 degraded = frames dropped in the last heartbeat period,
@@ -29,10 +38,17 @@ from typing import Any, Literal
 
 from drivers.serial.framing import Frame
 from drivers.serial.host import LinkBudget, SonarHeadHost, link_budget
-from drivers.serial.protocol import ConfigPayload, Encoding, ErrorCode, LinkState, PingPayload
+from drivers.serial.protocol import (
+    ConfigPayload,
+    Encoding,
+    ErrorCode,
+    LinkState,
+    PingPayload,
+    ping_period_ns,
+)
 from hil_bridge.clock import SimClock
 from hil_bridge.domain import current as current_domain
-from hil_bridge.messages import SonarEcho, SonarPing
+from hil_bridge.messages import Clock, SonarEcho, SonarPing
 from hil_bridge.node import Node
 from sim_core.config import from_dict
 
@@ -118,6 +134,9 @@ class SonarHeadAdapter(Node):
             self.host.state = LinkState.OVER_BUDGET
         self._ping_pub = self.create_publisher(SonarPing, f"/sonar/{p.sonar_id}/ping")
         self.create_subscription(SonarEcho, f"/sonar/{p.sonar_id}/echo", self._on_echo)
+        self.create_subscription(Clock, "/clock", self._on_clock)
+        self._lockstep = False
+        self._sim_ns = 0
         self._beat_stop = threading.Event()
         self._beat_thread: threading.Thread | None = None
 
@@ -150,10 +169,27 @@ class SonarHeadAdapter(Node):
 
     # ---- data path -------------------------------------------------------------------------
 
+    def _on_clock(self, msg: Clock) -> None:
+        self._lockstep = bool(msg.lockstep)
+        if self._lockstep:
+            self._sim_ns = max(self._sim_ns, int(msg.stamp_ns))
+            if self.host.link.connected:
+                self.host.send_heartbeat(stamp_ns=self._sim_ns, lockstep=True)
+
     def _on_ping(self, ping: PingPayload, frame: Frame) -> None:
+        stamp, next_ns = self.now_ns(), -1
+        if self._lockstep and frame.stamp_ns > self._sim_ns:
+            self.host.counts["pings_own_clock"] += 1  # fired before the head followed us
+        elif self._lockstep:
+            cfg = self.host.head_config
+            mhz = cfg.ping_rate_mhz if cfg is not None and cfg.ping_rate_mhz else round(
+                self.params.ping_rate_hz * 1000)
+            stamp = int(frame.stamp_ns)
+            next_ns = stamp + ping_period_ns(mhz)
         self._ping_pub.publish(SonarPing(
-            stamp_ns=self.now_ns(), ping_seq=ping.ping_seq, az=ping.az, el=ping.el,
-            beamwidth=ping.beamwidth, encoding=int(ping.encoding), sonar_id=self.sonar_id))
+            stamp_ns=stamp, ping_seq=ping.ping_seq, az=ping.az, el=ping.el,
+            beamwidth=ping.beamwidth, encoding=int(ping.encoding), sonar_id=self.sonar_id,
+            next_ns=next_ns))
 
     def _on_echo(self, msg: SonarEcho) -> None:
         try:
@@ -186,7 +222,7 @@ class SonarHeadAdapter(Node):
         while not self._beat_stop.wait(period):
             self.host.update_state()
             if self.host.link.connected:
-                self.host.send_heartbeat()
+                self.host.send_heartbeat(stamp_ns=self._sim_ns, lockstep=self._lockstep)
                 self.host.send_status()
 
     def stats(self) -> dict[str, Any]:

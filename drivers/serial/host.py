@@ -28,6 +28,7 @@ from drivers.serial.protocol import (
     CONFIG,
     ECHO_SAMPLE_BYTES,
     HEARTBEAT,
+    HEARTBEAT_LOCKSTEP,
     PING,
     STATUS,
     ConfigPayload,
@@ -249,9 +250,12 @@ class SonarHeadHost:
         self._dropped_seen = dropped
         return self.state
 
-    def send_heartbeat(self) -> None:
+    def send_heartbeat(self, *, stamp_ns: int = 0, lockstep: bool = False) -> None:
+        """HEARTBEAT; ``lockstep``: flagged, with the sim time ``stamp_ns`` the head pings on."""
         uptime = int((time.monotonic() - self._t0) * 1e3)
-        self.send(MsgType.HEARTBEAT, HeartbeatPayload(uptime, int(self.state)).pack())
+        flags = HEARTBEAT_LOCKSTEP if lockstep else 0
+        self.send(MsgType.HEARTBEAT, HeartbeatPayload(uptime, int(self.state), flags).pack(),
+                  stamp_ns)
 
     def send_status(self) -> None:
         st = StatusPayload(int(self.state), self.encoding, self.decimation, self.f_center_hz,

@@ -7,6 +7,11 @@ All integers and floats are little-endian. Byte tables are in docs/serial.md.
   channels u8, fs_hz u32, scale f32, n_samples u32`` then the chunk's sample bytes.
 * CONFIG (head -> host), STATUS (both), HEARTBEAT (both), ERROR (both): this project's design.
 
+Lockstep (docs/serial.md): a host HEARTBEAT with ``HEARTBEAT_LOCKSTEP`` in ``flags`` carries the
+simulation's time in its frame header's ``stamp_ns``; a head that supports it then fires ping
+``n`` at sim time ``n * ping_period_ns(ping_rate_mhz)``, stamps the PING frame with that time,
+and fires the next one only once the echo of this one arrived.
+
 Encodings (``Encoding``): ``INT16`` real samples (value = int16 x scale), ``IQ16`` complex
 baseband I,Q int16 pairs (value = (I + jQ) x scale, centre frequency in CONFIG/STATUS),
 ``FLOAT32`` real samples (scale written as 1.0). Multi-channel samples are interleaved per
@@ -31,6 +36,7 @@ __all__ = [
     "ECHO_SAMPLE_BYTES",
     "ERROR",
     "HEARTBEAT",
+    "HEARTBEAT_LOCKSTEP",
     "PING",
     "STATUS",
     "AssembledEcho",
@@ -50,6 +56,7 @@ __all__ = [
     "echo_wire_bytes",
     "encode_samples",
     "int16_scale",
+    "ping_period_ns",
 ]
 
 
@@ -85,7 +92,10 @@ PING = struct.Struct("<HfffB")  # 15 bytes
 ECHO_HEADER = struct.Struct("<HHHBBIfI")  # 20 bytes
 CONFIG = struct.Struct("<BBBBIIIH")  # 18 bytes
 STATUS = struct.Struct("<BBHIIIIII")  # 28 bytes
-HEARTBEAT = struct.Struct("<IB")  # 5 bytes
+HEARTBEAT = struct.Struct("<IBB")  # 6 bytes (a 5-byte one without flags is accepted)
+_HEARTBEAT_V1 = struct.Struct("<IB")
+#: HEARTBEAT flags bit: the frame's stamp_ns is the host's sim time; ping on it (lockstep)
+HEARTBEAT_LOCKSTEP = 0x01
 ERROR = struct.Struct("<HH")  # 4 bytes + UTF-8 text
 MAX_ERROR_TEXT = 200
 
@@ -221,19 +231,34 @@ class StatusPayload:
 
 @dataclass(frozen=True, slots=True)
 class HeartbeatPayload:
-    """Liveness (both directions, 1 Hz): sender uptime in ms (wraps) and a LinkState."""
+    """Liveness (both directions, 1 Hz; from a lockstep host also at every sim tick): sender
+    uptime in ms (wraps), a LinkState and ``flags`` (``HEARTBEAT_LOCKSTEP``)."""
 
     uptime_ms: int
     state: int = 0
+    flags: int = 0
+
+    @property
+    def lockstep(self) -> bool:
+        return bool(self.flags & HEARTBEAT_LOCKSTEP)
 
     def pack(self) -> bytes:
-        return HEARTBEAT.pack(self.uptime_ms & 0xFFFFFFFF, self.state)
+        return HEARTBEAT.pack(self.uptime_ms & 0xFFFFFFFF, self.state, self.flags)
 
     @classmethod
     def unpack(cls, data: bytes) -> HeartbeatPayload:
+        if len(data) == _HEARTBEAT_V1.size:
+            return cls(*_HEARTBEAT_V1.unpack(data))
         if len(data) != HEARTBEAT.size:
             raise _payload_error("HEARTBEAT", data, HEARTBEAT.size)
         return cls(*HEARTBEAT.unpack(data))
+
+
+def ping_period_ns(ping_rate_mhz: int) -> int:
+    """Sim nanoseconds between pings of a head whose CONFIG says ``ping_rate_mhz`` (mHz)."""
+    if ping_rate_mhz <= 0:
+        raise ValueError(f"ping_rate_mhz {ping_rate_mhz!r} must be > 0")
+    return round(1e12 / ping_rate_mhz)
 
 
 class ErrorCode(IntEnum):

@@ -60,7 +60,7 @@ def test_topic_echo_and_hz_cli(capsys: pytest.CaptureFixture[str]) -> None:
         thread.join()
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert [x["header"]["seq"] for x in lines] == [0, 1, 2, 5]
-    assert lines[0]["msg"] == {"stamp_ns": 0}
+    assert lines[0]["msg"] == {"stamp_ns": 0, "lockstep": False}
 
     with open_transport(bus) as raw:
         state = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=0.0, bank=0.0,
