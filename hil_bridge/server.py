@@ -39,14 +39,16 @@ or fidelity holds the GIL for long; the launching script must then be import-saf
 **Time.** The server ticks at ``state_rate_hz`` of sim time. The swarm steps every ``law.dt`` of
 sim time (zero-order hold of its state between steps); path vehicles are sampled at each tick.
 Clock modes: ``realtime`` (ticks paced to the wall clock times ``rate``), ``fast`` (unpaced),
-``lockstep`` (before each physics step, wait up to ``lockstep_timeout_s`` for a new command from
-every registered autopilot; a miss counts a stall and the step proceeds on held commands; an
-autopilot that misses ``lockstep_max_stalls`` steps in a row is not waited for again until it
-next sends). Stamps are integer sim nanoseconds and never decrease.
+``lockstep`` (after each tick, :class:`hil_bridge.lockstep.LockstepGate` holds the server until
+the registered autopilots answered their state steps and the sonar heads that ping on sim time
+sent their due pings; ``/clock`` says ``lockstep`` so adapters drive their devices on sim
+time). Within a tick, neighbour lists are published before the states of the same step. Stamps
+are integer sim nanoseconds and never decrease.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import multiprocessing
@@ -64,6 +66,7 @@ from typing import Any, Literal
 import numpy as np
 
 from hil_bridge.errors import HilError
+from hil_bridge.lockstep import LockstepGate
 from hil_bridge.logs import load_trajectory
 from hil_bridge.messages import (
     Clock,
@@ -103,6 +106,7 @@ class ServerParams:
     state_rate_hz: float | None = None
     embed_proxy: bool = True
     autopilots: tuple[int, ...] = ()
+    sonar_heads: tuple[int, ...] = ()
     echo_queue: int = 4
     diagnostics_period_s: float = 1.0
     stop_after_s: float | None = None
@@ -267,7 +271,6 @@ class SimServer:
         self.state_rate_hz = float(self.params.state_rate_hz or spec.state_rate_hz)
         self.tick_ns = round(1e9 / self.state_rate_hz)
         self._lock = threading.Lock()
-        self._cmd_cond = threading.Condition(self._lock)
         self._stop = threading.Event()
         self._done = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -278,8 +281,8 @@ class SimServer:
                 "ticks", "physics_steps", "states_published", "neighbors_published",
                 "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
                 "cmd_ignored", "pings_received", "pings_dropped",
-                "echoes_published", "echo_errors", "stalls", "stalled_steps", "late_ticks",
-                "lockstep_released", "diagnostics_published", "external_steps",
+                "echoes_published", "echo_errors", "late_ticks", "diagnostics_published",
+                "external_steps",
             ),
             0,
         )
@@ -301,9 +304,16 @@ class SimServer:
         unknown = sorted(self._registered - set(self._glider_index) - self._vehicle_ids)
         if unknown:
             raise ConfigError(f"{name}.params.autopilots: unknown glider id(s) {unknown}")
-        self._freewheel: set[int] = set()
-        self._consecutive_stalls: dict[int, int] = {}
-        self._cmd_arrivals: dict[int, int] = {}
+        sonar_ids = {s.id for s in spec.sonars}
+        bad_heads = sorted(set(self.params.sonar_heads) - sonar_ids)
+        if bad_heads:
+            raise ConfigError(f"{name}.params.sonar_heads: unknown sonar id(s) {bad_heads}")
+        clock = self.clock_spec
+        self._gate = LockstepGate(
+            lockstep=clock.mode == "lockstep", timeout_s=clock.lockstep_timeout_s,
+            max_stalls=clock.lockstep_max_stalls, start_timeout_s=clock.lockstep_start_timeout_s,
+            autopilots=self._registered, sonars=self.params.sonar_heads,
+        )
         self._good_cmd: dict[int, tuple[float, float]] = {}
         self._pings: queue.Queue[tuple[int, SonarPing, tuple[float, float, float, float], float]]
         self._pings = queue.Queue(maxsize=self.params.echo_queue)
@@ -386,8 +396,7 @@ class SimServer:
             return
         self._stopped = True
         self._stop.set()
-        with self._cmd_cond:
-            self._cmd_cond.notify_all()
+        self._gate.interrupt()
         for t in self._threads:
             t.join()
         if self._node is not None:
@@ -401,12 +410,12 @@ class SimServer:
             out: dict[str, Any] = dict(self._c)
             out["sim_time_s"] = self._sim_ns / 1e9
             out["registered"] = sorted(self._registered)
-            out["freewheeling"] = sorted(self._freewheel)
             out["last_echo_error"] = self._last_echo_error
             out["tick_error"] = self._tick_error
             out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
             ping_echo = list(self._ping_echo_ms)
             compute = list(self._echo_compute_ms)
+        out.update(self._gate.stats())
         out["clock_mode"] = self.clock_spec.mode
         out["built"] = sorted(self.scene.built)
         out["ping_echo_ms"] = percentiles(ping_echo)
@@ -434,17 +443,13 @@ class SimServer:
         return on_ping
 
     def _on_cmd(self, gid: int, msg: GliderCmd) -> None:
-        with self._cmd_cond:
+        with self._lock:
             self._c["cmd_received"] += 1
             vehicle = self._vehicle_specs.get(gid)
             if vehicle is not None and not vehicle.commanded:
                 self._c["cmd_ignored"] += 1
                 return
             self._registered.add(gid)
-            if gid in self._freewheel:
-                self._freewheel.discard(gid)
-                self._consecutive_stalls[gid] = 0
-            self._cmd_arrivals[gid] = self._cmd_arrivals.get(gid, 0) + 1
             checked = self._check_cmd(gid, msg.bank_cmd, msg.airspeed_cmd)
             if checked is None:
                 self._c["cmd_rejected"] += 1
@@ -453,7 +458,7 @@ class SimServer:
                 self._good_cmd[gid] = (bank, speed)
                 self._c["cmd_applied"] += 1
                 self._c["cmd_clipped"] += int(clipped)
-            self._cmd_cond.notify_all()
+        self._gate.on_cmd(gid, int(msg.step))
 
     def _check_cmd(self, gid: int, bank: float, speed: float) -> tuple[float, float, bool] | None:
         """Reject (None) or clip a command to glider/vehicle ``gid``'s envelope."""
@@ -481,15 +486,18 @@ class SimServer:
             self._c["pings_received"] += 1
             pose = self._poses[mount]
         item = (sonar_id, msg, pose, t_recv)
+        if not self._gate.on_ping(sonar_id, int(msg.stamp_ns), int(msg.next_ns)):
+            return
         while True:
             try:
                 self._pings.put_nowait(item)
                 return
             except queue.Full:
                 try:
-                    self._pings.get_nowait()
+                    dropped = self._pings.get_nowait()
                 except queue.Empty:
                     continue
+                self._gate.echo_done(dropped[0])
                 with self._lock:
                     self._c["pings_dropped"] += 1
 
@@ -515,7 +523,10 @@ class SimServer:
                     sonar_id, ping, pose, t_recv = self._pings.get(timeout=0.05)
                 except queue.Empty:
                     continue
-                self._answer_ping(compute, sonar_id, ping, pose, t_recv)
+                try:
+                    self._answer_ping(compute, sonar_id, ping, pose, t_recv)
+                finally:
+                    self._gate.echo_done(sonar_id)
         finally:
             if worker is not None:
                 worker.close()
@@ -642,56 +653,34 @@ class SimServer:
             self._c["external_steps"] += len(flown)
             self._flown_gliders.update(flown)
 
-    def _wait_lockstep(self, since: dict[int, int]) -> None:
-        """Wait for one new command from each registered, non-freewheeling autopilot."""
-        deadline = time.monotonic() + self.clock_spec.lockstep_timeout_s
-        with self._cmd_cond:
-            while True:
-                waiting = [
-                    g for g in self._registered
-                    if g in self._glider_index and g not in self._freewheel
-                    and self._cmd_arrivals.get(g, 0) <= since.get(g, 0)
-                ]
-                remaining = deadline - time.monotonic()
-                if not waiting or self._stop.is_set() or remaining <= 0:
-                    break
-                self._cmd_cond.wait(remaining)
-            if waiting and not self._stop.is_set():
-                self._c["stalled_steps"] += 1
-                self._c["stalls"] += len(waiting)
-                for g in waiting:
-                    n = self._consecutive_stalls.get(g, 0) + 1
-                    self._consecutive_stalls[g] = n
-                    if n >= self.clock_spec.lockstep_max_stalls:
-                        self._freewheel.add(g)
-                        self._c["lockstep_released"] += 1
-            for g in self._registered:
-                if g not in waiting:
-                    self._consecutive_stalls[g] = 0
-
-    def _publish_tick(self, t_ns: int, st: Any, physics_stepped: bool) -> None:
+    def _publish_tick(self, t_ns: int, st: Any, physics_stepped: bool, tick: int) -> None:
+        """/clock, then the neighbour lists of a new physics step, then every state (so a
+        consumer acting on a state already has the neighbours of the same step)."""
         pubs = self._pubs
-        pubs["/clock"].publish(Clock(stamp_ns=t_ns))
+        lockstep = self.clock_spec.mode == "lockstep"
+        pubs["/clock"].publish(Clock(stamp_ns=t_ns, lockstep=lockstep))
         n_states = 0
         if st is not None:
             step = int(self.scene.swarm.step_count)
+            if physics_stepped:
+                self._publish_neighbors(t_ns, st, step)
             for gid, i in self._glider_index.items():
+                alive = bool(st.alive[0, i])
                 pubs[f"/glider/{gid}/state"].publish(GliderState(
                     stamp_ns=t_ns, x=float(st.x[0, i]), y=float(st.y[0, i]),
                     z=float(st.z[0, i]), heading=float(st.heading[0, i]),
                     bank=float(st.bank[0, i]), airspeed=float(st.speed[0, i]),
-                    vz=float(st.vz[0, i]), alive=bool(st.alive[0, i]), glider_id=gid, step=step,
+                    vz=float(st.vz[0, i]), alive=alive, glider_id=gid, step=step,
                 ))
+                self._gate.published(gid, step, alive=alive, every_tick=False)
                 n_states += 1
-            if physics_stepped:
-                self._publish_neighbors(t_ns, st, step)
-        tick = int(self._c["ticks"])
         for vid, vs in self._vstates.items():
             pubs[f"/glider/{vid}/state"].publish(GliderState(
                 stamp_ns=t_ns, x=vs["x"], y=vs["y"], z=vs["z"], heading=vs["heading"],
                 bank=vs["bank"], airspeed=vs["airspeed"], vz=vs["vz"], alive=True,
                 glider_id=vid, step=tick,
             ))
+            self._gate.published(vid, tick, alive=True, every_tick=True)
             n_states += 1
         with self._lock:
             self._c["clock_published"] += 1
@@ -789,20 +778,23 @@ class SimServer:
         wall0 = time.monotonic()
         next_diag = wall0
         tick = 0
-        since: dict[int, int] = {}
+        last: tuple[int, Any, bool, int] | None = None
         if swarm is not None:
             self._publish_thermals(0)
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns
             if stop_ns is not None and t_ns > stop_ns:
                 break
+            if mode == "lockstep" and last is not None:
+                self._gate.wait(
+                    last[0], resend=functools.partial(self._publish_tick, *last),
+                    physics_due=swarm is not None and (swarm.step_count + 1) * phys_ns <= t_ns,
+                )
+                if self._stop.is_set():
+                    return
             stepped = False
             if swarm is not None:
                 while (swarm.step_count + 1) * phys_ns <= t_ns:
-                    if mode == "lockstep":
-                        self._wait_lockstep(since)
-                    if self._stop.is_set():
-                        return
                     commands = self._commands_for_step()
                     swarm.step(commands)
                     with self._lock:
@@ -817,10 +809,8 @@ class SimServer:
                 self.clock.set_ns(t_ns)
             self._step_vehicles(t_ns, self.tick_ns / 1e9 if tick > 0 else 0.0)
             self._update_poses(st)
-            self._publish_tick(t_ns, st, stepped)
-            if stepped:
-                with self._lock:
-                    since = dict(self._cmd_arrivals)
+            self._publish_tick(t_ns, st, stepped, tick)
+            last = (t_ns, st, stepped, tick)
             with self._lock:
                 self._c["ticks"] += 1
             tick += 1

@@ -239,22 +239,28 @@ def _densify(points: FloatArray, max_step_m: float) -> FloatArray:
 class ClockSpec:
     """How the server paces sim time.
 
-    ``mode``: ``realtime`` (paced to the wall clock times ``rate``), ``lockstep`` (each physics
-    step waits for commands from registered autopilots, at most ``lockstep_timeout_s`` of wall
-    time, then freewheels and counts a stall), ``fast`` (as fast as possible). An autopilot that
-    stalls ``lockstep_max_stalls`` steps in a row is no longer waited for until it sends again.
+    ``mode``: ``realtime`` (paced to the wall clock times ``rate``), ``lockstep`` (each step
+    waits for the registered autopilots' commands and sonar heads' pings it needs, at most
+    ``lockstep_timeout_s`` of wall time per step, ``lockstep_start_timeout_s`` for a participant
+    not heard from yet; a miss is a stall and the step goes ahead), ``fast`` (as fast as
+    possible). A participant that stalls ``lockstep_max_stalls`` steps in a row is no longer
+    waited for until it answers again (``hil_bridge.lockstep``).
     """
 
     mode: Literal["realtime", "lockstep", "fast"] = "realtime"
     rate: float = 1.0
-    lockstep_timeout_s: float = 0.2
-    lockstep_max_stalls: int = 25
+    lockstep_timeout_s: float = 1.0
+    lockstep_max_stalls: int = 10
+    lockstep_start_timeout_s: float = 10.0
 
     def __post_init__(self) -> None:
         if not self.rate > 0:
             raise ValueError(f"rate: expected a real-time factor > 0, got {self.rate}")
         if not self.lockstep_timeout_s > 0:
             raise ValueError(f"lockstep_timeout_s: expected > 0, got {self.lockstep_timeout_s}")
+        if not self.lockstep_start_timeout_s > 0:
+            raise ValueError("lockstep_start_timeout_s: expected > 0, got "
+                             f"{self.lockstep_start_timeout_s}")
         if self.lockstep_max_stalls < 1:
             raise ValueError(f"lockstep_max_stalls: expected >= 1, got {self.lockstep_max_stalls}")
 

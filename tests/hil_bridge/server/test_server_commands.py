@@ -24,7 +24,8 @@ def _scene(mode: str, **clock: Any) -> dict[str, Any]:
 
 
 def test_lockstep_with_a_silent_autopilot_stalls_then_freewheels() -> None:
-    scene = _scene("lockstep", lockstep_timeout_s=0.01, lockstep_max_stalls=3)
+    scene = _scene("lockstep", lockstep_timeout_s=0.01, lockstep_start_timeout_s=0.01,
+                   lockstep_max_stalls=3)
     srv = SimServer("server", bus="mem://lockstep_silent", scene=scene, autopilots=[1],
                     stop_after_s=1.0)
     srv.start()
