@@ -715,7 +715,8 @@ class SimServer:
 
     def _publish_forest_points(self, compute: Any) -> None:
         """Leaf centres around each sonar's mount (its path's extent, or its start), decimated
-        evenly to ``forest_points``, as one latched PointCloud (intensity = leaf radius, m)."""
+        evenly to ``forest_points``, as one latched PointCloud (intensity = leaf radius, m),
+        stamped 0 like ``/thermals``: it describes the scene, not a moment of it."""
         pub = self._pubs.get("/forest/points")
         if pub is None:
             return
@@ -737,7 +738,7 @@ class SimServer:
             log.warning("%s: no forest points: %s", self.name, exc)
             return
         if out is not None:
-            pub.publish(PointCloud(stamp_ns=self._now_ns(), points=out["points"],
+            pub.publish(PointCloud(stamp_ns=0, points=out["points"],
                                    intensity=out["radii"], label="leaves"))
 
     def _publish_diagnostics(self, t_ns: int) -> None:

@@ -29,9 +29,10 @@ GLIDER_STATE_MOTION, so the sample completes with its neighbours. The autopilot 
 one AUTOPILOT_CMD (``answer = 1``, ``answer_counter`` = the sample's ``state_counter``), which
 is published as ``/glider/<id>/cmd`` with the ``step`` and stamp of the state it answers: the
 server waits for exactly that (:mod:`hil_bridge.lockstep`). A state the server sends again
-(the same tick again: same step and stamp) while its answer is missing is sent again. Command ages for HOLD and
-FAILSAFE are then measured in sim time, so a simulation that waits for something else never
-ages the commands; held and failsafe commands carry the step of the last command.
+(the same tick again: same step and stamp) while its answer is missing is sent again. Command
+ages for HOLD and FAILSAFE are then measured in sim time, so a simulation that waits for
+something else never ages the commands; held and failsafe commands carry the step of the last
+command.
 
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
 recovery, re-open); no exception leaves the adapter's threads (anything unexpected is logged
