@@ -34,7 +34,8 @@ def _bindable(endpoint: str) -> str:
 
 
 class Proxy:
-    """XSUB/XPUB forwarder: ``Proxy(pub_endpoint, sub_endpoint, *, curve=None, hwm=1000)``.
+    """XSUB/XPUB forwarder: ``Proxy(pub_endpoint, sub_endpoint, *, curve=None, hwm=1000)``;
+    endpoints left out are the current domain's bus (:mod:`hil_bridge.domain`).
 
     ``start()`` binds (raising at once on a bad or busy endpoint or a security refusal) and
     runs the forwarder thread; ``stop()`` ends it and closes every socket. Both are idempotent;
@@ -43,12 +44,18 @@ class Proxy:
 
     def __init__(
         self,
-        pub_endpoint: str = "tcp://127.0.0.1:7400",
-        sub_endpoint: str = "tcp://127.0.0.1:7401",
+        pub_endpoint: str | None = None,
+        sub_endpoint: str | None = None,
         *,
         curve: CurveKeys | None = None,
         hwm: int = 1000,
     ) -> None:
+        if pub_endpoint is None or sub_endpoint is None:
+            from hil_bridge.domain import current
+
+            ends = parse_zmq_url(current().bus_url)
+            pub_endpoint = ends.pub if pub_endpoint is None else pub_endpoint
+            sub_endpoint = ends.sub if sub_endpoint is None else sub_endpoint
         check_bind([pub_endpoint, sub_endpoint], curve)
         if hwm < 1:
             raise ValueError(f"hwm must be >= 1, got {hwm}")
