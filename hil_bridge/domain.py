@@ -33,12 +33,19 @@ Which domain applies (highest first):
 
 Names given explicitly (a ``bus:`` URL, a ``port``/``link`` path, a CAN ``channel``) are used
 as given: a domain only fills in what is left out.
+
+A launch run holds a shared lock on its numbered domain (:meth:`Domain.claim`, a ``flock`` on
+``{runtime}/{N}/.run.lock``) from before its nodes exist until they stopped. A domain is *busy*
+when a run holds it, one of its bus ports is bound, or its directory has a live pty link.
+:func:`claim_first_free` (``--domain auto``) finds and claims a free one under a lock of its
+own, so two runs started at once never pick the same domain.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import os
 import secrets
 import socket
@@ -56,6 +63,7 @@ __all__ = [
     "LIVE_PORT_BASE",
     "MAX_DOMAIN",
     "Domain",
+    "claim_first_free",
     "current",
     "first_free",
     "parse_domain",
@@ -190,9 +198,33 @@ class Domain:
         """The python-can ``virtual`` channel called ``name`` in this domain."""
         return f"{name}.{self.token}"
 
+    @contextlib.contextmanager
+    def claim(self) -> Iterator[Domain]:
+        """Hold this domain for a run: a shared lock other runs in it share, which makes it
+        busy for :func:`claim_first_free` (a private domain needs none)."""
+        if self.number is None:
+            yield self
+            return
+        with open(self.dir() / ".run.lock", "a+b") as fd:
+            fcntl.flock(fd.fileno(), fcntl.LOCK_SH)
+            yield self
+
+    def _run_holds_it(self) -> bool:
+        lock = self.dir() / ".run.lock"
+        if self.number is None or not lock.exists():
+            return False
+        with open(lock, "a+b") as fd:
+            try:
+                fcntl.flock(fd.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+        return False
+
     def busy_reason(self) -> str | None:
-        """Why another run seems to hold this domain (a bus port in use, a live pty link in
-        its directory), or None."""
+        """Why another run seems to hold this domain (a run's claim, a bus port in use, a live
+        pty link in its directory), or None."""
+        if self._run_holds_it():
+            return "an echoloop run holds it"
         for port in self.ports:
             if not _port_free(port):
                 return f"tcp://127.0.0.1:{port} is in use"
@@ -245,10 +277,25 @@ def first_free(start: Domain | None = None) -> tuple[Domain, list[tuple[Domain, 
     raise ValueError(f"every domain from {first.number} to {MAX_DOMAIN} is busy")
 
 
+@contextlib.contextmanager
+def claim_first_free(
+    start: Domain | None = None,
+) -> Iterator[tuple[Domain, list[tuple[Domain, str]]]]:
+    """:func:`first_free`, claimed (:meth:`Domain.claim`) for the block; the search runs under
+    a lock of this user's, so concurrent callers get different domains."""
+    with open(runtime_root() / ".select.lock", "a+b") as select:
+        fcntl.flock(select.fileno(), fcntl.LOCK_EX)
+        found, skipped = first_free(start)
+        with found.claim():
+            fcntl.flock(select.fileno(), fcntl.LOCK_UN)
+            yield found, skipped
+
+
 def resolve(choice: Domain | int | str | None = None) -> Domain:
     """The domain for an explicit ``choice`` (a Domain, a number, ``"N"``), else :func:`current`.
 
-    ``"auto"`` is :func:`first_free` from the current domain (``make demo`` uses it).
+    ``"auto"`` is :func:`first_free` from the current domain, unclaimed (a command that runs
+    in it uses :func:`claim_first_free` instead).
     """
     if choice is None:
         return current()

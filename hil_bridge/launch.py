@@ -38,6 +38,7 @@ link (a node's ``stats()["links"]`` entry) never connected, unless ``allow_disco
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import math
@@ -483,6 +484,8 @@ def run(
     made: list[tuple[str, Any]] = []
     extras: list[Any] = []
     t0 = time.monotonic()
+    held = contextlib.ExitStack()
+    held.enter_context(dom.claim())
     try:
         with use(dom):
             monitor = BusMonitor("launch_monitor", bus=bus_url)
@@ -531,6 +534,7 @@ def run(
                 extra_stats[extra.name] = extra.stats()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        held.close()
     nodes = {name: node_stats[name] for name, _ in made}
     summary = RunSummary(
         wall_s=time.monotonic() - t0,

@@ -3,11 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from collections.abc import Iterator
 
-from hil_bridge.domain import DOMAIN_ENV, MAX_DOMAIN, Domain, current, first_free, parse_domain
+from hil_bridge.domain import (
+    DOMAIN_ENV,
+    MAX_DOMAIN,
+    Domain,
+    claim_first_free,
+    current,
+    parse_domain,
+)
 
-__all__ = ["add_domain_argument", "domain_from", "seconds"]
+__all__ = ["add_domain_argument", "domain_for_run", "domain_from", "seconds"]
 
 
 def seconds(text: str) -> float:
@@ -41,17 +50,26 @@ def add_domain_argument(parser: argparse.ArgumentParser, *, auto: bool = False) 
 
 
 def domain_from(args: argparse.Namespace, prog: str) -> Domain:
-    """The domain an invocation asked for; with ``--domain auto`` the first free one, saying
-    on stderr which domains were busy."""
+    """The domain an invocation asked for (``--domain N``, else :func:`current`)."""
     choice = getattr(args, "domain", None)
     if choice is None:
         return current()
-    if choice != "auto":
-        return Domain(parse_domain(choice, where="--domain"))
-    dom, skipped = first_free()
-    for busy, reason in skipped:
-        print(f"{prog}: {busy} is busy ({reason})", file=sys.stderr)
-    if skipped:
-        print(f"{prog}: using {dom} (set {DOMAIN_ENV}={dom.number} or pass --domain "
-              f"{dom.number} to reach it with other commands)", file=sys.stderr, flush=True)
-    return dom
+    if choice == "auto":
+        raise ValueError(f"{prog}: --domain auto is for commands that run nodes (launch)")
+    return Domain(parse_domain(choice, where="--domain"))
+
+
+@contextlib.contextmanager
+def domain_for_run(args: argparse.Namespace, prog: str) -> Iterator[Domain]:
+    """:func:`domain_from`; with ``--domain auto`` the first free domain, claimed for the
+    block, saying on stderr which domains were busy."""
+    if getattr(args, "domain", None) != "auto":
+        yield domain_from(args, prog)
+        return
+    with claim_first_free() as (dom, skipped):
+        for busy, reason in skipped:
+            print(f"{prog}: {busy} is busy ({reason})", file=sys.stderr)
+        if skipped:
+            print(f"{prog}: using {dom} (set {DOMAIN_ENV}={dom.number} or pass --domain "
+                  f"{dom.number} to reach it with other commands)", file=sys.stderr, flush=True)
+        yield dom

@@ -16,7 +16,7 @@ import json
 import sys
 from typing import Any
 
-from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
+from hil_bridge.cli._args import add_domain_argument, domain_for_run, seconds
 from hil_bridge.domain import Domain
 from hil_bridge.launch import LaunchSpec, RunSummary, parse_param_overrides, run
 from hil_bridge.recording_plot import plot_recording
@@ -178,19 +178,19 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     if args.plot and not args.record:
         raise ValueError("--plot needs --record FILE.mcap (the plot is drawn from the recording)")
-    domain = domain_from(args, "echoloop launch")
-    summary = run(
-        args.file,
-        params_overrides=parse_param_overrides(args.param),
-        duration=args.duration,
-        record=args.record,
-        live=True if args.live else None,
-        bus=args.bus,
-        on_started=announcer(domain),
-        domain=domain,
-        expect=args.expect,
-        allow_disconnected=args.allow_disconnected,
-    )
+    with domain_for_run(args, "echoloop launch") as domain:
+        summary = run(
+            args.file,
+            params_overrides=parse_param_overrides(args.param),
+            duration=args.duration,
+            record=args.record,
+            live=True if args.live else None,
+            bus=args.bus,
+            on_started=announcer(domain),
+            domain=domain,
+            expect=args.expect,
+            allow_disconnected=args.allow_disconnected,
+        )
     if args.json:
         print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))
     else:

@@ -12,7 +12,16 @@ from hypothesis import strategies as st
 
 from hil_bridge import domain as dm
 from hil_bridge.cli import main as echoloop
-from hil_bridge.domain import DOMAIN_ENV, MAX_DOMAIN, Domain, current, first_free, resolve, use
+from hil_bridge.domain import (
+    DOMAIN_ENV,
+    MAX_DOMAIN,
+    Domain,
+    claim_first_free,
+    current,
+    first_free,
+    resolve,
+    use,
+)
 from hil_bridge.transport.zmq import parse_zmq_url
 
 
@@ -92,6 +101,25 @@ def test_a_domain_with_a_bound_port_is_busy_and_auto_skips_it() -> None:
         chosen, skipped = first_free(start)
     assert chosen == Domain(number + 1)
     assert [d for d, _ in skipped] == [start]
+
+
+def _free_from(number: int) -> Domain:
+    found, _ = first_free(Domain(number))
+    return found
+
+
+def test_a_running_claim_makes_a_domain_busy_and_concurrent_autos_differ() -> None:
+    """What --domain auto relies on: a run holds its domain from before anything binds."""
+    start = _free_from(60)
+    with start.claim():
+        assert start.busy_reason() == "an echoloop run holds it"
+        with start.claim():  # another run joining the same domain explicitly is fine
+            pass
+        with claim_first_free(start) as (first, skipped):
+            assert first != start and [d for d, _ in skipped][:1] == [start]
+            with claim_first_free(start) as (second, _):
+                assert second not in (start, first)
+    assert start.busy_reason() is None
 
 
 def test_a_live_pty_link_makes_a_domain_busy(tmp_path: Path) -> None:
