@@ -6,7 +6,7 @@ follow kinematic paths. Example (every key optional except where noted)::
 
     seed: 0                      # default seed of the forest and the swarm
     state_rate_hz: 50            # state stream (and server tick) rate
-    clock: {mode: realtime, rate: 1.0, lockstep_timeout_s: 0.2}
+    clock: {mode: realtime, rate: 1.0, lockstep_timeout_s: 1.0}
     forest:
       preset: seed000-fig5d      # or  spec: {...ForestSpec fields...}
       seed: null                 # null: the scene's seed
