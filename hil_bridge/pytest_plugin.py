@@ -28,13 +28,14 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from hil_bridge.domain import Domain
 from hil_bridge.errors import HilError
-from hil_bridge.launch import RunSummary, load, run
+
+if TYPE_CHECKING:  # the runner is imported when a test asks for the fixture, not by pytest
+    from hil_bridge.launch import RunSummary
 
 __all__ = ["RunFailed", "echoloop_launch", "node_overrides"]
 
@@ -80,6 +81,9 @@ def echoloop_launch(tmp_path: Path) -> Callable[..., RunSummary]:
         allow_disconnected: bool = False,
         record: str | Path | None = None,
     ) -> RunSummary:
+        from hil_bridge.domain import Domain
+        from hil_bridge.launch import load, run
+
         domain = Domain.private(tmp_path / f"echoloop-run{next(runs)}")
         spec = load(path_or_dict, params_overrides=node_overrides(params))
         summary = run(spec, duration=duration, bus=domain.bus_url, domain=domain, live=False,
