@@ -11,9 +11,15 @@ from hypothesis import strategies as st
 
 from sim_core.pose import (
     ENU_FROM_NED,
+    body_rates_from_euler_rates,
+    body_rates_from_quats,
+    direction_from_az_el,
     enu_from_ned,
     euler_from_quat,
     flu_from_frd,
+    pose_compose,
+    pose_interpolate,
+    quat_between,
     quat_conjugate,
     quat_enu_flu_from_ned_frd,
     quat_from_euler,
@@ -134,3 +140,77 @@ def test_normalize_canonical_sign_and_zero() -> None:
     np.testing.assert_allclose(quat_normalize([-2.0, 0.0, 0.0, 0.0]), [1.0, 0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="zero or non-finite"):
         quat_normalize([0.0, 0.0, 0.0, 0.0])
+
+
+vec = st.lists(st.floats(-10, 10), min_size=3, max_size=3).filter(
+    lambda v: float(np.linalg.norm(v)) > 1e-3)
+
+
+@given(vec, vec)
+def test_quat_between_takes_a_to_b(a: list[float], b: list[float]) -> None:
+    q = quat_between(a, b)
+    ua, ub = np.asarray(a) / np.linalg.norm(a), np.asarray(b) / np.linalg.norm(b)
+    np.testing.assert_allclose(quat_rotate(q, ua), ub, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(q), 1.0, atol=1e-12)
+
+
+def test_quat_between_opposite_and_equal_directions() -> None:
+    for a in ([1.0, 0, 0], [0, 0, 2.0], [0.3, -0.2, 0.9]):
+        np.testing.assert_allclose(quat_rotate(quat_between(a, np.negative(a)), a),
+                                   np.negative(a), atol=1e-12)
+        np.testing.assert_allclose(quat_between(a, a), [1.0, 0, 0, 0], atol=1e-15)
+
+
+def test_direction_from_az_el_and_a_sideways_mount() -> None:
+    np.testing.assert_allclose(direction_from_az_el(0.0, 0.0), [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(direction_from_az_el(math.pi / 2, 0.0), [0.0, 1.0, 0.0],
+                               atol=1e-16)
+    np.testing.assert_allclose(direction_from_az_el(0.3, math.pi / 2), [0.0, 0.0, 1.0],
+                               atol=1e-16)
+    # a sonar yawed 90 degrees on a vehicle flying east, 0.5 m ahead of its centre: it
+    # looks north (to the left), and sits 0.5 m east of the vehicle
+    p, q = pose_compose([10.0, 0.0, 2.0], quat_from_euler(0, 0, 0.0), [0.5, 0.0, 0.0],
+                        quat_from_euler(0, 0, math.pi / 2))
+    np.testing.assert_allclose(p, [10.5, 0.0, 2.0])
+    np.testing.assert_allclose(quat_rotate(q, [1.0, 0, 0]), [0.0, 1.0, 0.0], atol=1e-15)
+    # banked 30 degrees into a left turn (roll = -30 deg): the sideways beam tilts down
+    _, q = pose_compose([0.0, 0, 0], quat_from_euler(-D(30), 0.0, 0.0), [0.0, 0, 0],
+                        quat_from_euler(0, 0, math.pi / 2))
+    np.testing.assert_allclose(quat_rotate(q, [1.0, 0, 0]),
+                               [0.0, math.cos(D(30)), -math.sin(D(30))], atol=1e-15)
+
+
+@given(angle, pitch_angle, angle, vec)
+def test_body_rates_from_euler_rates_match_the_attitude_change(
+    r: float, p: float, y: float, rates: list[float]
+) -> None:
+    dr, dp, dy = (0.1 * v for v in rates)
+    h = 1e-6
+    q0 = quat_from_euler(r, p, y)
+    q1 = quat_from_euler(r + dr * h, p + dp * h, y + dy * h)
+    np.testing.assert_allclose(body_rates_from_quats(q0, q1, h),
+                               body_rates_from_euler_rates(r, p, dr, dp, dy), atol=1e-5)
+
+
+def test_body_rates_of_a_constant_rotation_and_no_rotation() -> None:
+    q0 = quat_from_euler(0.2, -0.1, 1.0)
+    spin = quat_from_euler(0.0, 0.0, 0.5)  # 0.5 rad about body z
+    np.testing.assert_allclose(body_rates_from_quats(q0, quat_multiply(q0, spin), 2.0),
+                               [0.0, 0.0, 0.25], atol=1e-15)
+    np.testing.assert_array_equal(body_rates_from_quats(q0, q0, 0.1), [0.0, 0.0, 0.0])
+
+
+def test_pose_interpolation_is_exact_for_cubic_motion() -> None:
+    def pos(t: float) -> np.ndarray:
+        return np.array([1.0 + 2 * t, -t * t, 0.5 * t**3 - t])
+
+    def vel(t: float) -> np.ndarray:
+        return np.array([2.0, -2 * t, 1.5 * t * t - 1.0])
+
+    qa, qb = quat_from_euler(0, 0, 0.1), quat_from_euler(0, 0, 0.3)
+    for t in (0.3, 0.55, 0.8):
+        p, q = pose_interpolate(0.3, 0.8, pos(0.3), pos(0.8), vel(0.3), vel(0.8), qa, qb, t)
+        np.testing.assert_allclose(p, pos(t), atol=1e-14)
+        np.testing.assert_allclose(q, quat_from_euler(0, 0, 0.1 + 0.4 * (t - 0.3)), atol=1e-15)
+    p, _ = pose_interpolate(0.3, 0.8, pos(0.3), pos(0.8), vel(0.3), vel(0.8), qa, qb, 2.0)
+    np.testing.assert_allclose(p, pos(0.8))  # clamped to the newer state
