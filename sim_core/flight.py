@@ -1,0 +1,301 @@
+"""Continuous-time flight of fixed-wing vehicles in coordinated turns: one model for every
+vehicle the simulation flies (swarm gliders, commanded vehicles), and the attitude it implies.
+
+State ``y`` has shape ``(6, *S)`` (``S`` any shape: ``(N,)`` vehicles, ``(B, N)`` runs × gliders),
+rows :data:`X`, :data:`Y`, :data:`Z` (m, world ENU), :data:`HEADING` ψ (rad, from +x towards +y,
+not wrapped), :data:`BANK` φ (rad, the seed's sign: positive turns towards increasing heading,
+i.e. to the left, so the FLU roll is −φ) and :data:`SPEED` V (airspeed, m/s). Commands ``u``
+``(2, *S)`` = (bank_cmd rad, airspeed_cmd m/s) are held over a step (zero-order hold).
+The right-hand side, :meth:`FlightModel.fun`::
+
+    ẋ = V cos ψ                       ẏ = V sin ψ
+    ż = s(V, φ) + w(x, y)   (glide)     ż = 0   (hold: a powered vehicle keeping its height)
+    ψ̇ = g tan φ / V                    (coordinated turn)
+    φ̇ = clip((φ_c − φ) / τ_φ, −p_max, p_max)
+    V̇ = clip((V_c − V) / τ_V, −a_max, a_max)
+
+``s`` is the seed 002 SB-XC polar with its load-factor correction,
+``(A V² + B V + C) / √cos φ`` (:func:`sim_core.soaring.sink_rate`), and ``w`` the updraft of the
+air mass at the vehicle. As in the seed, the vehicle moves horizontally at its airspeed (at the
+SB-XC's glide angle cos γ > 0.998) and a speed change costs no height. The bank and airspeed
+loops are the first-order, rate-limited responses of a fixed-wing autopilot: PX4's roll loop
+commands ``(φ_c − φ)/FW_R_TC`` limited to ``FW_R_RMAX`` (ArduPlane's ``RLL2SRV_TCONST`` /
+``RMAX`` likewise), its TECS airspeed loop ``(V_c − V)/FW_T_TAS_TC`` limited by the energy the
+airframe can trade; :class:`FlightParams` gives the defaults and their sources (docs/soaring.md).
+
+The attitude implied by a state (:meth:`FlightModel.outputs`) is that of a point mass with zero
+angle of attack and sideslip: yaw = ψ, roll = −φ, and pitch = −γ (FLU: positive pitch lowers
+the nose), where γ = asin(s/V) is the flight-path angle *through the air* (an updraft lifts the
+glider without tilting it; a ``hold`` vehicle flies level). Body rates follow from the Euler
+rates (:func:`sim_core.pose.body_rates_from_euler_rates`).
+
+:meth:`FlightModel.step` integrates with the classical fourth-order Runge-Kutta method on
+``substeps`` equal sub-steps and applies the height limits after each (the seed's rules: a
+glider above the ceiling is held at it; below the floor it is held at the floor unless it
+reached z <= 0: it is then *grounded*, kept at its last state and reported). The right-hand side
+is continuous but not smooth where a rate limit starts to act, so the global error falls as
+``h⁴`` between such instants and as ``h²`` across them (``python -m bench flight``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sim_core.pose import body_rates_from_euler_rates, quat_from_euler
+from sim_core.soaring.glider import sink_rate
+
+__all__ = [
+    "BANK",
+    "HEADING",
+    "SPEED",
+    "STATE_ROWS",
+    "FlightModel",
+    "FlightOutputs",
+    "FlightParams",
+    "Updraft",
+    "X",
+    "Y",
+    "Z",
+]
+
+F8 = NDArray[np.float64]
+B8 = NDArray[np.bool_]
+
+#: rows of a flight state ``y (6, *S)``
+X, Y, Z, HEADING, BANK, SPEED = range(6)
+STATE_ROWS = 6
+
+#: ``w = updraft(xy)``: vertical air speed (m/s, > 0 up) at horizontal positions ``xy (2, *S)``
+Updraft = Callable[[F8], F8]
+
+
+@dataclass(frozen=True, slots=True)
+class FlightParams:
+    """How one vehicle follows its bank and airspeed commands (scene key ``flight``).
+
+    ``bank_tau_s`` s and ``bank_rate_max`` rad/s: first-order bank response and its rate limit
+    (defaults PX4 ``FW_R_TC`` = 0.4 s and ``FW_R_RMAX`` = 70°/s; ArduPlane's
+    ``RLL2SRV_TCONST`` default is 0.5 s). ``speed_tau_s`` s and ``speed_rate_max`` m/s²: the
+    airspeed response (PX4 TECS ``FW_T_TAS_TC`` = 5 s; TECS limits the airspeed rate to half
+    the specific energy rate the airframe gives, 0.5·g·``FW_T_SINK_MIN``/V = 0.98 m/s² at the
+    SB-XC's 10 m/s with ``FW_T_SINK_MIN`` = 2 m/s). ``vertical``: ``glide`` (the SB-XC polar
+    plus the updraft) or ``hold`` (a powered vehicle that keeps its height); null means the
+    default of the vehicle's kind (swarm gliders glide, path vehicles hold).
+    """
+
+    bank_tau_s: float = 0.4
+    bank_rate_max: float = math.radians(70.0)
+    speed_tau_s: float = 5.0
+    speed_rate_max: float = 1.0
+    vertical: Literal["glide", "hold"] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("bank_tau_s", "bank_rate_max", "speed_tau_s", "speed_rate_max"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name}: expected a finite number > 0, got {value!r}")
+        if self.vertical not in (None, "glide", "hold"):
+            raise ValueError(f"vertical: expected 'glide', 'hold' or null, got {self.vertical!r}")
+
+    @property
+    def min_tau_s(self) -> float:
+        """The faster of the two time constants, s."""
+        return min(self.bank_tau_s, self.speed_tau_s)
+
+
+@dataclass(frozen=True, slots=True)
+class FlightOutputs:
+    """What a flight state implies, arrays over ``S``: ``vz`` m/s (ż), ``omega`` rad/s (ψ̇),
+    ``roll``, ``pitch``, ``yaw`` rad (Z-Y-X, world ENU, body FLU; yaw wrapped to [−π, π)),
+    ``quat`` ``(*S, 4)`` world-from-body ``[w, x, y, z]`` and ``rates`` ``(*S, 3)`` body rates
+    (p, q, r) rad/s."""
+
+    vz: F8
+    omega: F8
+    roll: F8
+    pitch: F8
+    yaw: F8
+    quat: F8
+    rates: F8
+
+
+def _wrap(a: F8) -> F8:
+    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
+
+
+class FlightModel:
+    """Parameters of the vehicles of one state array, as arrays broadcastable to ``S``.
+
+    ``FlightModel(bank_tau=, bank_rate_max=, speed_tau=, speed_rate_max=, glide=, polar=(A, B,
+    C), g=, ceiling=, floor=)``; :meth:`from_params` builds one from per-vehicle
+    :class:`FlightParams`. Commands are assumed inside the vehicles' envelopes (callers clip).
+    """
+
+    def __init__(
+        self,
+        *,
+        bank_tau: ArrayLike,
+        bank_rate_max: ArrayLike,
+        speed_tau: ArrayLike,
+        speed_rate_max: ArrayLike,
+        glide: ArrayLike,
+        polar: tuple[ArrayLike, ArrayLike, ArrayLike],
+        g: ArrayLike = 9.81,
+        ceiling: ArrayLike = np.inf,
+        floor: ArrayLike = 0.0,
+    ) -> None:
+        def arr(v: ArrayLike) -> F8:
+            return np.asarray(v, dtype=np.float64)
+
+        self.bank_tau, self.bank_rate_max = arr(bank_tau), arr(bank_rate_max)
+        self.speed_tau, self.speed_rate_max = arr(speed_tau), arr(speed_rate_max)
+        for name in ("bank_tau", "bank_rate_max", "speed_tau", "speed_rate_max"):
+            if not np.all(getattr(self, name) > 0):
+                raise ValueError(f"{name}: expected values > 0")
+        self.glide: B8 = np.asarray(glide, dtype=bool)
+        self.any_glide = bool(self.glide.any())
+        self.A, self.B, self.C = (arr(c) for c in polar)
+        self.g, self.ceiling, self.floor = arr(g), arr(ceiling), arr(floor)
+        #: longest sub-step :meth:`step` takes, s: half the fastest time constant (RK4 is
+        #: stable on a first-order lag up to 2.78 τ; at τ/2 its error there is 3e-4 per step)
+        self.max_substep = 0.5 * float(min(np.min(self.bank_tau), np.min(self.speed_tau)))
+
+    @classmethod
+    def from_params(
+        cls,
+        params: Sequence[FlightParams],
+        *,
+        glide: Sequence[bool],
+        polar: tuple[float, float, float],
+        g: float = 9.81,
+        ceiling: float = np.inf,
+        floor: float = 0.0,
+    ) -> FlightModel:
+        """Model of N vehicles (state shape ``(N,)``) from their :class:`FlightParams`;
+        ``glide`` (N,) says which glide (the params' ``vertical`` already resolved)."""
+        return cls(
+            bank_tau=[p.bank_tau_s for p in params],
+            bank_rate_max=[p.bank_rate_max for p in params],
+            speed_tau=[p.speed_tau_s for p in params],
+            speed_rate_max=[p.speed_rate_max for p in params],
+            glide=list(glide), polar=polar, g=g, ceiling=ceiling, floor=floor,
+        )
+
+    # -- the right-hand side -----------------------------------------------------------------
+    def _sink(self, speed: F8, bank: F8) -> F8:
+        """Polar sink (< 0), m/s: (A V² + B V + C) / √cos φ (the seed's, spec §3.3)."""
+        return sink_rate(speed, bank, self.A, self.B, self.C)
+
+    def derivative(self, y: F8, u: F8, w: F8 | float = 0.0) -> F8:
+        """``dy/dt`` ``(6, *S)`` of states ``y (6, *S)`` under commands ``u (2, *S)`` with the
+        updraft ``w`` (m/s, broadcastable to ``S``) at the vehicles."""
+        psi, bank, v = y[HEADING], y[BANK], y[SPEED]
+        dy = np.empty((STATE_ROWS, *np.broadcast_shapes(y.shape[1:], u.shape[1:])))
+        np.multiply(v, np.cos(psi), out=dy[X])
+        np.multiply(v, np.sin(psi), out=dy[Y])
+        if self.any_glide:
+            dy[Z] = np.where(self.glide, self._sink(v, bank) + w, 0.0)
+        else:
+            dy[Z] = 0.0
+        dy[HEADING] = self.g * np.tan(bank) / v
+        dy[BANK] = np.clip((u[0] - bank) / self.bank_tau, -self.bank_rate_max, self.bank_rate_max)
+        dy[SPEED] = np.clip((u[1] - v) / self.speed_tau, -self.speed_rate_max,
+                            self.speed_rate_max)
+        return dy
+
+    def fun(self, u: ArrayLike, updraft: Updraft | None = None) -> Callable[[float, F8], F8]:
+        """``fun(t, y) -> dy/dt`` for commands ``u (2, *S)`` held constant (the shape
+        :func:`scipy.integrate.solve_ivp` takes, with ``y`` reshaped to ``(6, *S)``: e.g.
+        ``solve_ivp(lambda t, y: fun(t, y.reshape(6, n)).ravel(), ...)``)."""
+        uu = np.asarray(u, dtype=np.float64)
+
+        def fun(t: float, y: F8) -> F8:
+            w = 0.0 if updraft is None or not self.any_glide else updraft(y[X : Y + 1])
+            return self.derivative(y, uu, w)
+
+        return fun
+
+    # -- integration -------------------------------------------------------------------------
+    def step(
+        self,
+        y: ArrayLike,
+        u: ArrayLike,
+        dt: float,
+        *,
+        substeps: int = 1,
+        updraft: Updraft | None = None,
+        active: B8 | None = None,
+    ) -> tuple[F8, B8]:
+        """Fly ``dt`` s from ``y (6, *S)`` under commands ``u (2, *S)`` (held): ``substeps``
+        RK4 steps of ``dt / substeps`` (more if that exceeds :attr:`max_substep`), the height
+        limits applied after each.
+
+        ``active`` (``S``, default all): vehicles to fly; the others keep their state. Returns
+        the new state and the mask of vehicles grounded during this step (z reached 0 while
+        gliding; each keeps its state from just before)."""
+        if substeps < 1:
+            raise ValueError(f"substeps: expected >= 1, got {substeps}")
+        if not dt >= 0:
+            raise ValueError(f"dt: expected >= 0 s, got {dt}")
+        cur = np.array(y, dtype=np.float64)
+        uu = np.asarray(u, dtype=np.float64)
+        live = np.ones(cur.shape[1:], dtype=bool) if active is None else np.array(active)
+        grounded = np.zeros(cur.shape[1:], dtype=bool)
+        if dt == 0 or not live.any():
+            return cur, grounded
+        substeps = max(substeps, math.ceil(dt / self.max_substep - 1e-9))
+        fun = self.fun(uu, updraft)
+        h = dt / substeps
+        for i in range(substeps):
+            t = i * h
+            k1 = fun(t, cur)
+            k2 = fun(t + h / 2, cur + (h / 2) * k1)
+            k3 = fun(t + h / 2, cur + (h / 2) * k2)
+            k4 = fun(t + h, cur + h * k3)
+            new = cur + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            if self.any_glide:
+                z = new[Z]
+                below = self.glide & (z < self.floor)
+                hit = below & (z <= 0.0) & live
+                new[Z] = np.where(self.glide & (z > self.ceiling), self.ceiling,
+                                  np.where(below, self.floor, z))
+                grounded |= hit
+                live = live & ~hit
+            cur = np.where(live, new, cur)
+        return cur, grounded
+
+    # -- what a state implies ----------------------------------------------------------------
+    def outputs(self, y: ArrayLike, u: ArrayLike, w: ArrayLike = 0.0) -> FlightOutputs:
+        """Vertical speed, turn rate and attitude of states ``y (6, *S)`` flying commands
+        ``u (2, *S)`` in the updraft ``w`` (see the module docstring for the attitude)."""
+        ya = np.asarray(y, dtype=np.float64)
+        uu = np.asarray(u, dtype=np.float64)
+        wa = np.asarray(w, dtype=np.float64)
+        dy = self.derivative(ya, uu, wa)
+        bank, v = ya[BANK], ya[SPEED]
+        if self.any_glide:
+            s = self._sink(v, bank)
+            ratio = np.clip(s / v, -1.0, 1.0)
+            # d(s/V)/dt from ds/dV = (2 A V + B)/√cos φ and ds/dφ = s·tan(φ)/2
+            ds_dv = (2.0 * self.A * v + self.B) / np.sqrt(np.cos(bank))
+            dratio = ((ds_dv * v - s) / (v * v)) * dy[SPEED] + (s * np.tan(bank) / 2.0 / v) * dy[
+                BANK]
+            gamma_rate = dratio / np.sqrt(np.maximum(1.0 - ratio * ratio, 1e-300))
+            pitch = np.where(self.glide, -np.arcsin(ratio), 0.0)
+            pitch_rate = np.where(self.glide, -gamma_rate, 0.0)
+        else:
+            pitch = np.zeros(np.shape(v))
+            pitch_rate = np.zeros(np.shape(v))
+        roll, yaw = -bank, _wrap(ya[HEADING])
+        rates = body_rates_from_euler_rates(roll, pitch, -dy[BANK], pitch_rate, dy[HEADING])
+        return FlightOutputs(
+            vz=np.asarray(dy[Z]), omega=np.asarray(dy[HEADING]), roll=np.asarray(roll),
+            pitch=np.asarray(pitch), yaw=yaw, quat=quat_from_euler(roll, pitch, yaw),
+            rates=rates,
+        )
