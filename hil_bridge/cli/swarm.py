@@ -2,6 +2,10 @@
 
 ``--law`` takes a YAML law file or ``default`` (the packaged Law_40SurvivorsExample).
 ``--set KEY=VALUE`` overrides a law parameter (VALUE in YAML syntax); overrides beat the file.
+``run --physics continuous`` flies the law with the simulation server's continuous flight model
+(``sim_core.soaring.continuous``: the controller every ``dt``, the gliders integrated at
+``--physics-rate`` Hz in between, ``--flight KEY=VALUE`` for ``sim_core.flight.FlightParams``);
+the default ``discrete`` is the seed's own step.
 """
 
 from __future__ import annotations
@@ -44,6 +48,13 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--plot", metavar="FILE.png",
                    help="write the paths coloured by time and by vertical speed")
     r.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
+    r.add_argument("--physics", choices=("discrete", "continuous"), default="discrete",
+                   help="discrete: the seed's step (default); continuous: the server's flight "
+                        "model between the controller's steps")
+    r.add_argument("--physics-rate", type=float, default=50.0, metavar="HZ",
+                   help="integration rate of --physics continuous (default 50 Hz)")
+    r.add_argument("--flight", action="append", default=[], metavar="KEY=VALUE",
+                   help="flight model parameter of --physics continuous, e.g. bank_tau_s=0.5")
 
     s = sub.add_parser("sweep", help="run a parameter grid into a results table")
     law_args(s)
@@ -95,8 +106,22 @@ def _run(law: Any, args: argparse.Namespace) -> int:
     from sim_core.soaring.swarm import run
 
     want_trace = bool(args.trace or args.plot)
-    t0 = time.perf_counter()
-    result = run(law, seed=args.seed, trace=want_trace)
+    if args.physics == "continuous":
+        from sim_core.config import from_dict
+        from sim_core.flight import FlightParams
+        from sim_core.soaring.continuous import run_continuous
+
+        flight = from_dict(FlightParams, _overrides(args.flight), path="--flight")
+        t0 = time.perf_counter()
+        result = run_continuous(
+            law, seeds=None if args.seed is None else [args.seed], flight=flight,
+            physics_rate_hz=args.physics_rate, trace=want_trace,
+        )[0]
+    else:
+        if args.flight:
+            raise ValueError("--flight: only with --physics continuous")
+        t0 = time.perf_counter()
+        result = run(law, seed=args.seed, trace=want_trace)
     seconds = time.perf_counter() - t0
     if result.trace is not None:
         if args.trace:
@@ -110,7 +135,8 @@ def _run(law: Any, args: argparse.Namespace) -> int:
         print(json.dumps({k: metrics[k] for k in JSON_KEYS}))
     else:
         seed = law.rngSeed if args.seed is None else args.seed
-        print(f"seed {seed}: {result.steps} steps of {law.dt} s in {seconds:.2f} s")
+        print(f"seed {seed}: {result.steps} steps of {law.dt} s ({args.physics} physics) in "
+              f"{seconds:.2f} s")
         width = max(map(len, JSON_KEYS))
         for k in JSON_KEYS[:-1]:
             print(f"  {k:<{width}}  {metrics[k]}")

@@ -447,6 +447,17 @@ class SwarmSim:
         self._peek = None
         return flown
 
+    def set_state(self, state: SwarmState) -> None:
+        """Take the gliders' position, heading, bank, speed, omega and vz (arrays (B, N)) from
+        a flight flown outside the step (:mod:`sim_core.soaring.continuous` flies the gliders
+        between steps); ``state.alive`` is ignored (deaths are the step's)."""
+        k = kernels
+        for name, row in (("x", k.ROW_X), ("y", k.ROW_Y), ("z", k.ROW_Z),
+                          ("heading", k.ROW_HEADING), ("bank", k.ROW_BANK),
+                          ("speed", k.ROW_SPEED), ("omega", k.ROW_OMEGA), ("vz", k.ROW_VZ)):
+            self._S[row] = getattr(state, name)
+        self._peek = None  # neighbour lists looked up ahead came from the old state
+
     def _update_waggle(self, flying: B8) -> None:
         for b in self._waggle_runs:
             due = np.flatnonzero(flying[b] & (self._waggle_left[b] <= 0))
