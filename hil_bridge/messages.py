@@ -39,6 +39,7 @@ __all__ = [
     "ThermalMarkers",
     "message_class",
     "register",
+    "state_quaternion",
 ]
 
 REGISTRY: dict[str, type[Message]] = {}
@@ -140,7 +141,16 @@ EcholoopClock = Clock
 @register
 @dataclasses.dataclass(**_FROZEN)
 class GliderState(Message):
-    """``/glider/<id>/state``: pose and motion of one glider (ENU metres, radians, m/s)."""
+    """``/glider/<id>/state``: pose and motion of one glider (ENU metres, radians, m/s).
+
+    ``heading`` (from +x towards +y) and ``bank`` (the seed's sign: positive turns towards
+    increasing heading) as before; the full attitude follows: ``roll``, ``pitch``, ``yaw`` (rad,
+    Z-Y-X Euler angles of the world-from-body rotation, world ENU, body FLU: a left turn has
+    ``roll = -bank``, a glide ``pitch > 0`` (nose down)), that rotation as the unit quaternion
+    ``qw, qx, qy, qz``, and ``roll_rate``, ``pitch_rate``, ``yaw_rate`` (rad/s, body axes). NaN:
+    not given by the publisher (e.g. a recording older than these fields; see
+    :func:`state_quaternion`).
+    """
 
     TYPE: ClassVar[str] = "echoloop/GliderState"
     VERSION: ClassVar[int] = 1
@@ -156,6 +166,28 @@ class GliderState(Message):
     alive: bool = True
     glider_id: int = 0
     step: int = 0
+    roll: float = math.nan
+    pitch: float = math.nan
+    yaw: float = math.nan
+    qw: float = math.nan
+    qx: float = math.nan
+    qy: float = math.nan
+    qz: float = math.nan
+    roll_rate: float = math.nan
+    pitch_rate: float = math.nan
+    yaw_rate: float = math.nan
+
+
+def state_quaternion(msg: GliderState) -> npt.NDArray[np.float64]:
+    """The world-from-body attitude ``[w, x, y, z]`` of a state: its quaternion, or, when the
+    publisher gave none (NaN), the level coordinated-turn attitude of its ``heading`` and
+    ``bank`` (roll = −bank, pitch 0)."""
+    q = np.array([msg.qw, msg.qx, msg.qy, msg.qz], dtype=np.float64)
+    if np.all(np.isfinite(q)):
+        return q
+    from sim_core.pose import quat_from_euler
+
+    return quat_from_euler(-msg.bank, 0.0, msg.heading)
 
 
 @register
@@ -248,12 +280,17 @@ class SonarEcho(Message):
     """``/sonar/<id>/echo``: the echo of one ping.
 
     ``samples`` float32, shape (n,) or (channels, n), at ``fs`` Hz. ``error_bound`` is the
-    synthesiser's bound (NaN when it gives none).
+    synthesiser's bound (NaN when it gives none). Where the sonar was when it pinged:
+    ``position`` (3,) m world ENU, ``orientation`` (4,) world-from-sonar ``[w, x, y, z]``,
+    ``boresight`` (3,) the beam axis, a world unit vector, at sim time ``emit_ns``. NaN arrays
+    and ``emit_ns`` 0: not given (a publisher older than these fields).
     """
 
     TYPE: ClassVar[str] = "echoloop/SonarEcho"
     VERSION: ClassVar[int] = 1
-    ARRAYS: ClassVar[Mapping[str, str]] = {"samples": "<f4"}
+    ARRAYS: ClassVar[Mapping[str, str]] = {
+        "samples": "<f4", "position": "<f8", "orientation": "<f8", "boresight": "<f8",
+    }
 
     stamp_ns: int
     ping_seq: int
@@ -265,6 +302,12 @@ class SonarEcho(Message):
     dropped: int = 0
     error_bound: float = math.nan
     compute_ns: int = 0
+    position: npt.NDArray[Any] = dataclasses.field(default_factory=lambda: np.full(3, np.nan))
+    orientation: npt.NDArray[Any] = dataclasses.field(
+        default_factory=lambda: np.full(4, np.nan)
+    )
+    boresight: npt.NDArray[Any] = dataclasses.field(default_factory=lambda: np.full(3, np.nan))
+    emit_ns: int = 0
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)
@@ -273,6 +316,11 @@ class SonarEcho(Message):
                 f"SonarEcho.samples must have shape (n,) or (channels, n), "
                 f"got {self.samples.shape}"
             )
+        for name, n in (("position", 3), ("orientation", 4), ("boresight", 3)):
+            if getattr(self, name).shape != (n,):
+                raise ValueError(
+                    f"SonarEcho.{name} must have shape ({n},), got {getattr(self, name).shape}"
+                )
 
 
 @register

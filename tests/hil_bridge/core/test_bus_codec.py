@@ -49,7 +49,9 @@ def _message(draw: st.DrawFn, cls: type[Message]) -> Message:
         hint = hints[f.name]
         if f.name in cls.ARRAYS:
             dtype = cls.ARRAYS[f.name]
-            if cls is SonarEcho:
+            if cls is SonarEcho and f.name != "samples":
+                shape = (4,) if f.name == "orientation" else (3,)
+            elif cls is SonarEcho:
                 shape = draw(st.sampled_from([(k,), (2, k), (3, k + 1)]))
             elif cls is PointCloud:
                 shape = (k, 3) if f.name == "points" else draw(st.sampled_from([(k,), (0,)]))
