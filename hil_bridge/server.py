@@ -3,58 +3,57 @@
 Topics (ids are the scene's vehicle/glider/sonar ids)::
 
     publishes  /clock                     every tick
-               /glider/<id>/state         every tick, for every swarm glider and path vehicle
-               /glider/<id>/neighbors     after every physics step, only for registered gliders
+               /glider/<id>/state         every tick, for every swarm glider and vehicle
+               /glider/<id>/neighbors     after every control step, only for registered gliders
                /sonar/<id>/echo           one per answered /sonar/<id>/ping (frame_id
                                           ``glider/<mount id>``: the vehicle carrying it)
                /thermals                  latched ThermalMarkers (with a swarm)
                /forest/points             latched PointCloud of leaves around the sonars
                /diagnostics               every ``diagnostics_period_s`` of wall time
     subscribes /glider/<id>/cmd           bank_cmd (rad), airspeed_cmd (m/s)
-               /sonar/<id>/ping           ping_seq, az, el (rad, body frame), beamwidth (rad)
+               /sonar/<id>/ping           ping_seq, az, el (rad, sonar frame), beamwidth (rad)
+
+**Flight** (:mod:`hil_bridge.fleet`). Every tick is a new physics state: the vehicles are
+integrated from the previous tick (``physics_rate_hz`` sets the sub-steps) on the commands held
+when the tick starts, so a command received before tick k is flown in the state of tick k.
+Swarm gliders fly :mod:`sim_core.flight`; those without an autopilot follow the law's Boids
+controller, which decides every ``law.dt`` (its commands held in between); commanded vehicles
+fly the same model once taken over; path vehicles follow their path with the bank and pitch it
+implies. Every state carries the full attitude (roll, pitch, yaw, quaternion, body rates).
 
 **Registration.** A glider's autopilot registers by publishing on ``/glider/<id>/cmd`` (its first
 command, even a rejected one, registers it) or by being listed in the ``autopilots`` parameter.
-Only registered gliders get ``/neighbors`` and, in ``lockstep`` mode, are waited for. Gliders
-without an autopilot fly the law's Boids controller (``SwarmSim.step`` with an external-command
-mask).
+Only registered gliders get ``/neighbors`` and, in ``lockstep`` mode, are waited for.
 
 **Commands.** A command is *rejected* (counted, the last good one held) if a value is non-finite,
-``|bank_cmd| >= pi/2`` or ``airspeed_cmd`` is outside (0, 3 * forwardSpeedMax]; otherwise it is
-clipped to the law's bank and speed limits (counted in ``cmd_clipped``) and held until the next
-good one. The law's optional ``bankRateMax``/``speedRateMax`` rate limits are applied by the
-swarm's stepping. Commands for path vehicles are counted in ``cmd_ignored``.
+``|bank_cmd| >= pi/2`` or ``airspeed_cmd`` is outside (0, 3 * max speed]; otherwise it is
+clipped to the glider's (the law's) or vehicle's envelope (counted in ``cmd_clipped``) and held
+until the next good one. Commands for path vehicles are counted in ``cmd_ignored``.
+``cmd_effect_ticks``: for each command, the tick it was first flown in minus the next tick due
+when it arrived, plus one (1: in effect at the next tick; 2: it arrived while that tick was
+being computed).
 
-**Echoes.** Each ping is answered at the pose of its sonar's vehicle when the ping *arrives*
-(the latest published state), with the beam boresight at world azimuth ``heading + az`` and
-elevation ``el`` (bank and pitch are not applied). Pings wait in a bounded queue (``echo_queue``;
-when full the oldest waiting ping is dropped and counted) served by an echo thread, off the tick
-loop, so a slow echo never delays the state stream (the synthesis and the k-d tree queries
-release the GIL in their heavy numpy/finufft calls; ``bench/bench_server.py`` measures the state
-stream with and without echoes). ``echo_worker: process`` instead hands each ping to a spawned
-worker process holding its own copy of the scene and tile cache, for scenes whose tile building
-or fidelity holds the GIL for long; the launching script must then be import-safe (an
-``if __name__ == "__main__"`` guard, as ``echoloop`` has).
+**Echoes** (:mod:`hil_bridge.echo_service`). A ping is answered at its sonar's world pose at the
+ping's *emission*: the ping's ``stamp_ns`` when the sender gives one (> 0), else its arrival
+(the latest tick), the vehicle's pose interpolated between ticks from a ``pose_history_s``
+history, composed with the sonar's mount. Stamps after the latest tick or before the history
+use its newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``). Pings wait in a
+bounded queue (``echo_queue``; when full the oldest is dropped, ``pings_dropped``) served off
+the tick loop by one worker: a thread (default), or ``echo_worker: process``, a spawned process
+with its own copy of the scene (the launching script must be import-safe).
 
-**Time.** The server ticks at ``state_rate_hz`` of sim time. The swarm steps every ``law.dt`` of
-sim time (zero-order hold of its state between steps); path vehicles are sampled at each tick.
-Clock modes: ``realtime`` (ticks paced to the wall clock times ``rate``), ``fast`` (unpaced),
-``lockstep`` (after each tick, :class:`hil_bridge.lockstep.LockstepGate` holds the server until
-the registered autopilots answered their state steps and the sonar heads that ping on sim time
-sent their due pings; ``/clock`` says ``lockstep`` so adapters drive their devices on sim
-time). Within a tick, neighbour lists are published before the states of the same step. Stamps
-are integer sim nanoseconds and never decrease.
+**Time.** The server ticks at ``state_rate_hz`` of sim time. Clock modes: ``realtime`` (ticks
+paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (before flying the
+control period that a control step starts, wait up to ``lockstep_timeout_s`` for a new command
+from every registered autopilot; a miss counts a stall and the period is flown on held
+commands; an autopilot that misses ``lockstep_max_stalls`` steps in a row is not waited for
+again until it next sends). Stamps are integer sim nanoseconds and never decrease.
 """
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
-import multiprocessing
-import os
-import queue
-import signal
 import threading
 import time
 from collections import deque
@@ -65,8 +64,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from hil_bridge.errors import HilError
-from hil_bridge.lockstep import LockstepGate
+from hil_bridge.echo_service import EchoRequest, EchoResult, EchoService, SonarPose
+from hil_bridge.fleet import Fleet, FleetStates
 from hil_bridge.logs import load_trajectory
 from hil_bridge.messages import (
     Clock,
@@ -80,6 +79,7 @@ from hil_bridge.messages import (
     ThermalMarkers,
 )
 from sim_core.config import ConfigError, from_dict
+from sim_core.pose import pose_compose, quat_from_euler
 from sim_core.scene import ClockSpec, Scene, load_scene
 
 __all__ = ["ServerParams", "SimServer", "percentiles"]
@@ -106,13 +106,13 @@ class ServerParams:
     state_rate_hz: float | None = None
     embed_proxy: bool = True
     autopilots: tuple[int, ...] = ()
-    sonar_heads: tuple[int, ...] = ()
     echo_queue: int = 4
     diagnostics_period_s: float = 1.0
     stop_after_s: float | None = None
     publish_thermals: bool = True
     forest_points: int = 20000
     echo_worker: Literal["thread", "process"] = "thread"
+    pose_history_s: float = 2.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.scene, str | Mapping | Path):
@@ -127,121 +127,19 @@ class ServerParams:
             raise ValueError(f"stop_after_s: expected > 0, got {self.stop_after_s}")
         if self.state_rate_hz is not None and not 0 < self.state_rate_hz <= 2000:
             raise ValueError(f"state_rate_hz: expected 0 < rate <= 2000, got {self.state_rate_hz}")
+        if not self.pose_history_s > 0:
+            raise ValueError(f"pose_history_s: expected > 0, got {self.pose_history_s}")
 
 
 _REJECT_BANK = math.pi / 2
 
-
-def _job_echo(
-    scene: Scene, position: tuple[float, float, float], sonar_id: int, az_world: float,
-    el: float, beamwidth: float,
-) -> dict[str, Any]:
-    """Echo of sonar ``sonar_id`` at ``position`` (m) with a world-frame beam (rad)."""
-    from sim_core.sonar import Beam, synthesize
-
-    t0 = time.monotonic()
-    p = np.asarray(position, dtype=np.float64)
-    beam = Beam.from_az_el(p, az_world, el, beamwidth)
-    leaves = scene.leaves_near(p, scene.query_radius_m(sonar_id))
-    echo = synthesize(leaves, beam, scene.echo_params(sonar_id),
-                      fidelity=scene.sonar(sonar_id).fidelity)
-    bound = echo.error_bound
-    return {
-        "samples": np.asarray(echo.samples, dtype=np.float32), "fs": float(echo.fs),
-        "leaves_in_beam": int(echo.leaves_in_beam), "fidelity": str(echo.fidelity),
-        "dropped": int(echo.dropped), "error_bound": math.nan if bound is None else float(bound),
-        "compute_ns": int((time.monotonic() - t0) * 1e9),
-    }
-
-
-def _job_points(
-    scene: Scene, regions: tuple[tuple[tuple[float, float, float], float], ...], limit: int
-) -> dict[str, Any]:
-    """Leaf centres (N, 3) and radii (N,) within the (centre, radius m) ``regions``, evenly
-    decimated to at most ``limit``."""
-    centers, radii = [], []
-    for center, r in regions:
-        leaves = scene.leaves_near(np.asarray(center, dtype=np.float64), r)
-        centers.append(np.asarray(leaves.centers, dtype=np.float32))
-        radii.append(np.asarray(leaves.radii, dtype=np.float32))
-    c = np.concatenate(centers) if centers else np.zeros((0, 3), np.float32)
-    rr = np.concatenate(radii) if radii else np.zeros(0, np.float32)
-    if len(c) > limit:
-        keep = np.linspace(0, len(c) - 1, limit).astype(np.intp)
-        c, rr = c[keep], rr[keep]
-    return {"points": c, "radii": rr}
-
-
-_WORKER_JOBS: dict[str, Any] = {"echo": _job_echo, "points": _job_points}
-
-
-def _echo_process_main(spec: Any, requests: Any, responses: Any) -> None:
-    """Body of the echo worker process: its own Scene (and forest tile cache), one job at a
-    time; exits on ``None`` or when its parent is gone."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    parent = os.getppid()
-    scene = Scene(spec, trajectory_reader=load_trajectory)
-    while True:
-        try:
-            job = requests.get(timeout=1.0)
-        except queue.Empty:
-            if os.getppid() != parent:
-                return
-            continue
-        if job is None:
-            return
-        key, kind, args = job
-        try:
-            responses.put((key, _WORKER_JOBS[kind](scene, *args), ""))
-        except ValueError as exc:
-            responses.put((key, None, str(exc)))
-
-
-class _EchoProcess:
-    """A spawned worker process computing echoes, so heavy numpy/tile work never holds the
-    GIL of the process that runs the state stream. ``call`` blocks until its result."""
-
-    def __init__(self, spec: Any, stop: threading.Event) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        self._requests: Any = ctx.Queue()
-        self._responses: Any = ctx.Queue()
-        self._proc = ctx.Process(
-            target=_echo_process_main, args=(spec, self._requests, self._responses),
-            name="echoloop-echo", daemon=True,
-        )
-        self._proc.start()
-        self._key = 0
-        self._closing = stop
-
-    def call(self, kind: str, args: tuple[Any, ...]) -> Any:
-        """Run job ``kind`` in the worker; None when closing; HilError if the worker died."""
-        self._key += 1
-        self._requests.put((self._key, kind, args))
-        while not self._closing.is_set():
-            try:
-                key, result, error = self._responses.get(timeout=0.1)
-            except queue.Empty:
-                if not self._proc.is_alive():
-                    raise HilError(f"echo worker exited (code {self._proc.exitcode})") from None
-                continue
-            if key != self._key:
-                continue
-            if error:
-                raise ValueError(error)
-            return result
-        return None
-
-    def close(self) -> None:
-        if self._proc.is_alive():
-            self._requests.put(None)
-            self._proc.join(timeout=5.0)
-            if self._proc.is_alive():
-                self._proc.terminate()
-                self._proc.join()
-        self._requests.close()
-        self._responses.close()
-        self._requests.join_thread()
-        self._responses.join_thread()
+_COUNTERS = (
+    "ticks", "physics_steps", "control_steps", "states_published", "neighbors_published",
+    "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
+    "cmd_ignored", "pings_received", "ping_stamp_future", "ping_stamp_old",
+    "echoes_published", "stalls", "stalled_steps", "late_ticks", "lockstep_released",
+    "diagnostics_published", "external_steps",
+)
 
 
 class SimServer:
@@ -249,12 +147,12 @@ class SimServer:
 
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
-    publish_thermals=True, forest_points=20000, echo_worker="thread")``. ``scene`` is a
-    scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and ``state_rate_hz``
-    override the scene's.
-    ``stop_after_s``: stop ticking at that sim time (the node keeps answering pings).
-    ``forest_points``: at most this many leaf centres around each sonar's route are published
-    once (latched) on ``/forest/points`` for viewers and plots (0: none).
+    publish_thermals=True, forest_points=20000, echo_worker="thread", pose_history_s=2.0)``.
+    ``scene`` is a scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and
+    ``state_rate_hz`` override the scene's. ``stop_after_s``: stop ticking at that sim time
+    (the node keeps answering pings). ``forest_points``: at most this many leaf centres around
+    each sonar's route are published once (latched) on ``/forest/points`` for viewers and plots
+    (0: none). ``pose_history_s``: how far back a ping's emission stamp may reach.
     """
 
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
@@ -270,53 +168,44 @@ class SimServer:
         self.clock_spec: ClockSpec = self.params.clock or spec.clock
         self.state_rate_hz = float(self.params.state_rate_hz or spec.state_rate_hz)
         self.tick_ns = round(1e9 / self.state_rate_hz)
+        physics_hz = max(self.state_rate_hz, float(spec.physics_rate_hz or 0.0))
+        self.substeps = max(1, math.ceil(physics_hz / self.state_rate_hz - 1e-9))
         self._lock = threading.Lock()
+        self._cmd_cond = threading.Condition(self._lock)
         self._stop = threading.Event()
         self._done = threading.Event()
         self._threads: list[threading.Thread] = []
         self._started = False
         self._stopped = False
-        self._c: dict[str, int] = dict.fromkeys(
-            (
-                "ticks", "physics_steps", "states_published", "neighbors_published",
-                "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
-                "cmd_ignored", "pings_received", "pings_dropped",
-                "echoes_published", "echo_errors", "late_ticks", "diagnostics_published",
-                "external_steps",
-            ),
-            0,
-        )
+        self._c: dict[str, int] = dict.fromkeys(_COUNTERS, 0)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
-        self._echo_compute_ms: deque[float] = deque(maxlen=10000)
+        self._cmd_effect_ticks: deque[int] = deque(maxlen=10000)
         self._sim_ns = 0
         self._last_echo_error = ""
         self._tick_error = ""
         self._flown_gliders: dict[int, dict[str, Any]] = {}
-        # glider index (swarm) by id; path vehicles by id
         self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
-        self._vehicle_ids = set(self.scene.vehicle_ids)
         self._vehicle_specs = {v.id: v for v in spec.vehicles}
-        #: vehicles under autopilot command: id -> [x, y, z, heading, bank, speed]
-        self._flown: dict[int, list[float]] = {}
-        self._vstates: dict[int, dict[str, float]] = {}
-        self._poses: dict[int, tuple[float, float, float, float]] = {}
         self._registered: set[int] = {int(a) for a in self.params.autopilots}
-        unknown = sorted(self._registered - set(self._glider_index) - self._vehicle_ids)
+        unknown = sorted(self._registered - set(self._glider_index) - set(self._vehicle_specs))
         if unknown:
             raise ConfigError(f"{name}.params.autopilots: unknown glider id(s) {unknown}")
-        sonar_ids = {s.id for s in spec.sonars}
-        bad_heads = sorted(set(self.params.sonar_heads) - sonar_ids)
-        if bad_heads:
-            raise ConfigError(f"{name}.params.sonar_heads: unknown sonar id(s) {bad_heads}")
-        clock = self.clock_spec
-        self._gate = LockstepGate(
-            lockstep=clock.mode == "lockstep", timeout_s=clock.lockstep_timeout_s,
-            max_stalls=clock.lockstep_max_stalls, start_timeout_s=clock.lockstep_start_timeout_s,
-            autopilots=self._registered, sonars=self.params.sonar_heads,
-        )
+        self._freewheel: set[int] = set()
+        self._consecutive_stalls: dict[int, int] = {}
+        self._cmd_arrivals: dict[int, int] = {}
         self._good_cmd: dict[int, tuple[float, float]] = {}
-        self._pings: queue.Queue[tuple[int, SonarPing, tuple[float, float, float, float], float]]
-        self._pings = queue.Queue(maxsize=self.params.echo_queue)
+        #: id -> the tick due when its newest good command arrived, until that command is flown
+        self._cmd_pending: dict[int, int] = {}
+        self._mounts = {
+            s.id: (s.mount, np.asarray(s.mount_offset_m, dtype=np.float64),
+                   quat_from_euler(*s.mount_rpy_rad))
+            for s in spec.sonars
+        }
+        self.fleet = Fleet(
+            self.scene, tick_ns=self.tick_ns, substeps=self.substeps,
+            history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
+        )
+        self._echo: EchoService | None = None
         self._node: Any = None
         self._proxy: Any = None
         self._pubs: dict[str, Any] = {}
@@ -324,7 +213,7 @@ class SimServer:
     # ------------------------------------------------------------------ launchable contract
 
     def start(self) -> None:
-        """Start the proxy (if embedded), the node, the tick loop and the echo worker."""
+        """Start the proxy (if embedded), the node, the tick loop and the echo service."""
         if self._started:
             return
         self._started = True
@@ -352,7 +241,7 @@ class SimServer:
             self._pubs["/thermals"] = node.create_publisher(
                 ThermalMarkers, "/thermals", qos=LATCHED
             )
-        for gid in (*self._glider_index, *sorted(self._vehicle_ids)):
+        for gid in self.fleet.ids:
             self._pubs[f"/glider/{gid}/state"] = node.create_publisher(
                 GliderState, f"/glider/{gid}/state", qos=SENSOR
             )
@@ -372,23 +261,23 @@ class SimServer:
                 SonarPing, f"/sonar/{sonar.id}/ping", self._make_ping_callback(sonar.id),
                 qos=SENSOR,
             )
-        # what the tick loop and the first ping need, before any callback can run
-        # (lazy parts stay lazy)
-        swarm = self.scene.swarm
-        if self._vehicle_ids:
-            _ = self.scene.trajectories
-        self._step_vehicles(0, 0.0)
-        self._update_poses(None if swarm is None else swarm.state)
+        # the state of tick 0 before any callback can run: the first ping has a pose
+        first = self.fleet.states()
+        if self.scene.spec.sonars:
+            self._echo = EchoService(
+                self.scene, worker=self.params.echo_worker, queue_size=self.params.echo_queue,
+                on_echo=self._publish_echo, on_error=self._echo_failed,
+                points=self._points_request(first) if "/forest/points" in self._pubs else None,
+                on_points=self._publish_points,
+            )
         node.start()
         self._threads = [
             threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),
         ]
-        if self.scene.spec.sonars:
-            self._threads.append(
-                threading.Thread(target=self._echo_loop, name=f"{self.name}-echo", daemon=True)
-            )
         for t in self._threads:
             t.start()
+        if self._echo is not None:
+            self._echo.start()
 
     def stop(self) -> None:
         """Stop ticking and echoing, join threads, close the node and proxy (idempotent)."""
@@ -396,9 +285,12 @@ class SimServer:
             return
         self._stopped = True
         self._stop.set()
-        self._gate.interrupt()
+        with self._cmd_cond:
+            self._cmd_cond.notify_all()
         for t in self._threads:
             t.join()
+        if self._echo is not None:
+            self._echo.close()
         if self._node is not None:
             self._node.stop()
         if self._proxy is not None:
@@ -406,29 +298,33 @@ class SimServer:
 
     def stats(self) -> dict[str, Any]:
         """Counters, the sim time, registered autopilots and latency percentiles (ms)."""
+        echo = self._echo.stats() if self._echo is not None else {}
         with self._lock:
             out: dict[str, Any] = dict(self._c)
             out["sim_time_s"] = self._sim_ns / 1e9
             out["registered"] = sorted(self._registered)
+            out["freewheeling"] = sorted(self._freewheel)
             out["last_echo_error"] = self._last_echo_error
             out["tick_error"] = self._tick_error
             out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
             ping_echo = list(self._ping_echo_ms)
-            compute = list(self._echo_compute_ms)
-        out.update(self._gate.stats())
+            effect = list(self._cmd_effect_ticks)
+        out["pings_dropped"] = int(echo.get("dropped", 0))
+        out["echo_errors"] = int(echo.get("errors", 0))
         out["clock_mode"] = self.clock_spec.mode
         out["built"] = sorted(self.scene.built)
         out["ping_echo_ms"] = percentiles(ping_echo)
-        out["echo_compute_ms"] = percentiles(compute)
+        out["echo_compute_ms"] = percentiles(echo.get("compute_ms", []))
+        out["cmd_effect_ticks"] = percentiles(effect)
         if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
-            out["gliders_alive"] = int(np.count_nonzero(self.scene.swarm.state.alive[0]))
+            out["gliders_alive"] = int(np.count_nonzero(self.fleet.swarm.alive[0]))
         return out
 
     def wait_done(self, timeout: float | None = None) -> bool:
         """Block until the tick loop ended (``stop_after_s`` reached or stopped)."""
         return self._done.wait(timeout)
 
-    # ------------------------------------------------------------------ callbacks (bus thread)
+    # ------------------------------------------------------------------ commands (bus thread)
 
     def _make_cmd_callback(self, gid: int) -> Any:
         def on_cmd(msg: GliderCmd) -> None:
@@ -436,29 +332,28 @@ class SimServer:
 
         return on_cmd
 
-    def _make_ping_callback(self, sonar_id: int) -> Any:
-        def on_ping(msg: SonarPing) -> None:
-            self._on_ping(sonar_id, msg)
-
-        return on_ping
-
     def _on_cmd(self, gid: int, msg: GliderCmd) -> None:
-        with self._lock:
+        with self._cmd_cond:
             self._c["cmd_received"] += 1
             vehicle = self._vehicle_specs.get(gid)
             if vehicle is not None and not vehicle.commanded:
                 self._c["cmd_ignored"] += 1
                 return
             self._registered.add(gid)
+            if gid in self._freewheel:
+                self._freewheel.discard(gid)
+                self._consecutive_stalls[gid] = 0
+            self._cmd_arrivals[gid] = self._cmd_arrivals.get(gid, 0) + 1
             checked = self._check_cmd(gid, msg.bank_cmd, msg.airspeed_cmd)
             if checked is None:
                 self._c["cmd_rejected"] += 1
             else:
                 bank, speed, clipped = checked
                 self._good_cmd[gid] = (bank, speed)
+                self._cmd_pending.setdefault(gid, self._c["ticks"])
                 self._c["cmd_applied"] += 1
                 self._c["cmd_clipped"] += int(clipped)
-        self._gate.on_cmd(gid, int(msg.step))
+            self._cmd_cond.notify_all()
 
     def _check_cmd(self, gid: int, bank: float, speed: float) -> tuple[float, float, bool] | None:
         """Reject (None) or clip a command to glider/vehicle ``gid``'s envelope."""
@@ -479,93 +374,108 @@ class SimServer:
         vc = min(max(v, v_lo), v_hi)
         return bc, vc, (bc != b or vc != v)
 
+    def _commands_for_tick(self, tick: int) -> dict[int, tuple[float, float]]:
+        """The held good commands that tick ``tick`` flies (and their effect latency)."""
+        with self._lock:
+            for arrived in self._cmd_pending.values():
+                self._cmd_effect_ticks.append(tick - arrived + 1)
+            self._cmd_pending.clear()
+            return dict(self._good_cmd)
+
+    def _wait_lockstep(self, since: dict[int, int]) -> None:
+        """Wait for one new command from each registered, non-freewheeling autopilot."""
+        deadline = time.monotonic() + self.clock_spec.lockstep_timeout_s
+        with self._cmd_cond:
+            while True:
+                waiting = [
+                    g for g in self._registered
+                    if g in self._glider_index and g not in self._freewheel
+                    and self._cmd_arrivals.get(g, 0) <= since.get(g, 0)
+                ]
+                remaining = deadline - time.monotonic()
+                if not waiting or self._stop.is_set() or remaining <= 0:
+                    break
+                self._cmd_cond.wait(remaining)
+            if waiting and not self._stop.is_set():
+                self._c["stalled_steps"] += 1
+                self._c["stalls"] += len(waiting)
+                for g in waiting:
+                    n = self._consecutive_stalls.get(g, 0) + 1
+                    self._consecutive_stalls[g] = n
+                    if n >= self.clock_spec.lockstep_max_stalls:
+                        self._freewheel.add(g)
+                        self._c["lockstep_released"] += 1
+            for g in self._registered:
+                if g not in waiting:
+                    self._consecutive_stalls[g] = 0
+
+    # ------------------------------------------------------------------ echoes
+
+    def _make_ping_callback(self, sonar_id: int) -> Any:
+        def on_ping(msg: SonarPing) -> None:
+            self._on_ping(sonar_id, msg)
+
+        return on_ping
+
     def _on_ping(self, sonar_id: int, msg: SonarPing) -> None:
+        """Queue the ping with its sonar's pose at emission (bus thread)."""
         t_recv = time.monotonic()
-        mount = self.scene.sonar(sonar_id).mount
+        mount, offset, rotation = self._mounts[sonar_id]
         with self._lock:
             self._c["pings_received"] += 1
-            pose = self._poses[mount]
-        item = (sonar_id, msg, pose, t_recv)
-        if not self._gate.on_ping(sonar_id, int(msg.stamp_ns), int(msg.next_ns)):
-            return
-        while True:
-            try:
-                self._pings.put_nowait(item)
-                return
-            except queue.Full:
-                try:
-                    dropped = self._pings.get_nowait()
-                except queue.Empty:
-                    continue
-                self._gate.echo_done(dropped[0])
-                with self._lock:
-                    self._c["pings_dropped"] += 1
-
-    # ------------------------------------------------------------------ echo worker
-
-    def _echo_loop(self) -> None:
-        """Echo thread: publish the forest points, then answer pings one at a time, computing
-        in the worker process (``echo_worker: process``) or in this thread."""
-        worker: _EchoProcess | None = None
-        try:
-            if self.params.echo_worker == "process":
-                worker = _EchoProcess(self.scene.spec, self._stop)
-                compute = worker.call
-            else:
-                scene = self.scene
-
-                def compute(kind: str, args: tuple[Any, ...]) -> Any:
-                    return _WORKER_JOBS[kind](scene, *args)
-
-            self._publish_forest_points(compute)
-            while not self._stop.is_set():
-                try:
-                    sonar_id, ping, pose, t_recv = self._pings.get(timeout=0.05)
-                except queue.Empty:
-                    continue
-                try:
-                    self._answer_ping(compute, sonar_id, ping, pose, t_recv)
-                finally:
-                    self._gate.echo_done(sonar_id)
-        finally:
-            if worker is not None:
-                worker.close()
-
-    def _answer_ping(
-        self, compute: Any, sonar_id: int, ping: SonarPing,
-        pose: tuple[float, float, float, float], t_recv: float,
-    ) -> None:
-        x, y, z, heading = pose
-        args = ((x, y, z), sonar_id, heading + float(ping.az), float(ping.el),
-                float(ping.beamwidth))
-        try:
-            out = compute("echo", args)
-        except (ValueError, HilError) as exc:
+            now = self._sim_ns
+        emit = int(msg.stamp_ns) if msg.stamp_ns > 0 else now
+        pose = self.fleet.pose_at(mount, emit)
+        if pose.clamped:
             with self._lock:
-                self._c["echo_errors"] += 1
-                self._last_echo_error = f"ping {ping.ping_seq} of sonar {sonar_id}: {exc}"
-            log.warning("%s: %s", self.name, self._last_echo_error)
-            return
-        if out is None:  # stopping
-            return
+                self._c["ping_stamp_future" if pose.clamped > 0 else "ping_stamp_old"] += 1
+        position, orientation = pose_compose(pose.position, pose.orientation, offset, rotation)
+        if self._echo is not None:
+            self._echo.submit(EchoRequest(sonar_id, msg, SonarPose(pose.t_ns, position,
+                                                                   orientation), t_recv))
+
+    def _publish_echo(self, req: EchoRequest, out: EchoResult) -> None:
         msg = SonarEcho(
-            stamp_ns=self._now_ns(),
-            ping_seq=int(ping.ping_seq),
-            fs=out["fs"],
-            samples=out["samples"],
-            leaves_in_beam=out["leaves_in_beam"],
-            fidelity=out["fidelity"],
-            sonar_id=sonar_id,
-            dropped=out["dropped"],
-            error_bound=out["error_bound"],
-            compute_ns=out["compute_ns"],
+            stamp_ns=self._now_ns(), ping_seq=int(req.ping.ping_seq), fs=out.fs,
+            samples=out.samples, leaves_in_beam=out.leaves_in_beam, fidelity=out.fidelity,
+            sonar_id=req.sonar_id, dropped=out.dropped, error_bound=out.error_bound,
+            compute_ns=out.compute_ns, position=req.pose.position,
+            orientation=req.pose.orientation, boresight=out.boresight, emit_ns=req.pose.t_ns,
         )
-        self._pubs[f"/sonar/{sonar_id}/echo"].publish(msg)
+        self._pubs[f"/sonar/{req.sonar_id}/echo"].publish(msg)
         t2 = time.monotonic()
         with self._lock:
             self._c["echoes_published"] += 1
-            self._echo_compute_ms.append(out["compute_ns"] / 1e6)
-            self._ping_echo_ms.append((t2 - t_recv) * 1e3)
+            self._ping_echo_ms.append((t2 - req.received) * 1e3)
+
+    def _echo_failed(self, req: EchoRequest, error: str) -> None:
+        with self._lock:
+            self._last_echo_error = f"ping {req.ping.ping_seq} of sonar {req.sonar_id}: {error}"
+        log.warning("%s: %s", self.name, self._last_echo_error)
+
+    def _points_request(
+        self, first: FleetStates
+    ) -> tuple[tuple[tuple[tuple[float, float, float], float], ...], int]:
+        """Regions around each sonar's mount (its path's extent, or its start) for the
+        latched ``/forest/points``."""
+        regions: list[tuple[tuple[float, float, float], float]] = []
+        index = {vid: k for k, vid in enumerate(first.ids)}
+        for sonar in self.scene.spec.sonars:
+            r = self.scene.query_radius_m(sonar.id)
+            traj = self.scene.trajectories.get(sonar.mount) if self._vehicle_specs else None
+            if traj is not None:
+                lo, hi = traj.xyz.min(axis=0), traj.xyz.max(axis=0)
+                c = (lo + hi) / 2.0
+                r += float(np.linalg.norm(hi - lo)) / 2.0
+            else:
+                c = first.position[index[sonar.mount]]
+            regions.append(((float(c[0]), float(c[1]), float(c[2])), r))
+        return tuple(regions), self.params.forest_points
+
+    def _publish_points(self, points: Any, radii: Any) -> None:
+        """Leaf centres as one latched PointCloud (intensity = leaf radius, m)."""
+        self._pubs["/forest/points"].publish(PointCloud(
+            stamp_ns=self._now_ns(), points=points, intensity=radii, label="leaves"))
 
     # ------------------------------------------------------------------ tick loop
 
@@ -573,125 +483,52 @@ class SimServer:
         with self._lock:
             return self._sim_ns
 
-    def _update_poses(self, st: Any) -> None:
-        """Refresh ``_poses`` (id -> x, y, z, heading) from the swarm state and the paths."""
-        poses: dict[int, tuple[float, float, float, float]] = {}
-        if st is not None:
-            for gid, i in self._glider_index.items():
-                poses[gid] = (
-                    float(st.x[0, i]), float(st.y[0, i]), float(st.z[0, i]),
-                    float(st.heading[0, i]),
-                )
-        for vid, vs in self._vstates.items():
-            poses[vid] = (vs["x"], vs["y"], vs["z"], vs["heading"])
-        with self._lock:
-            self._poses = poses
-
-    def _step_vehicles(self, t_ns: int, dt_s: float) -> None:
-        """Vehicle states at ``t_ns``: path samples, or unicycle flight on the held command."""
-        from sim_core.scene import unicycle_step
-
-        states: dict[int, dict[str, float]] = {}
-        if not self._vehicle_ids:
-            return
-        t_s = t_ns / 1e9
-        with self._lock:
-            cmds = {v: self._good_cmd[v] for v in self._vehicle_ids if v in self._good_cmd}
-        for vid, traj in self.scene.trajectories.items():
-            flown = self._flown.get(vid)
-            if flown is None and vid in cmds:
-                s = traj.sample(t_s)
-                flown = [float(s[k]) for k in ("x", "y", "z", "heading", "bank", "airspeed")]
-                self._flown[vid] = flown
-                dt_s = 0.0
-            if flown is None:
-                s = traj.sample(t_s)
-                states[vid] = {k: float(v) for k, v in s.items()}
-                continue
-            bank, speed = cmds[vid]
-            if dt_s > 0:
-                nx, ny, nh = unicycle_step(
-                    np.array([flown[0]]), np.array([flown[1]]), np.array([flown[3]]),
-                    np.array([flown[4]]), np.array([flown[5]]), dt=dt_s,
-                )
-                flown[0], flown[1], flown[3] = float(nx[0]), float(ny[0]), float(nh[0])
-            flown[4], flown[5] = bank, speed
-            states[vid] = {"x": flown[0], "y": flown[1], "z": flown[2], "heading": flown[3],
-                           "bank": bank, "airspeed": speed, "vz": 0.0}
-        self._vstates = states
-
-    def _commands_for_step(self) -> Any:
-        """The held good commands as :class:`sim_core.soaring.Commands`, or None if none."""
-        from sim_core.soaring import Commands
-
-        n = self.scene.swarm.state.x.shape[1]
-        bank = np.zeros((1, n))
-        speed = np.zeros((1, n))
-        mask = np.zeros((1, n), dtype=bool)
-        with self._lock:
-            for gid, (b, v) in self._good_cmd.items():
-                i = self._glider_index.get(gid)
-                if i is not None:
-                    bank[0, i], speed[0, i], mask[0, i] = b, v, True
-        if not mask.any():
-            return None
-        return Commands(bank_cmd=bank, airspeed_cmd=speed, mask=mask)
-
-    def _record_flown(self, commands: Any) -> None:
-        """Per externally commanded glider: the command of the last step and the state it gave."""
-        st = self.scene.swarm.state
+    def _record_flown(self, commands: Mapping[int, tuple[float, float]]) -> None:
+        """Per externally commanded glider, at a control step: its held command and state."""
+        st = self.fleet.swarm.state
         flown: dict[int, dict[str, Any]] = {}
-        for gid, i in self._glider_index.items():
-            if commands.mask[0, i]:
-                flown[gid] = {
-                    "step": int(self.scene.swarm.step_count),
-                    "bank_cmd": float(commands.bank_cmd[0, i]), "bank": float(st.bank[0, i]),
-                    "airspeed_cmd": float(commands.airspeed_cmd[0, i]),
-                    "airspeed": float(st.speed[0, i]), "alive": bool(st.alive[0, i]),
-                }
+        for gid, (bank_cmd, speed_cmd) in commands.items():
+            i = self._glider_index.get(gid)
+            if i is None:
+                continue
+            flown[gid] = {
+                "step": int(self.fleet.swarm.step_count), "bank_cmd": float(bank_cmd),
+                "bank": float(st.bank[0, i]), "airspeed_cmd": float(speed_cmd),
+                "airspeed": float(st.speed[0, i]), "alive": bool(st.alive[0, i]),
+            }
         with self._lock:
             self._c["external_steps"] += len(flown)
             self._flown_gliders.update(flown)
 
-    def _publish_tick(self, t_ns: int, st: Any, physics_stepped: bool, tick: int) -> None:
-        """/clock, then the neighbour lists of a new physics step, then every state (so a
-        consumer acting on a state already has the neighbours of the same step)."""
+    def _publish_tick(self, st: FleetStates, decided: bool) -> None:
         pubs = self._pubs
-        lockstep = self.clock_spec.mode == "lockstep"
-        pubs["/clock"].publish(Clock(stamp_ns=t_ns, lockstep=lockstep))
-        n_states = 0
-        if st is not None:
-            step = int(self.scene.swarm.step_count)
-            if physics_stepped:
-                self._publish_neighbors(t_ns, st, step)
-            for gid, i in self._glider_index.items():
-                alive = bool(st.alive[0, i])
-                pubs[f"/glider/{gid}/state"].publish(GliderState(
-                    stamp_ns=t_ns, x=float(st.x[0, i]), y=float(st.y[0, i]),
-                    z=float(st.z[0, i]), heading=float(st.heading[0, i]),
-                    bank=float(st.bank[0, i]), airspeed=float(st.speed[0, i]),
-                    vz=float(st.vz[0, i]), alive=alive, glider_id=gid, step=step,
-                ))
-                self._gate.published(gid, step, alive=alive, every_tick=False)
-                n_states += 1
-        for vid, vs in self._vstates.items():
-            pubs[f"/glider/{vid}/state"].publish(GliderState(
-                stamp_ns=t_ns, x=vs["x"], y=vs["y"], z=vs["z"], heading=vs["heading"],
-                bank=vs["bank"], airspeed=vs["airspeed"], vz=vs["vz"], alive=True,
-                glider_id=vid, step=tick,
+        t_ns = st.t_ns
+        pubs["/clock"].publish(Clock(stamp_ns=t_ns))
+        for k, gid in enumerate(st.ids):
+            p, q, w = st.position[k], st.quat[k], st.rates[k]
+            pubs[f"/glider/{gid}/state"].publish(GliderState(
+                stamp_ns=t_ns, x=float(p[0]), y=float(p[1]), z=float(p[2]),
+                heading=float(st.heading[k]), bank=float(st.bank[k]),
+                airspeed=float(st.airspeed[k]), vz=float(st.vz[k]), alive=bool(st.alive[k]),
+                glider_id=gid, step=int(st.step[k]), roll=float(st.roll[k]),
+                pitch=float(st.pitch[k]), yaw=float(st.yaw[k]), qw=float(q[0]), qx=float(q[1]),
+                qy=float(q[2]), qz=float(q[3]), roll_rate=float(w[0]), pitch_rate=float(w[1]),
+                yaw_rate=float(w[2]),
             ))
-            self._gate.published(vid, tick, alive=True, every_tick=True)
-            n_states += 1
+        if decided:
+            self._publish_neighbors(t_ns)
         with self._lock:
             self._c["clock_published"] += 1
-            self._c["states_published"] += n_states
+            self._c["states_published"] += len(st.ids)
 
-    def _publish_neighbors(self, t_ns: int, st: Any, step: int) -> None:
+    def _publish_neighbors(self, t_ns: int) -> None:
         with self._lock:
             targets = sorted(g for g in self._registered if g in self._glider_index)
         if not targets:
             return
-        swarm = self.scene.swarm
+        swarm = self.fleet.swarm
+        st = swarm.state
+        step = int(swarm.step_count)
         gids = np.array(list(self._glider_index), dtype=np.int32)
         for gid in targets:
             idx = np.asarray(swarm.neighbors(self._glider_index[gid]), dtype=np.intp)
@@ -706,47 +543,19 @@ class SimServer:
     def _publish_thermals(self, t_ns: int) -> None:
         if "/thermals" not in self._pubs:
             return
-        th = self.scene.swarm.thermals
+        th = self.fleet.swarm.thermals
         ok = th.valid[0]
         self._pubs["/thermals"].publish(ThermalMarkers(
             stamp_ns=t_ns, x=th.x[0, ok], y=th.y[0, ok], radius=th.radius[0, ok],
             w_max=th.w_max[0, ok],
         ))
 
-    def _publish_forest_points(self, compute: Any) -> None:
-        """Leaf centres around each sonar's mount (its path's extent, or its start), decimated
-        evenly to ``forest_points``, as one latched PointCloud (intensity = leaf radius, m),
-        stamped 0 like ``/thermals``: it describes the scene, not a moment of it."""
-        pub = self._pubs.get("/forest/points")
-        if pub is None:
-            return
-        regions: list[tuple[tuple[float, float, float], float]] = []
-        for sonar in self.scene.spec.sonars:
-            r = self.scene.query_radius_m(sonar.id)
-            traj = self.scene.trajectories.get(sonar.mount) if self._vehicle_ids else None
-            if traj is not None:
-                lo, hi = traj.xyz.min(axis=0), traj.xyz.max(axis=0)
-                c = (lo + hi) / 2.0
-                r += float(np.linalg.norm(hi - lo)) / 2.0
-                regions.append(((float(c[0]), float(c[1]), float(c[2])), r))
-            else:
-                x, y, z, _ = self._poses[sonar.mount]
-                regions.append(((x, y, z), r))
-        try:
-            out = compute("points", (tuple(regions), self.params.forest_points))
-        except (ValueError, HilError) as exc:
-            log.warning("%s: no forest points: %s", self.name, exc)
-            return
-        if out is not None:
-            pub.publish(PointCloud(stamp_ns=0, points=out["points"],
-                                   intensity=out["radii"], label="leaves"))
-
     def _publish_diagnostics(self, t_ns: int) -> None:
         stats = self.stats()
         counters: dict[str, int | float] = {
             k: v for k, v in stats.items() if isinstance(v, int | float) and not isinstance(v, bool)
         }
-        for key in ("ping_echo_ms", "echo_compute_ms"):
+        for key in ("ping_echo_ms", "echo_compute_ms", "cmd_effect_ticks"):
             for p in ("p50", "p99"):
                 val = stats[key][p]
                 if math.isfinite(val):
@@ -772,46 +581,46 @@ class SimServer:
 
     def _run_ticks(self) -> None:
         mode: Literal["realtime", "lockstep", "fast"] = self.clock_spec.mode
-        swarm = self.scene.swarm
-        phys_ns = round(float(self.scene.law.dt) * 1e9) if swarm is not None else 0
+        fleet = self.fleet
         stop_s = self.params.stop_after_s
         stop_ns = None if stop_s is None else round(stop_s * 1e9)
         wall0 = time.monotonic()
         next_diag = wall0
         tick = 0
-        last: tuple[int, Any, bool, int] | None = None
-        if swarm is not None:
+        decided = False
+        since: dict[int, int] = {}
+        if fleet.swarm is not None:
             self._publish_thermals(0)
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns
             if stop_ns is not None and t_ns > stop_ns:
                 break
-            if mode == "lockstep" and last is not None:
-                self._gate.wait(
-                    last[0], resend=functools.partial(self._publish_tick, *last),
-                    physics_due=swarm is not None and (swarm.step_count + 1) * phys_ns <= t_ns,
-                )
-                if self._stop.is_set():
-                    return
-            stepped = False
-            if swarm is not None:
-                while (swarm.step_count + 1) * phys_ns <= t_ns:
-                    commands = self._commands_for_step()
-                    swarm.step(commands)
-                    with self._lock:
-                        self._c["physics_steps"] += 1
-                    if commands is not None:
-                        self._record_flown(commands)
-                    stepped = True
-            st = swarm.state if swarm is not None else None
+            if tick > 0:
+                if mode == "lockstep" and decided:
+                    # the one place lockstep waits: before flying a control period, for the
+                    # registered autopilots' answers to the states of its control step
+                    self._wait_lockstep(since)
+                    if self._stop.is_set():
+                        return
+                fleet.advance(self._commands_for_tick(tick))
+                with self._lock:
+                    self._c["physics_steps"] += self.substeps
+            decided = fleet.control_due()
+            if decided:
+                commands = self._commands_for_tick(tick)
+                fleet.decide(commands)
+                with self._lock:
+                    self._c["control_steps"] += 1
+                self._record_flown(commands)
+            states = fleet.states()
             with self._lock:
                 self._sim_ns = max(self._sim_ns, t_ns)
             if t_ns > self.clock.now_ns():
                 self.clock.set_ns(t_ns)
-            self._step_vehicles(t_ns, self.tick_ns / 1e9 if tick > 0 else 0.0)
-            self._update_poses(st)
-            self._publish_tick(t_ns, st, stepped, tick)
-            last = (t_ns, st, stepped, tick)
+            if decided:  # commands that arrive once these states are out answer them
+                with self._lock:
+                    since = dict(self._cmd_arrivals)
+            self._publish_tick(states, decided)
             with self._lock:
                 self._c["ticks"] += 1
             tick += 1

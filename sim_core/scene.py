@@ -6,6 +6,7 @@ follow kinematic paths. Example (every key optional except where noted)::
 
     seed: 0                      # default seed of the forest and the swarm
     state_rate_hz: 50            # state stream (and server tick) rate
+    physics_rate_hz: null        # flight integration rate (>= state_rate_hz; null: the same)
     clock: {mode: realtime, rate: 1.0, lockstep_timeout_s: 1.0}
     forest:
       preset: seed000-fig5d      # or  spec: {...ForestSpec fields...}
@@ -15,12 +16,16 @@ follow kinematic paths. Example (every key optional except where noted)::
       query_radius_m: 10.5       # leaves gathered around a sonar for each echo
     sonars:
       - {id: 0, mount: 100, fidelity: fast, echo: {}}    # echo: EchoParams overrides
+        # mount_offset_m: [0.2, 0, 0]  mount_rpy_rad: [0, 0.3, 0]  (sonar pose in body axes)
+        # ears: [{position_m: [0, 0.015, 0], axis: [1, 0.25, 0]}, ...]  (sonar frame)
     swarm:
       law: default               # "default" (seed 002 Law_40SurvivorsExample) or a YAML path
       overrides: {numAgents: 8}
       first_id: 0                # glider ids first_id .. first_id + numAgents - 1
+      flight: {}                 # sim_core.flight.FlightParams of the gliders
     vehicles:
       - id: 100
+        flight: {}               # FlightParams once commanded (vertical: hold by default)
         path:                    # or {kind: file, file: run.csv, id: 3} / {kind: points, ...}
           kind: figure_eight     # sim_core.sonar.scenarios.figure_eight_path(**params)
           speed_mps: 3.0
@@ -54,10 +59,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim_core.config import ConfigError, from_dict, load_yaml
+from sim_core.flight import FlightParams
 from sim_core.pose import quat_normalize, quat_slerp
 
 __all__ = [
     "ClockSpec",
+    "EarSpec",
     "ForestSceneSpec",
     "PathSpec",
     "Scene",
@@ -68,7 +75,6 @@ __all__ = [
     "TrajectoryReader",
     "VehicleSpec",
     "load_scene",
-    "unicycle_step",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -290,18 +296,54 @@ class ForestSceneSpec:
             raise ValueError(f"query_radius_m: expected > 0, got {self.query_radius_m}")
 
 
+Vec3 = tuple[float, float, float]
+
+
+def _nonzero(v: Vec3, name: str) -> None:
+    if not math.hypot(*v) > 0:
+        raise ValueError(f"{name}: expected a non-zero vector, got {list(v)}")
+
+
+@dataclass(frozen=True, slots=True)
+class EarSpec:
+    """One receiver of a sonar: ``position_m`` and beam ``axis`` (any length) in the sonar
+    frame (x forward, y left, z up), ``beamwidth_rad`` null = the ping's."""
+
+    position_m: Vec3 = (0.0, 0.0, 0.0)
+    axis: Vec3 = (1.0, 0.0, 0.0)
+    beamwidth_rad: float | None = None
+
+    def __post_init__(self) -> None:
+        _nonzero(self.axis, "axis")
+        if self.beamwidth_rad is not None and not 0 < self.beamwidth_rad < math.pi:
+            raise ValueError(f"beamwidth_rad: expected 0 < value < pi, got {self.beamwidth_rad}")
+
+
 @dataclass(frozen=True, slots=True)
 class SonarSpec:
-    """A sonar mounted on vehicle ``mount``; answers ``/sonar/<id>/ping`` with an echo."""
+    """A sonar mounted on vehicle ``mount``; answers ``/sonar/<id>/ping`` with an echo.
+
+    Its pose on the vehicle: ``mount_offset_m`` (body axes FLU, m) and ``mount_rpy_rad``
+    (body-from-sonar Z-Y-X roll, pitch, yaw, rad); identity by default. A ping's ``az``/``el``
+    are in the sonar frame. ``ears`` (sonar frame) make a multi-channel echo, one per ear.
+    """
 
     id: int
     mount: int
     fidelity: str = "fast"
     echo: dict[str, Any] = field(default_factory=dict)
+    mount_offset_m: Vec3 = (0.0, 0.0, 0.0)
+    mount_rpy_rad: Vec3 = (0.0, 0.0, 0.0)
+    ears: tuple[EarSpec, ...] = ()
 
     def __post_init__(self) -> None:
         if self.id < 0:
             raise ValueError(f"id: expected >= 0, got {self.id}")
+        if "ears" in self.echo:
+            raise ValueError(
+                "echo.ears: give the ears as the sonar's 'ears' (position_m, axis in the sonar "
+                "frame), which turn with the sonar"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -312,12 +354,15 @@ class SwarmSceneSpec:
     overrides: dict[str, Any] = field(default_factory=dict)
     seed: int | None = None
     first_id: int = 0
+    flight: FlightParams = field(default_factory=FlightParams)
 
     def __post_init__(self) -> None:
         if self.seed is not None and self.seed < 0:
             raise ValueError(f"seed: expected >= 0, got {self.seed}")
         if self.first_id < 0:
             raise ValueError(f"first_id: expected >= 0, got {self.first_id}")
+        if self.flight.vertical == "hold":
+            raise ValueError("flight.vertical: swarm gliders glide on the law's polar, got 'hold'")
 
 
 @dataclass(frozen=True, slots=True)
@@ -356,8 +401,10 @@ class VehicleSpec:
     """A vehicle following a kinematic path; its state is published as ``/glider/<id>/state``.
 
     ``commanded: true``: once an autopilot's first valid ``/glider/<id>/cmd`` arrives the vehicle
-    leaves its path and flies :func:`unicycle_step` (constant altitude, coordinated turns) on the
-    held command, clipped to ``|bank| <= bank_max_rad`` and ``speed_min_mps..speed_max_mps``.
+    leaves its path and flies :mod:`sim_core.flight` (coordinated turns, the bank and airspeed
+    responses of ``flight``; ``flight.vertical`` ``hold`` by default: a powered vehicle keeping
+    its height) on the held command, clipped to ``|bank| <= bank_max_rad`` and
+    ``speed_min_mps..speed_max_mps``.
     """
 
     id: int
@@ -368,6 +415,7 @@ class VehicleSpec:
     bank_max_rad: float = 0.5236
     speed_min_mps: float = 1.0
     speed_max_mps: float = 20.0
+    flight: FlightParams = field(default_factory=FlightParams)
 
     def __post_init__(self) -> None:
         if self.id < 0:
@@ -380,29 +428,10 @@ class VehicleSpec:
                 f"{self.speed_min_mps}, {self.speed_max_mps}"
             )
 
-
-def unicycle_step(
-    x: FloatArray,
-    y: FloatArray,
-    heading: FloatArray,
-    bank: FloatArray,
-    speed: FloatArray,
-    *,
-    dt: float,
-    g: float = 9.81,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """One explicit-Euler step of a constant-altitude vehicle in coordinated turns.
-
-    Arrays shape (N,): position x, y (m), heading (rad from +x), bank (rad), airspeed (m/s > 0).
-    Turn rate ``g tan(bank) / speed``; position moves along the *old* heading (as the seed's
-    glider). Returns the new ``(x, y, heading)``, heading wrapped to [-pi, pi).
-    """
-    h = np.asarray(heading, dtype=np.float64)
-    v = np.asarray(speed, dtype=np.float64)
-    omega = g * np.tan(np.asarray(bank, dtype=np.float64)) / v
-    nx = np.asarray(x, dtype=np.float64) + v * np.cos(h) * dt
-    ny = np.asarray(y, dtype=np.float64) + v * np.sin(h) * dt
-    return nx, ny, _wrap_pi(h + omega * dt)
+    @property
+    def glides(self) -> bool:
+        """Whether the vehicle, once commanded, glides on the SB-XC polar (else holds height)."""
+        return self.flight.vertical == "glide"
 
 
 @dataclass(frozen=True, slots=True)
@@ -411,6 +440,7 @@ class SceneSpec:
 
     seed: int = 0
     state_rate_hz: float = 50.0
+    physics_rate_hz: float | None = None
     clock: ClockSpec = field(default_factory=ClockSpec)
     forest: ForestSceneSpec | None = None
     sonars: tuple[SonarSpec, ...] = ()
@@ -422,6 +452,13 @@ class SceneSpec:
             raise ValueError(f"seed: expected >= 0, got {self.seed}")
         if not 0 < self.state_rate_hz <= 2000:
             raise ValueError(f"state_rate_hz: expected 0 < rate <= 2000, got {self.state_rate_hz}")
+        if self.physics_rate_hz is not None and not (
+            self.state_rate_hz <= self.physics_rate_hz <= 100_000
+        ):
+            raise ValueError(
+                f"physics_rate_hz: expected state_rate_hz ({self.state_rate_hz}) <= rate <= "
+                f"100000 or null, got {self.physics_rate_hz}"
+            )
         vids = [v.id for v in self.vehicles]
         dup = sorted({i for i in vids if vids.count(i) > 1})
         if dup:
@@ -577,14 +614,17 @@ class Scene:
 
     @cached_property
     def swarm(self) -> Any:
-        """A :class:`sim_core.soaring.SwarmSim` (batch 1), or None without a swarm section."""
+        """The swarm flown in continuous time, a :class:`sim_core.soaring.continuous.
+        ContinuousSwarm` (batch 1: the law's controller every ``law.dt``, the gliders flown
+        by :mod:`sim_core.flight` with ``swarm.flight``), or None without a swarm section."""
         if self.spec.swarm is None:
             return None
-        from sim_core.soaring import SwarmSim
+        from sim_core.soaring.continuous import ContinuousSwarm
 
         self.built.add("swarm")
-        seed = self.spec.swarm.seed
-        return SwarmSim(self.law, seed=self.spec.seed if seed is None else seed, batch=1)
+        sw = self.spec.swarm
+        return ContinuousSwarm(self.law, seed=self.spec.seed if sw.seed is None else sw.seed,
+                               flight=sw.flight)
 
     @cached_property
     def forest_source(self) -> Any:

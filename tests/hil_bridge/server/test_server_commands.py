@@ -34,7 +34,8 @@ def test_lockstep_with_a_silent_autopilot_stalls_then_freewheels() -> None:
     finally:
         srv.stop()
     st = srv.stats()
-    assert st["physics_steps"] == 10
+    assert st["control_steps"] == 11  # at t = 0, 0.1, ..., 1.0 s
+    assert st["physics_steps"] == 20  # one integration step per tick at 20 Hz
     assert st["stalls"] == 3  # then the silent autopilot is no longer waited for
     assert st["lockstep_released"] == 1
     assert st["freewheeling"] == [1]
@@ -63,7 +64,8 @@ def test_commands_apply_with_limits_and_bad_ones_are_counted() -> None:
     def on_state(msg: GliderState) -> None:
         with lock:
             banks[msg.step] = msg.bank
-            if msg.step == sent["n"] and sent["n"] < len(script):
+            # answer the first state of each control step (steps count from 1)
+            if msg.step == sent["n"] + 1 and sent["n"] < len(script):
                 bank, speed = script[sent["n"]]
                 sent["n"] += 1
                 cmd_pub.publish(GliderCmd(stamp_ns=msg.stamp_ns, bank_cmd=bank,
@@ -85,11 +87,14 @@ def test_commands_apply_with_limits_and_bad_ones_are_counted() -> None:
     assert st["cmd_applied"] == 3
     assert st["cmd_clipped"] == 2
     assert st["stalls"] == 0
-    # Step k is flown on the command answering step k-1: 0.1 for steps 1..4 (held through the
-    # three rejected ones), then bankMin for steps 5 and 6.
+    # The period after control step k flies the command answering step k: 0.1 rad through
+    # steps 1..4 (held through the three rejected ones), then bankMin. The bank follows its
+    # command through the flight model's lag, so it closes on 0.1, then turns towards bankMin.
     law_bank_min = srv.scene.law.bankMin
-    assert [round(banks[k], 6) for k in (1, 2, 3, 4)] == [0.1] * 4
-    assert banks[5] == pytest.approx(law_bank_min)
+    errors = [abs(banks[k] - 0.1) for k in (1, 2, 3, 4)]  # each at the end of its period
+    assert all(b < a for a, b in itertools.pairwise(errors)), banks
+    assert banks[6] < banks[5] < banks[4] and banks[5] > law_bank_min
+    assert st["flown"]["0"]["bank_cmd"] == pytest.approx(law_bank_min)
     # neighbour lists only for the glider whose autopilot registered
     assert neighbour_msgs and not other
 
@@ -126,16 +131,24 @@ def test_commanded_vehicle_leaves_its_path_and_turns_at_the_coordinated_rate() -
     finally:
         srv.stop()
         ap.stop()
-    flown = [m for m in states if m.bank == 0.3]
-    assert len(flown) > 10
-    rate = 9.81 * math.tan(0.3) / 4.0 / 20  # rad per tick
+    flown = [m for m in states if m.stamp_ns >= 1_000_000_000]
+    assert len(flown) > 30
     for a, b in itertools.pairwise(flown):
-        if b.step == a.step + 1:
-            dh = (b.heading - a.heading + math.pi) % (2 * math.pi) - math.pi
-            assert dh == pytest.approx(rate, rel=1e-9)
-            step = math.hypot(b.x - a.x, b.y - a.y)
-            assert step == pytest.approx(4.0 / 20, rel=1e-9)
-            assert b.z == 3.0
+        assert b.step == a.step + 1
+        assert b.z == 3.0  # a commanded vehicle holds its height by default
+        mid_bank, mid_speed = (a.bank + b.bank) / 2, (a.airspeed + b.airspeed) / 2
+        dh = (b.heading - a.heading + math.pi) % (2 * math.pi) - math.pi
+        assert dh * 20 == pytest.approx(9.81 * math.tan(mid_bank) / mid_speed, rel=2e-3)
+        assert math.hypot(b.x - a.x, b.y - a.y) * 20 == pytest.approx(mid_speed, rel=1e-3)
+    # first-order responses to the command (bank 0.3 rad, 4 m/s from the path's 5 m/s)
+    last = flown[-1]
+    assert last.bank == pytest.approx(0.3, abs=1e-3)
+    assert last.roll == -last.bank and last.pitch == 0.0
+    t_on = next(m for m in states if m.airspeed < 5.0).stamp_ns / 1e9 - 0.05
+    assert last.airspeed == pytest.approx(4.0 + math.exp(-(last.stamp_ns / 1e9 - t_on) / 5.0),
+                                          abs=0.02)
+    assert last.yaw_rate == pytest.approx(9.81 * math.tan(last.bank) / last.airspeed
+                                          * math.cos(last.bank), rel=1e-9)
     st = srv.stats()
     assert st["cmd_ignored"] == 1  # vehicle 101 follows its path and ignores commands
     assert 100 in st["registered"]

@@ -1,0 +1,302 @@
+"""Vehicle stepping for the simulation server: every vehicle of a scene, flown tick by tick.
+
+:class:`Fleet` flies everything the server publishes on ``/glider/<id>/state``:
+
+- the swarm's gliders (:class:`sim_core.soaring.continuous.ContinuousSwarm`): the law's
+  controller decides every ``law.dt`` (:meth:`Fleet.decide`, on the ticks :meth:`Fleet.control_due`
+  names: ``law.dt`` must be a whole number of ticks), and every glider flies the continuous
+  model in between, on the law's held commands or on its autopilot's latest;
+- commanded vehicles (``commanded: true``): their path until an autopilot's first command, then
+  :mod:`sim_core.flight` on the held command (taken over at the pose the path had);
+- path vehicles: sampled on their trajectory at each tick, with the attitude the path implies
+  (:func:`sim_core.flight.path_state`).
+
+:meth:`Fleet.advance` integrates from one tick to the next on the commands it is given (the
+server passes those held when the tick starts, so a command received before tick k is flown
+in the state of tick k). :meth:`Fleet.states` gives the state and attitude of every vehicle
+and records the poses of the vehicles listed in ``history_ids`` (those carrying a sonar) in a
+short history that :meth:`Fleet.pose_at` interpolates, for pings emitted between ticks.
+Only :meth:`pose_at` may be called from another thread than the one stepping the fleet.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import threading
+from collections import deque
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.config import ConfigError
+from sim_core.flight import BANK, HEADING, SPEED, FlightModel, FlightOutputs, X, Y, Z, path_state
+from sim_core.pose import pose_interpolate
+from sim_core.scene import Scene
+
+__all__ = ["Fleet", "FleetStates", "VehiclePose"]
+
+F8 = NDArray[np.float64]
+B8 = NDArray[np.bool_]
+
+
+@dataclass(frozen=True, slots=True)
+class FleetStates:
+    """Every vehicle at one tick, rows in the order of ``ids`` (swarm gliders, then vehicles by
+    id): ``position``, ``velocity`` (M, 3) m, m/s ENU; ``heading``, ``bank``, ``airspeed``,
+    ``vz``, ``roll``, ``pitch``, ``yaw`` (M,); ``quat`` (M, 4) world-from-body; ``rates`` (M, 3)
+    body rates rad/s; ``alive`` (M,); ``step`` (M,) the swarm's control step for gliders, the
+    tick for vehicles."""
+
+    t_ns: int
+    ids: tuple[int, ...]
+    position: F8
+    velocity: F8
+    heading: F8
+    bank: F8
+    airspeed: F8
+    vz: F8
+    roll: F8
+    pitch: F8
+    yaw: F8
+    quat: F8
+    rates: F8
+    alive: B8
+    step: NDArray[np.int64]
+
+
+@dataclass(frozen=True, slots=True)
+class VehiclePose:
+    """A vehicle's pose at ``t_ns``: ``position`` (3,) m, ``orientation`` (4,) world-from-body.
+    ``clamped``: 0 inside the history, +1 asked after its newest state (the newest is given),
+    −1 before its oldest (the oldest is given)."""
+
+    t_ns: int
+    position: F8
+    orientation: F8
+    clamped: int
+
+
+class Fleet:
+    """Every vehicle of ``scene``, stepped at ``tick_ns`` with ``substeps`` integration steps per
+    tick (at least; see :meth:`sim_core.flight.FlightModel.step`); ``history_s`` s of poses
+    kept for each id in ``history_ids``."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        *,
+        tick_ns: int,
+        substeps: int = 1,
+        history_s: float = 2.0,
+        history_ids: Iterable[int] = (),
+    ) -> None:
+        if tick_ns <= 0 or substeps < 1:
+            raise ValueError(f"tick_ns > 0 and substeps >= 1 expected, got {tick_ns}, {substeps}")
+        self.scene = scene
+        self.tick_ns = tick_ns
+        self.substeps = substeps
+        self.tick = 0
+        self.swarm: Any = scene.swarm
+        self.glider_ids: tuple[int, ...] = scene.glider_ids
+        self._gindex = {gid: i for i, gid in enumerate(self.glider_ids)}
+        self.control_every = 0
+        if self.swarm is not None:
+            per = float(scene.law.dt) * 1e9 / tick_ns
+            self.control_every = round(per)
+            if self.control_every < 1 or abs(per - self.control_every) > 1e-6:
+                raise ConfigError(
+                    f"swarm: the law's dt ({scene.law.dt} s) must be a whole number of ticks "
+                    f"of {tick_ns / 1e9} s (choose state_rate_hz accordingly)"
+                )
+        vehicles = sorted(scene.spec.vehicles, key=lambda v: v.id)
+        self.vehicle_ids = tuple(v.id for v in vehicles)
+        self._traj = scene.trajectories if vehicles else {}
+        self._commanded = [v for v in vehicles if v.commanded]
+        self._cindex = {v.id: i for i, v in enumerate(self._commanded)}
+        self._vmodel: FlightModel | None = None
+        n_c = len(self._commanded)
+        if n_c:
+            from sim_core.soaring.law import Law
+
+            polar = Law()  # the SB-XC polar of the seed law, for vehicles that glide
+            self._vmodel = FlightModel.from_params(
+                [v.flight for v in self._commanded], glide=[v.glides for v in self._commanded],
+                polar=(polar.Sink_A, polar.Sink_B, polar.Sink_C), g=polar.g,
+            )
+        self._vy = np.zeros((6, n_c))
+        for i, v in enumerate(self._commanded):
+            self._vy[:, i] = self._takeover_state(v.id, 0)
+        self._vcmd = np.stack([self._vy[BANK], self._vy[SPEED]])
+        self._vflown = np.zeros(n_c, dtype=bool)
+        self._vgrounded = np.zeros(n_c, dtype=bool)
+        self._external: Any = None
+        self.ids: tuple[int, ...] = (*self.glider_ids, *self.vehicle_ids)
+        keep = max(2, math.ceil(history_s * 1e9 / tick_ns) + 1)
+        self._history: dict[int, deque[tuple[int, F8, F8, F8]]] = {
+            int(i): deque(maxlen=keep) for i in history_ids
+        }
+        self._hlock = threading.Lock()
+
+    # -- stepping ----------------------------------------------------------------------------
+    @property
+    def t_ns(self) -> int:
+        return self.tick * self.tick_ns
+
+    def control_due(self) -> bool:
+        """Whether the swarm's controller decides at the current tick."""
+        return self.swarm is not None and self.tick % self.control_every == 0
+
+    def _swarm_commands(self, commands: Mapping[int, tuple[float, float]]) -> Any:
+        from sim_core.soaring import Commands
+
+        n = len(self.glider_ids)
+        bank, speed = np.zeros((1, n)), np.zeros((1, n))
+        mask = np.zeros((1, n), dtype=bool)
+        for gid, (b, v) in commands.items():
+            i = self._gindex.get(gid)
+            if i is not None:
+                bank[0, i], speed[0, i], mask[0, i] = b, v, True
+        return Commands(bank_cmd=bank, airspeed_cmd=speed, mask=mask) if mask.any() else None
+
+    def decide(self, commands: Mapping[int, tuple[float, float]]) -> None:
+        """The swarm's control step at the current tick (gliders with a command in
+        ``commands`` are flown by their autopilot, not by the law)."""
+        self._external = self._swarm_commands(commands)
+        self.swarm.decide(self._external)
+
+    def advance(self, commands: Mapping[int, tuple[float, float]]) -> None:
+        """Fly every vehicle to the next tick on ``commands`` (id → (bank rad, airspeed m/s),
+        within each vehicle's envelope). A commanded vehicle's first command takes it off its
+        path at the pose the path has now."""
+        dt = self.tick_ns / 1e9
+        if self.swarm is not None:
+            self._external = self._swarm_commands(commands)
+            self.swarm.advance(dt, substeps=self.substeps, external=self._external)
+        if self._vmodel is not None:
+            for vid, i in self._cindex.items():
+                cmd = commands.get(vid)
+                if cmd is None:
+                    continue
+                if not self._vflown[i]:
+                    self._vy[:, i] = self._takeover_state(vid, self.t_ns)
+                    self._vflown[i] = True
+                self._vcmd[:, i] = cmd
+            self._vy, grounded = self._vmodel.step(
+                self._vy, self._vcmd, dt, substeps=self.substeps, updraft=self._updraft,
+                active=self._vflown & ~self._vgrounded,
+            )
+            self._vgrounded |= grounded
+        self.tick += 1
+
+    def _takeover_state(self, vid: int, t_ns: int) -> F8:
+        """The flight state (6,) a commanded vehicle starts from: its path's pose at ``t_ns``
+        (airspeed at least the vehicle's minimum)."""
+        ps = path_state(self._traj[vid], t_ns / 1e9)
+        speed = max(ps.airspeed, self._commanded[self._cindex[vid]].speed_min_mps)
+        return np.array([*ps.position, ps.heading, ps.bank, speed])
+
+    def _updraft(self, xy: F8) -> F8:
+        if self.swarm is None:
+            return np.zeros(xy.shape[1:])
+        return np.asarray(self.swarm.updraft(xy), dtype=np.float64)
+
+    # -- states ------------------------------------------------------------------------------
+    def states(self) -> FleetStates:
+        """Every vehicle's state at the current tick (and the sonar carriers' history)."""
+        parts: list[dict[str, Any]] = []
+        if self.swarm is not None:
+            y = self.swarm.flight_state[:, 0]
+            out = self.swarm.outputs(self._external)
+            parts.append(self._flown_part(y, _row(out, 0), self.swarm.alive[0],
+                                          self.swarm.step_count))
+        flown: dict[str, Any] = {}
+        if self._vmodel is not None:
+            y = self._vy
+            out = self._vmodel.outputs(y, self._vcmd, self._updraft(y[X : Y + 1]))
+            flown = self._flown_part(y, out, ~self._vgrounded, self.tick)
+        for vid in self.vehicle_ids:
+            i = self._cindex.get(vid)
+            if i is not None and self._vflown[i]:
+                parts.append({k: v[i : i + 1] for k, v in flown.items()})
+                continue
+            ps = path_state(self._traj[vid], self.t_ns / 1e9)
+            o = ps.outputs
+            parts.append({
+                "position": ps.position[None], "velocity": ps.velocity[None],
+                "heading": np.array([ps.heading]), "bank": np.array([ps.bank]),
+                "airspeed": np.array([ps.airspeed]), "vz": np.array([float(o.vz)]),
+                "roll": np.array([float(o.roll)]), "pitch": np.array([float(o.pitch)]),
+                "yaw": np.array([float(o.yaw)]), "quat": o.quat[None], "rates": o.rates[None],
+                "alive": np.array([True]), "step": np.array([self.tick], dtype=np.int64),
+            })
+        merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
+        st = FleetStates(t_ns=self.t_ns, ids=self.ids, **merged) if parts else _empty(self.t_ns)
+        self._record(st)
+        return st
+
+    def _flown_part(self, y: F8, out: FlightOutputs, alive: B8, step: int) -> dict[str, Any]:
+        v, psi = y[SPEED], y[HEADING]
+        n = y.shape[1]
+        return {
+            "position": np.stack([y[X], y[Y], y[Z]], axis=1),
+            "velocity": np.stack([v * np.cos(psi), v * np.sin(psi), out.vz], axis=1),
+            "heading": np.asarray(out.yaw), "bank": y[BANK].copy(), "airspeed": v.copy(),
+            "vz": np.asarray(out.vz), "roll": np.asarray(out.roll),
+            "pitch": np.asarray(out.pitch), "yaw": np.asarray(out.yaw), "quat": out.quat,
+            "rates": out.rates, "alive": np.asarray(alive, dtype=bool),
+            "step": np.full(n, step, dtype=np.int64),
+        }
+
+    # -- pose history ------------------------------------------------------------------------
+    def _record(self, st: FleetStates) -> None:
+        if not self._history:
+            return
+        index = {vid: k for k, vid in enumerate(st.ids)}
+        with self._hlock:
+            for vid, hist in self._history.items():
+                k = index[vid]
+                if hist and hist[-1][0] == st.t_ns:
+                    hist.pop()  # the same tick again: the newer computation replaces it
+                hist.append((st.t_ns, st.position[k].copy(), st.velocity[k].copy(),
+                             st.quat[k].copy()))
+
+    def pose_at(self, vid: int, t_ns: int) -> VehiclePose:
+        """Vehicle ``vid``'s pose at ``t_ns`` (one of ``history_ids``): interpolated between
+        the two recorded states around it (Hermite position, slerp attitude), or the newest
+        (oldest) one when ``t_ns`` is after (before) the history."""
+        with self._hlock:
+            hist = list(self._history[vid])
+        if not hist:
+            raise ValueError(f"no pose of vehicle {vid} recorded yet")
+        times = [h[0] for h in hist]
+        if t_ns >= times[-1]:
+            t, p, _, q = hist[-1]
+            return VehiclePose(t, p, q, int(t_ns > times[-1]))
+        if t_ns < times[0]:
+            t, p, _, q = hist[0]
+            return VehiclePose(t, p, q, -1)
+        k = bisect.bisect_right(times, t_ns) - 1
+        (t0, p0, v0, q0), (t1, p1, v1, q1) = hist[k], hist[k + 1]
+        p, q = pose_interpolate(t0 / 1e9, t1 / 1e9, p0, p1, v0, v1, q0, q1, t_ns / 1e9)
+        return VehiclePose(t_ns, p, q, 0)
+
+
+def _row(out: FlightOutputs, run: int) -> FlightOutputs:
+    """The outputs of one run of a (B, N) batch."""
+    return FlightOutputs(
+        vz=out.vz[run], omega=out.omega[run], roll=out.roll[run], pitch=out.pitch[run],
+        yaw=out.yaw[run], quat=out.quat[run], rates=out.rates[run],
+    )
+
+
+def _empty(t_ns: int) -> FleetStates:
+    z1, z3 = np.zeros(0), np.zeros((0, 3))
+    return FleetStates(
+        t_ns=t_ns, ids=(), position=z3, velocity=z3, heading=z1, bank=z1, airspeed=z1, vz=z1,
+        roll=z1, pitch=z1, yaw=z1, quat=np.zeros((0, 4)), rates=z3,
+        alive=np.zeros(0, dtype=bool), step=np.zeros(0, dtype=np.int64),
+    )
