@@ -3,8 +3,10 @@
 ``AutopilotAdapter`` (launch node name ``autopilot``) bridges the echoloop bus and a python-can
 bus carrying the "raw" profile of ``drivers/can/glider.dbc``:
 
-* ``/glider/<id>/state`` → GLIDER_STATE_POS + GLIDER_STATE_MOTION at ``state_rate_hz`` (the
-  latest state, while it is younger than ``state_timeout_s`` of wall time);
+* ``/glider/<id>/state`` → GLIDER_STATE_POS + GLIDER_STATE_QUAT + GLIDER_STATE_RATES +
+  GLIDER_STATE_MOTION at ``state_rate_hz`` (the latest state, while it is younger than
+  ``state_timeout_s`` of wall time; the attitude frames only for states that carry one,
+  otherwise ``attitude_missing`` is counted; MOTION completes the sample);
 * ``/glider/<id>/neighbors`` → NEIGHBOR_POS + NEIGHBOR_MOTION pairs (positions relative to the
   state sent in the same tick, at most 15, nearest first), right after the state frames, when a
   new list has arrived and at most at ``neighbor_rate_hz``;
@@ -149,6 +151,12 @@ class _Glider:
     cmd_step: int = -1
     cmd_sim_ns: int = 0
     sample_steps: dict[int, tuple[int, int]] = field(default_factory=dict)
+
+
+def _has_attitude(st: GliderState) -> bool:
+    """Whether the state carries an attitude (publishers older than it leave NaN)."""
+    return all(math.isfinite(v) for v in (st.qw, st.qx, st.qy, st.qz, st.roll_rate,
+                                          st.pitch_rate, st.yaw_rate))
 
 
 def _positive(name: str, value: float) -> float:
@@ -386,6 +394,7 @@ class AutopilotAdapter(Node):
         )
         if nbs is not None:
             self._send_neighbours(g, st, nbs, nb_set)
+        ok &= self._send_attitude(g, st, counter)
         ok &= self._send(
             "GLIDER_STATE_MOTION", g.node,
             {"heading_rad": st.heading, "bank_rad": st.bank, "airspeed_mps": st.airspeed,
@@ -412,6 +421,7 @@ class AutopilotAdapter(Node):
             ok = self._send(
                 "GLIDER_STATE_POS", g.node, {"x_m": st.x, "y_m": st.y, "z_m": st.z}
             )
+            ok &= self._send_attitude(g, st, counter)
             ok &= self._send(
                 "GLIDER_STATE_MOTION", g.node,
                 {"heading_rad": st.heading, "bank_rad": st.bank, "airspeed_mps": st.airspeed,
@@ -420,6 +430,21 @@ class AutopilotAdapter(Node):
             self._inc("states_sent" if ok else "states_dropped")
             if nbs is not None:
                 self._send_neighbours(g, st, nbs, nb_set)
+
+    def _send_attitude(self, g: _Glider, st: GliderState, counter: int) -> bool:
+        """GLIDER_STATE_QUAT and GLIDER_STATE_RATES of a state that carries an attitude (sent
+        before its MOTION, which completes the sample); nothing for one that does not."""
+        if not _has_attitude(st):
+            self._inc("attitude_missing")
+            return True
+        ok = self._send(
+            "GLIDER_STATE_QUAT", g.node, {"qw": st.qw, "qx": st.qx, "qy": st.qy, "qz": st.qz},
+        )
+        return ok & self._send(
+            "GLIDER_STATE_RATES", g.node,
+            {"roll_rate_rps": st.roll_rate, "pitch_rate_rps": st.pitch_rate,
+             "yaw_rate_rps": st.yaw_rate, "state_counter": counter},
+        )
 
     def _send_neighbours(
         self, g: _Glider, own: GliderState, nbs: GliderNeighbors, nb_set: int

@@ -190,13 +190,16 @@ class NodeView:
     cmd_state: int = 0
     sim_time_ms: int = 0
     lockstep: bool = False
+    attitude: F8 = field(default_factory=lambda: np.full(4, np.nan))
+    body_rates: F8 = field(default_factory=lambda: np.full(3, np.nan))
 
 
 class ProfileReceiver:
     """Assembles bridge → autopilot frames into one :class:`NodeView` per node (thread-safe).
 
     State: GLIDER_STATE_POS gives the position; the following GLIDER_STATE_MOTION completes the
-    sample. Neighbours: NEIGHBOR_POS/NEIGHBOR_MOTION pairs of slots 0..nb_count-1 sharing one
+    sample; GLIDER_STATE_QUAT and GLIDER_STATE_RATES, when sent, give its attitude and body
+    rates. Neighbours: NEIGHBOR_POS/NEIGHBOR_MOTION pairs of slots 0..nb_count-1 sharing one
     ``nb_set`` form a list; positions are made absolute with the glider's latest position. A
     list with a missing or foreign frame is discarded and counted (``nb_incomplete``); the
     previous list stays.
@@ -237,6 +240,11 @@ class ProfileReceiver:
                 view.lockstep = self._pos_lockstep.get(node, False)
                 view.state_time = now
                 self.counters["states"] += 1
+            elif frame.name == "GLIDER_STATE_QUAT":
+                view.attitude = np.array([s["qw"], s["qx"], s["qy"], s["qz"]])
+            elif frame.name == "GLIDER_STATE_RATES":
+                view.body_rates = np.array(
+                    [s["roll_rate_rps"], s["pitch_rate_rps"], s["yaw_rate_rps"]])
             elif frame.name == "NEIGHBOR_POS":
                 slot = int(s["nb_slot"])
                 if slot == 0:
@@ -298,7 +306,8 @@ class ProfileReceiver:
                 own=v.own, alive=v.alive, state_counter=v.state_counter, state_time=v.state_time,
                 neighbours=v.neighbours.copy(), neighbour_set=v.neighbour_set,
                 bridge_time=v.bridge_time, bridge_mode=v.bridge_mode, cmd_state=v.cmd_state,
-                sim_time_ms=v.sim_time_ms, lockstep=v.lockstep,
+                sim_time_ms=v.sim_time_ms, lockstep=v.lockstep, attitude=v.attitude.copy(),
+                body_rates=v.body_rates.copy(),
             )
 
 

@@ -153,6 +153,25 @@ def test_conformance_state_neighbours_and_commands(sim: Sim, make_adapter: Any,
     assert cmd.glider_id == 3 and cmd.stamp_ns >= own.stamp_ns
 
 
+def test_attitude_frames_follow_the_state(sim: Sim, make_adapter: Any, make_mock: Any) -> None:
+    from sim_core.pose import quat_from_euler
+
+    ad = make_adapter()
+    mock = make_mock(rate_hz=20.0)
+    q = quat_from_euler(-0.4, 0.05, 2.9)
+    sim.publish_state(3, bank=0.4, roll=-0.4, pitch=0.05, yaw=2.9, qw=q[0], qx=q[1], qy=q[2],
+                      qz=q[3], roll_rate=-0.25, pitch_rate=0.012, yaw_rate=0.6)
+    assert wait_until(lambda: bool(np.all(np.isfinite(mock.receiver.view(0).body_rates))))
+    view = mock.receiver.view(0)
+    np.testing.assert_allclose(view.attitude, q, atol=_tol(5e-5))
+    np.testing.assert_allclose(view.body_rates, [-0.25, 0.012, 0.6], atol=_tol(1e-4))
+    # a state without attitude (an older publisher): the attitude frames are left out
+    sim.publish_state(5)
+    assert wait_until(lambda: ad.stats().get("attitude_missing", 0) > 0)
+    assert not np.any(np.isfinite(mock.receiver.view(1).attitude))
+    assert mock.receiver.view(1).own is not None
+
+
 def test_diagnostics_and_stats_report_the_link(sim: Sim, make_adapter: Any,
                                                make_mock: Any, bus_url: str) -> None:
     from hil_bridge.messages import Diagnostics

@@ -40,6 +40,12 @@ REQUIRED = {
         "bank_cmd_rad": (1e-4, -math.pi / 2, math.pi / 2),
         "airspeed_cmd_mps": (0.01, 0.0, 100.0),
     },
+    # the attitude frames (issue 10): a quaternion to better than 1e-4 rad of rotation
+    # (|error| <= 2 * sqrt(3) * scale / 2), body rates to 1e-4 rad/s over +-50 rad/s
+    "GLIDER_STATE_QUAT": {q: (5e-5, -1.0, 1.0) for q in ("qw", "qx", "qy", "qz")},
+    "GLIDER_STATE_RATES": {
+        f"{axis}_rate_rps": (1e-4, -50.0, 50.0) for axis in ("roll", "pitch", "yaw")
+    },
 }
 
 
@@ -53,7 +59,7 @@ def _tol(sig_scale: float) -> float:
 
 def test_dbc_follows_profile_rules() -> None:
     db = load_database(DBC_PATH)
-    assert len(db.messages) == 7
+    assert len(db.messages) == 9
     for msg in db.messages:
         assert not msg.is_extended_frame
         assert msg.frame_id % 0x10 == 0 and msg.frame_id + 15 <= 0x7FF
