@@ -159,21 +159,20 @@ def quat_slerp(q0: ArrayLike, q1: ArrayLike, t: ArrayLike) -> FloatArray:
 
 def quat_between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """The shortest-arc rotation taking direction ``a`` to direction ``b`` (``(..., 3)``, any
-    non-zero length), as unit quaternions ``(..., 4)``. Opposite directions turn by π about an
-    axis perpendicular to ``a``."""
+    non-zero length), as unit quaternions ``(..., 4)``: ``[1 + a·b, a × b]`` normalised, with
+    ``1 + a·b`` taken as ``|a + b|²/2`` so that it stays accurate near opposite directions
+    (within ~1e-16 / |a × b| there). Exactly opposite directions turn by π about an axis
+    perpendicular to ``a``."""
     ua = _f(a) / np.linalg.norm(_f(a), axis=-1, keepdims=True)
     ub = _f(b) / np.linalg.norm(_f(b), axis=-1, keepdims=True)
     ua, ub = np.broadcast_arrays(ua, ub)
-    dot = np.sum(ua * ub, axis=-1, keepdims=True)
-    axis = np.cross(ua, ub)
-    # for (anti)parallel directions: any axis perpendicular to a (x unless a is along x)
+    half = 0.5 * np.sum((ua + ub) ** 2, axis=-1, keepdims=True)
+    q = np.concatenate([half, np.cross(ua, ub)], axis=-1)
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    # opposite: any axis perpendicular to a (x unless a is close to x)
     alt = np.cross(ua, np.where(np.abs(ua[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
-    opposite = dot < -1.0 + 1e-12
-    q = np.where(
-        opposite,
-        np.concatenate([np.zeros_like(dot), alt], axis=-1),
-        np.concatenate([1.0 + dot, axis], axis=-1),
-    )
+    alt = np.concatenate([np.zeros_like(half), alt], axis=-1)
+    q = np.where(n > 1e-12, q, alt)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
