@@ -5,7 +5,11 @@ Off by default; ``echoloop launch FILE --live`` or ``live: true`` in a launch fi
 ``8765 + 10 N`` in domain N, :mod:`hil_bridge.domain`). Topics served:
 
 - ``/live/gliders`` (``foxglove.SceneUpdate``): one arrow per glider/vehicle at its pose (world
-  frame ``world``, ENU metres; yaw = heading, roll = bank), dead gliders grey;
+  frame ``world``, ENU metres) and attitude (the state's quaternion; for a publisher that gives
+  none, the level coordinated-turn attitude of its heading and bank), dead gliders grey;
+- ``/live/beams`` (``SceneUpdate``): the beam of each sonar's latest echo, a translucent cone
+  ``beam_length_m`` long from the sonar's position at emission along its boresight, as wide as
+  the ping's beamwidth;
 - ``/live/trails`` (``SceneUpdate``): the last ``trail_points`` positions of each vehicle;
 - ``/live/thermals`` (``SceneUpdate``): a translucent cylinder per thermal (radius R, 200 m);
 - ``/live/forest`` (``foxglove.PointCloud``): the server's ``/forest/points`` leaf centres
@@ -14,7 +18,8 @@ Off by default; ``echoloop launch FILE --live`` or ``live: true`` in a launch fi
   most ``echo_points`` samples (``range_m``, ``amplitude``) for a Plot panel.
 
 It reads the bus with one raw prefix subscription per family (``/glider/``, ``/thermals``,
-``/forest/``, ``/sonar/``), so it sees gliders it was not told about. Scene updates are sent at
+``/forest/``, ``/sonar/``), so it sees gliders it was not told about (and each ping's
+beamwidth, for its echo's cone). Scene updates are sent at
 ``rate_hz`` (wall clock). The server binds 127.0.0.1 only: ``host`` must be a loopback address.
 """
 
@@ -27,20 +32,34 @@ from collections import deque
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-__all__ = ["LiveView"]
+from sim_core.pose import quat_between
+
+__all__ = ["LiveView", "beam_cone"]
+
+#: pings remembered per sonar topic, to find the beamwidth of an echo's ping
+_PINGS_KEPT = 64
 
 
-def _quaternion(yaw: float, roll: float) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of yaw about z then roll about the body x axis (ZYX, no pitch)."""
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    return (cy * sr, sy * sr, sy * cr, cy * cr)
+def beam_cone(
+    position: NDArray[np.float64], boresight: NDArray[np.float64], beamwidth: float,
+    length: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A beam as a cone for a Foxglove ``CylinderPrimitive`` with ``bottom_scale = 0``: the
+    cylinder's centre (3,) m, its orientation (4,) ``[w, x, y, z]`` (local +z along the
+    boresight, so the apex, at local −z, sits at ``position``) and its size (3,) m (the base is
+    ``2 length tan(beamwidth / 2)`` across, at the −3 dB edge)."""
+    axis = np.asarray(boresight, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    centre = np.asarray(position, dtype=np.float64) + axis * (length / 2.0)
+    width = 2.0 * length * math.tan(beamwidth / 2.0)
+    return centre, quat_between([0.0, 0.0, 1.0], axis), np.array([width, width, length])
 
 
 class LiveView:
     """Launchable Foxglove bridge: ``LiveView(name, *, bus, host="127.0.0.1", port=None,
-    rate_hz=10.0, trail_points=200, echo_every=1, echo_points=2000)``.
+    rate_hz=10.0, trail_points=200, echo_every=1, echo_points=2000, beam_length_m=3.0)``.
 
     ``port`` None is the domain's live-view port; ``port=0`` picks a free port (read
     :attr:`port` after :meth:`start`).
@@ -57,6 +76,7 @@ class LiveView:
         trail_points: int = 200,
         echo_every: int = 1,
         echo_points: int = 2000,
+        beam_length_m: float = 3.0,
     ) -> None:
         from hil_bridge.domain import current as current_domain
         from hil_bridge.security import is_loopback_host
@@ -69,6 +89,8 @@ class LiveView:
             raise ValueError(f"port: expected 0..65535, got {port}")
         if not rate_hz > 0:
             raise ValueError(f"rate_hz: expected > 0, got {rate_hz}")
+        if not beam_length_m > 0:
+            raise ValueError(f"beam_length_m: expected > 0, got {beam_length_m}")
         if trail_points < 2 or echo_every < 1 or echo_points < 2:
             raise ValueError(
                 "trail_points >= 2, echo_every >= 1 and echo_points >= 2 expected, got "
@@ -82,6 +104,7 @@ class LiveView:
         self.trail_points = trail_points
         self.echo_every = echo_every
         self.echo_points = echo_points
+        self.beam_length_m = beam_length_m
         self.port: int | None = None
         self._server: Any = None
         self._ctx: Any = None
@@ -90,14 +113,16 @@ class LiveView:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._lock = threading.Lock()
-        self._poses: dict[int, tuple[float, float, float, float, float, bool]] = {}
+        self._poses: dict[int, tuple[float, float, float, NDArray[np.float64], bool]] = {}
+        self._beamwidths: dict[str, dict[int, float]] = {}
+        self._beams: dict[str, tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
         self._trails: dict[int, deque[tuple[float, float, float]]] = {}
         self._thermals: Any = None
         self._thermals_dirty = False
         self._forest: Any = None
         self._echo_count = 0
         self._c = {"received": 0, "bad": 0, "scene_updates": 0, "echoes_sent": 0,
-                   "forest_sent": 0, "thermals_sent": 0}
+                   "forest_sent": 0, "thermals_sent": 0, "beams_sent": 0}
 
     # ------------------------------------------------------------------ launchable contract
 
@@ -111,6 +136,7 @@ class LiveView:
         self._channels = {
             "gliders": SceneUpdateChannel("/live/gliders", context=self._ctx),
             "trails": SceneUpdateChannel("/live/trails", context=self._ctx),
+            "beams": SceneUpdateChannel("/live/beams", context=self._ctx),
             "thermals": SceneUpdateChannel("/live/thermals", context=self._ctx),
             "forest": PointCloudChannel("/live/forest", context=self._ctx),
         }
@@ -155,7 +181,14 @@ class LiveView:
     def _rx_loop(self) -> None:
         from hil_bridge.codec import decode
         from hil_bridge.errors import CodecError, HilError
-        from hil_bridge.messages import GliderState, PointCloud, SonarEcho, ThermalMarkers
+        from hil_bridge.messages import (
+            GliderState,
+            PointCloud,
+            SonarEcho,
+            SonarPing,
+            ThermalMarkers,
+            state_quaternion,
+        )
 
         while not self._stop.is_set():
             try:
@@ -179,7 +212,7 @@ class LiveView:
                 if (isinstance(msg, GliderState) and parts[1] == "glider"
                         and parts[-1] == "state" and parts[2].isdigit()):
                     gid = int(parts[2])
-                    self._poses[gid] = (msg.x, msg.y, msg.z, msg.heading, msg.bank, msg.alive)
+                    self._poses[gid] = (msg.x, msg.y, msg.z, state_quaternion(msg), msg.alive)
                     trail = self._trails.setdefault(gid, deque(maxlen=self.trail_points))
                     if not trail or math.dist(trail[-1], (msg.x, msg.y, msg.z)) > 0.05:
                         trail.append((msg.x, msg.y, msg.z))
@@ -187,11 +220,25 @@ class LiveView:
                     self._thermals, self._thermals_dirty = msg, True
                 elif isinstance(msg, PointCloud) and topic == "/forest/points":
                     self._forest = msg
+                elif (isinstance(msg, SonarPing) and parts[1] == "sonar"
+                      and parts[-1] == "ping"):
+                    widths = self._beamwidths.setdefault(topic[: -len("/ping")], {})
+                    widths[int(msg.ping_seq)] = float(msg.beamwidth)
+                    while len(widths) > _PINGS_KEPT:
+                        del widths[next(iter(widths))]
                 elif (isinstance(msg, SonarEcho) and parts[1] == "sonar"
                       and parts[-1] == "echo"):
+                    self._note_beam(topic[: -len("/echo")], msg)
                     self._echo_count += 1
                     if (self._echo_count - 1) % self.echo_every == 0:
                         self._send_echo(topic, msg)
+
+    def _note_beam(self, sonar: str, msg: Any) -> None:
+        """Keep the beam of an echo whose sonar pose and ping beamwidth are known."""
+        width = self._beamwidths.get(sonar, {}).get(int(msg.ping_seq))
+        pos, axis = np.asarray(msg.position), np.asarray(msg.boresight)
+        if width is not None and np.all(np.isfinite(pos)) and np.all(np.isfinite(axis)):
+            self._beams[sonar] = (pos, axis, width)
 
     # ------------------------------------------------------------------ foxglove side
 
@@ -245,13 +292,14 @@ class LiveView:
                     self._thermals_dirty = self._thermals is not None
             with self._lock:
                 poses = dict(self._poses)
+                beams = dict(self._beams)
                 trails = {g: list(t) for g, t in self._trails.items()}
                 thermals = self._thermals if self._thermals_dirty else None
                 self._thermals_dirty = False
                 forest = self._forest
             arrows = []
-            for gid, (x, y, z, heading, bank, alive) in sorted(poses.items()):
-                qx, qy, qz, qw = _quaternion(heading, bank)
+            for gid, (x, y, z, q, alive) in sorted(poses.items()):
+                qw, qx, qy, qz = (float(v) for v in q)
                 color = Color(r=0.1, g=0.5, b=0.9, a=1.0) if alive else Color(r=0.5, g=0.5,
                                                                                 b=0.5, a=0.6)
                 arrows.append(SceneEntity(
@@ -269,8 +317,22 @@ class LiveView:
                 for gid, pts in sorted(trails.items()) if len(pts) >= 2
             ]
             self._channels["trails"].log(SceneUpdate(entities=lines))
+            cones = []
+            for sonar, (pos, axis, width) in sorted(beams.items()):
+                c, q, size = (
+                    [float(v) for v in a]
+                    for a in beam_cone(pos, axis, width, self.beam_length_m)
+                )
+                cones.append(SceneEntity(frame_id="world", id=f"beam{sonar}", cylinders=[
+                    CylinderPrimitive(
+                        pose=Pose(position=Vector3(x=c[0], y=c[1], z=c[2]),
+                                  orientation=Quaternion(w=q[0], x=q[1], y=q[2], z=q[3])),
+                        size=Vector3(x=size[0], y=size[1], z=size[2]), bottom_scale=0.0,
+                        top_scale=1.0, color=Color(r=0.2, g=0.9, b=0.3, a=0.25))]))
+            self._channels["beams"].log(SceneUpdate(entities=cones))
             with self._lock:
                 self._c["scene_updates"] += 1
+                self._c["beams_sent"] += len(cones)
             if thermals is not None:
                 cylinders = [
                     CylinderPrimitive(

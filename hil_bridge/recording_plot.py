@@ -2,17 +2,39 @@
 
 Panels, each drawn only when the recording holds its data: the soaring swarm's tracks over
 the thermals (gliders other than a sonar's mount), the sonar vehicle's path over the forest
-leaves, and the last echo that heard leaves as its envelope in dB re A0 over range.
+leaves with the beam of the shown echo (its cone at the sonar's attitude when it pinged, from
+the echo's pose and its ping's beamwidth, seen from above), and the last echo that heard leaves
+as its envelope in dB re A0 over range.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["plot_recording"]
+__all__ = ["beam_outline", "plot_recording"]
+
+#: length of the beam cone drawn, m
+BEAM_LENGTH_M = 3.0
+
+
+def beam_outline(position: ArrayLike, boresight: ArrayLike, beamwidth: float, length: float,
+                 n: int = 48) -> NDArray[np.float64]:
+    """Points (n + 1, 3) of a beam cone: its apex at ``position``, then ``n`` points of its
+    −3 dB rim ``length`` m along the ``boresight``."""
+    b = np.asarray(boresight, dtype=np.float64)
+    b = b / np.linalg.norm(b)
+    u = np.cross(b, [0.0, 0.0, 1.0] if abs(b[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(b, u)
+    t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)[:, None]
+    r = length * math.tan(beamwidth / 2.0)
+    rim = np.asarray(position) + length * b + r * (np.cos(t) * u + np.sin(t) * v)
+    return np.vstack([np.asarray(position, dtype=np.float64)[None], rim])
 
 
 def _read(mcap: str | Path) -> dict[str, Any]:
@@ -20,14 +42,18 @@ def _read(mcap: str | Path) -> dict[str, Any]:
     from hil_bridge.codec import decode_payload
 
     got: dict[str, Any] = {"tracks": {}, "thermals": None, "leaves": None, "echo": None,
-                           "mount": None}
+                           "mount": None, "echo_width": None}
+    widths: dict[tuple[str, int], float] = {}
     for m in read_bag(mcap):
         topic = m.topic
         is_state = topic.startswith("/glider/") and topic.endswith("/state")
-        if not (is_state or topic in ("/thermals", "/forest/points") or topic.endswith("/echo")):
+        is_sonar = topic.startswith("/sonar/") and topic.endswith(("/echo", "/ping"))
+        if not (is_state or topic in ("/thermals", "/forest/points") or is_sonar):
             continue
         msg: Any = decode_payload(m.header.type, m.header.v, m.payload)
-        if is_state:
+        if topic.endswith("/ping"):
+            widths[(topic[:-5], int(msg.ping_seq))] = float(msg.beamwidth)
+        elif is_state:
             got["tracks"].setdefault(int(topic.split("/")[2]), []).append((msg.x, msg.y))
         elif topic == "/thermals":
             got["thermals"] = msg
@@ -38,6 +64,7 @@ def _read(mcap: str | Path) -> dict[str, Any]:
             echo = got["echo"]
             if echo is None or msg.leaves_in_beam > 0 or echo.leaves_in_beam == 0:
                 got["echo"] = msg
+                got["echo_width"] = widths.get((topic[:-5], int(msg.ping_seq)))
             frame = m.header.frame_id
             if frame.startswith("glider/") and frame[7:].isdigit():
                 got["mount"] = int(frame[7:])
@@ -66,6 +93,7 @@ def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
         raise ValueError(f"{mcap}: nothing to plot (no glider states, thermals, forest points "
                          "or echoes)")
     fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 5.2), squeeze=False)
+    beams = 0
     ax_of = dict(zip(panels, axes[0], strict=True))
     if "swarm" in ax_of:
         ax = ax_of["swarm"]
@@ -93,6 +121,16 @@ def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
             ax.plot(sonar_path[:, 0], sonar_path[:, 1], "k-", lw=1.2,
                     label=f"sonar vehicle {mount}")
             ax.plot(sonar_path[-1, 0], sonar_path[-1, 1], "r^", ms=6)
+        width = got["echo_width"]
+        if (echo is not None and width is not None and np.all(np.isfinite(echo.position))
+                and np.all(np.isfinite(echo.boresight))):
+            from scipy.spatial import ConvexHull
+
+            cone = beam_outline(echo.position, echo.boresight, width, BEAM_LENGTH_M)[:, :2]
+            hull = cone[ConvexHull(cone).vertices]
+            ax.fill(hull[:, 0], hull[:, 1], color="tab:red", alpha=0.3, lw=0,
+                    label=f"beam of ping {echo.ping_seq} ({BEAM_LENGTH_M:g} m)")
+            beams = 1
         ax.set(title="sonar vehicle over the forest (top view)", xlabel="x (m)",
                ylabel="y (m)", aspect="equal")
         ax.legend(loc="best", fontsize=8, markerscale=8)
@@ -115,6 +153,6 @@ def plot_recording(mcap: str | Path, png: str | Path) -> dict[str, int]:
     Path(png).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png, dpi=110)
     plt.close(fig)
-    return {"tracks": len(tracks), "echo": int(echo is not None),
+    return {"tracks": len(tracks), "echo": int(echo is not None), "beams": beams,
             "leaves": 0 if got["leaves"] is None else len(got["leaves"].points),
             "panels": len(panels)}

@@ -56,3 +56,39 @@ def test_replay_cli_runs_a_trajectory_file(
     server = summary["nodes"]["server"]
     assert server["sim_time_s"] == pytest.approx(4.0)
     assert summary["monitor"]["topics"]["/glider/0/state"]["count"] > 0
+
+
+def test_plot_draws_the_beam_cone_of_the_shown_echo(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import math
+
+    import numpy as np
+
+    from hil_bridge.recording_plot import beam_outline, plot_recording
+
+    scene = {
+        "forest": {"preset": "seed000-fig5d", "query_radius_m": 4.0},
+        "sonars": [{"id": 0, "mount": 5, "echo": {"samples": 8000}}],
+        "vehicles": [{"id": 5, "path": {"kind": "figure_eight", "speed_mps": 3.0, "params": {
+            "center": [8.0, 7.0], "half_length": 7.0, "half_width": 5.0, "altitude": 2.0,
+            "count": 200}}}],
+        "state_rate_hz": 20, "clock": {"mode": "realtime", "rate": 2.0},
+    }
+    launch = tmp_path / "sonar.yaml"
+    launch.write_text(yaml.safe_dump({"bus": "mem://cli_beam", "nodes": [
+        {"name": "server", "entry": "hil_bridge.server:SimServer", "params": {"scene": scene}},
+        {"name": "pinger", "entry": "hil_bridge.replay:Pinger",
+         "params": {"sonar_id": 0, "rate_hz": 10, "el": 0.2, "beamwidth": 0.8}},
+    ]}), encoding="utf-8")
+    mcap = tmp_path / "run.mcap"
+    assert echoloop(["launch", str(launch), "--duration", "1.5", "--record", str(mcap),
+                     "--json"]) == 0
+    capsys.readouterr()
+    drawn = plot_recording(mcap, tmp_path / "run.png")
+    assert drawn["echo"] == 1 and drawn["beams"] == 1
+    cone = beam_outline([1.0, 2.0, 3.0], [0.0, 0.0, 2.0], 0.6, 3.0)
+    np.testing.assert_array_equal(cone[0], [1.0, 2.0, 3.0])
+    rim = cone[1:] - cone[0]
+    angles = np.arccos(rim[:, 2] / np.linalg.norm(rim, axis=1))
+    np.testing.assert_allclose(angles, math.atan(math.tan(0.3)), atol=1e-12)

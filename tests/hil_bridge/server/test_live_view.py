@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import base64
+import math
 import os
 import socket
 import time
 
+import numpy as np
 import pytest
 
 from hil_bridge.codec import encode
-from hil_bridge.live import LiveView
-from hil_bridge.messages import Clock, GliderState
+from hil_bridge.live import LiveView, beam_cone
+from hil_bridge.messages import Clock, GliderState, SonarEcho, SonarPing, state_quaternion
 from hil_bridge.server import SimServer
 from hil_bridge.transport import open_transport
+from sim_core.pose import quat_from_euler, quat_rotate
 from tests.hil_bridge.core.bus_test_util import poll_until
 
 
@@ -87,3 +90,43 @@ def test_live_view_survives_foreign_messages_under_its_topics() -> None:
         view.stop()
     st = view.stats()
     assert st["vehicles"] == 1 and st["bad"] == 0 and st["echoes_sent"] == 0
+
+
+def test_beam_cone_has_its_apex_at_the_sonar_and_its_axis_on_the_boresight() -> None:
+    pos, axis = np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.6, -0.8])
+    centre, q, size = beam_cone(pos, axis, math.radians(40.0), 3.0)
+    # the cylinder's local -z end (the apex, bottom_scale 0) and +z end (the base)
+    np.testing.assert_allclose(centre + quat_rotate(q, [0, 0, -1.5]), pos, atol=1e-12)
+    np.testing.assert_allclose(centre + quat_rotate(q, [0, 0, 1.5]), pos + 3.0 * axis,
+                               atol=1e-12)
+    np.testing.assert_allclose(size, [6 * math.tan(math.radians(20.0))] * 2 + [3.0])
+
+
+def test_state_attitude_is_the_quaternion_or_the_level_turn_of_the_seed_fields() -> None:
+    q = quat_from_euler(-0.3, 0.05, 1.0)
+    state = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=1.0, bank=0.3, airspeed=9.0,
+                        vz=0.0, qw=q[0], qx=q[1], qy=q[2], qz=q[3])
+    np.testing.assert_array_equal(state_quaternion(state), q)
+    old = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=1.0, bank=0.3, airspeed=9.0,
+                      vz=0.0)
+    # a left turn (bank > 0) lowers the left wing: roll = -bank (the old view had +bank)
+    np.testing.assert_allclose(state_quaternion(old), quat_from_euler(-0.3, 0.0, 1.0))
+
+
+def test_live_view_draws_the_beam_of_an_echo_from_its_ping() -> None:
+    bus = "mem://live_beam"
+    view = LiveView("live", bus=bus, port=0, rate_hz=50.0)
+    view.start()
+    try:
+        with open_transport(bus) as raw:
+            raw.publish(encode("/sonar/2/ping", SonarPing(stamp_ns=0, ping_seq=4, az=0.0,
+                                                          el=0.0, beamwidth=0.6),
+                               seq=0, pub_ns=0))
+            echo = SonarEcho(stamp_ns=0, ping_seq=4, fs=1e5, samples=np.zeros(8),
+                             leaves_in_beam=0, fidelity="fast", sonar_id=2,
+                             position=[1.0, 2.0, 3.0], orientation=[1.0, 0, 0, 0],
+                             boresight=[1.0, 0.0, 0.0], emit_ns=5)
+            raw.publish(encode("/sonar/2/echo", echo, seq=0, pub_ns=0))
+            assert poll_until(lambda: view.stats()["beams_sent"] > 0), view.stats()
+    finally:
+        view.stop()
