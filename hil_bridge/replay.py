@@ -5,7 +5,7 @@
 following ``FILE`` (:func:`sim_core.scene.load_trajectory`: linear position, shortest-arc
 heading), a sonar mounted on it, and optionally a :class:`Pinger` node that pings at a fixed
 rate. External pingers (a sonar-head adapter with a real head) can ping ``/sonar/<id>/ping``
-instead; the server answers each at the vehicle's pose when the ping arrives.
+instead; the server answers each at the vehicle's pose when the ping was emitted (its stamp).
 
 File formats (:mod:`hil_bridge.logs`, ``docs/server.md``): CSV/NPZ columns in local ENU or
 geodetic, PX4 ULog, ArduPilot DataFlash, MAVLink tlog, ROS 2 bags and echoloop recordings.
@@ -44,8 +44,9 @@ class Pinger:
 
     ``Pinger(name, *, bus, sonar_id=0, rate_hz=10.0, az=0.0, el=0.0, beamwidth=0.7,
     beamwidth_range=None, seed=0, max_pings=None)``. With ``beamwidth_range = [lo, hi]`` each
-    ping's beamwidth is drawn from U(lo, hi) (seed 000 used [30°, 65°]). It subscribes to the
-    echoes and reports how many came back, with ping -> echo latency percentiles (ms).
+    ping's beamwidth is drawn from U(lo, hi) (seed 000 used [30°, 65°]). Pings are stamped with
+    the bus's sim time (``/clock``) when sent, their emission. It subscribes to the echoes and
+    reports how many came back, with ping -> echo latency percentiles (ms).
     """
 
     def __init__(
@@ -92,11 +93,13 @@ class Pinger:
         self._last_echo: Any = None
 
     def start(self) -> None:
+        from hil_bridge.clock import SimClock
         from hil_bridge.messages import SonarEcho, SonarPing
         from hil_bridge.node import Node
         from hil_bridge.qos import SENSOR
 
-        self._node = Node(self.name, bus=self.bus)
+        self._node = Node(self.name, bus=self.bus, clock=SimClock("lockstep"))
+        self._node.follow_bus_clock()
         self._pub = self._node.create_publisher(
             SonarPing, f"/sonar/{self.sonar_id}/ping", qos=SENSOR
         )

@@ -21,6 +21,8 @@ the server answers it at the pose of that sim time and waits for the next one. A
 later than the sim time sent to the head was fired on the head's own clock (before it followed
 the host): it is published without ``next_ns`` (counted in ``pings_own_clock``), and the server
 does not answer such pings of a lockstep head.
+Otherwise a ping is stamped with the sim time of the latest ``/clock`` the adapter saw (its
+arrival, in sim time), which the server takes as its emission.
 
 ``stats()`` adds to the node's bus counters: ``frames_in``, ``frames_out``, ``crc_errors``,
 ``frames_dropped`` (any decode failure), ``echoes_out``, ``echoes_dropped``, ``reconnects``,
@@ -137,6 +139,7 @@ class SonarHeadAdapter(Node):
         self.create_subscription(Clock, "/clock", self._on_clock)
         self._lockstep = False
         self._sim_ns = 0
+        self._bus_ns = 0  # the latest /clock, lockstep or not: stamps pings on arrival
         self._beat_stop = threading.Event()
         self._beat_thread: threading.Thread | None = None
 
@@ -170,6 +173,7 @@ class SonarHeadAdapter(Node):
     # ---- data path -------------------------------------------------------------------------
 
     def _on_clock(self, msg: Clock) -> None:
+        self._bus_ns = max(self._bus_ns, int(msg.stamp_ns))
         self._lockstep = bool(msg.lockstep)
         if self._lockstep:
             self._sim_ns = max(self._sim_ns, int(msg.stamp_ns))
@@ -177,7 +181,7 @@ class SonarHeadAdapter(Node):
                 self.host.send_heartbeat(stamp_ns=self._sim_ns, lockstep=True)
 
     def _on_ping(self, ping: PingPayload, frame: Frame) -> None:
-        stamp, next_ns = self.now_ns(), -1
+        stamp, next_ns = self._bus_ns, -1
         if self._lockstep and frame.stamp_ns > self._sim_ns:
             self.host.counts["pings_own_clock"] += 1  # fired before the head followed us
         elif self._lockstep:
