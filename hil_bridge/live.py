@@ -319,14 +319,14 @@ class LiveView:
             self._channels["trails"].log(SceneUpdate(entities=lines))
             cones = []
             for sonar, (pos, axis, width) in sorted(beams.items()):
-                c, q, size = (
+                c, qc, size = (
                     [float(v) for v in a]
                     for a in beam_cone(pos, axis, width, self.beam_length_m)
                 )
                 cones.append(SceneEntity(frame_id="world", id=f"beam{sonar}", cylinders=[
                     CylinderPrimitive(
                         pose=Pose(position=Vector3(x=c[0], y=c[1], z=c[2]),
-                                  orientation=Quaternion(w=q[0], x=q[1], y=q[2], z=q[3])),
+                                  orientation=Quaternion(w=qc[0], x=qc[1], y=qc[2], z=qc[3])),
                         size=Vector3(x=size[0], y=size[1], z=size[2]), bottom_scale=0.0,
                         top_scale=1.0, color=Color(r=0.2, g=0.9, b=0.3, a=0.25))]))
             self._channels["beams"].log(SceneUpdate(entities=cones))
