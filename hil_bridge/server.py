@@ -181,6 +181,7 @@ class SimServer:
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._cmd_effect_ticks: deque[int] = deque(maxlen=10000)
         self._sim_ns = 0
+        self._tick_cpu_s = 0.0
         self._last_echo_error = ""
         self._tick_error = ""
         self._flown_gliders: dict[int, dict[str, Any]] = {}
@@ -302,6 +303,7 @@ class SimServer:
         with self._lock:
             out: dict[str, Any] = dict(self._c)
             out["sim_time_s"] = self._sim_ns / 1e9
+            out["tick_cpu_s"] = self._tick_cpu_s
             out["registered"] = sorted(self._registered)
             out["freewheeling"] = sorted(self._freewheel)
             out["last_echo_error"] = self._last_echo_error
@@ -591,6 +593,7 @@ class SimServer:
         since: dict[int, int] = {}
         if fleet.swarm is not None:
             self._publish_thermals(0)
+        cpu0 = time.thread_time()
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns
             if stop_ns is not None and t_ns > stop_ns:
@@ -621,8 +624,11 @@ class SimServer:
                 with self._lock:
                     since = dict(self._cmd_arrivals)
             self._publish_tick(states, decided)
+            cpu = time.thread_time()
             with self._lock:
                 self._c["ticks"] += 1
+                self._tick_cpu_s += cpu - cpu0
+            cpu0 = cpu
             tick += 1
             now = time.monotonic()
             if now >= next_diag:
