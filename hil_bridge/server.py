@@ -506,16 +506,18 @@ class SimServer:
         pubs = self._pubs
         t_ns = st.t_ns
         pubs["/clock"].publish(Clock(stamp_ns=t_ns))
-        for k, gid in enumerate(st.ids):
-            p, q, w = st.position[k], st.quat[k], st.rates[k]
+        rows = zip(
+            st.ids, st.position.tolist(), st.heading.tolist(), st.bank.tolist(),
+            st.airspeed.tolist(), st.vz.tolist(), st.alive.tolist(), st.step.tolist(),
+            st.roll.tolist(), st.pitch.tolist(), st.yaw.tolist(), st.quat.tolist(),
+            st.rates.tolist(), strict=True,
+        )
+        for gid, p, hdg, bank, v, vz, alive, step, roll, pitch, yaw, q, w in rows:
             pubs[f"/glider/{gid}/state"].publish(GliderState(
-                stamp_ns=t_ns, x=float(p[0]), y=float(p[1]), z=float(p[2]),
-                heading=float(st.heading[k]), bank=float(st.bank[k]),
-                airspeed=float(st.airspeed[k]), vz=float(st.vz[k]), alive=bool(st.alive[k]),
-                glider_id=gid, step=int(st.step[k]), roll=float(st.roll[k]),
-                pitch=float(st.pitch[k]), yaw=float(st.yaw[k]), qw=float(q[0]), qx=float(q[1]),
-                qy=float(q[2]), qz=float(q[3]), roll_rate=float(w[0]), pitch_rate=float(w[1]),
-                yaw_rate=float(w[2]),
+                stamp_ns=t_ns, x=p[0], y=p[1], z=p[2], heading=hdg, bank=bank, airspeed=v,
+                vz=vz, alive=alive, glider_id=gid, step=step, roll=roll, pitch=pitch, yaw=yaw,
+                qw=q[0], qx=q[1], qy=q[2], qz=q[3], roll_rate=w[0], pitch_rate=w[1],
+                yaw_rate=w[2],
             ))
         if decided:
             self._publish_neighbors(t_ns)
