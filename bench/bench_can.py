@@ -103,12 +103,16 @@ def _bus_load(out_dir: Path) -> str:
     def load(per_glider_fps: float) -> str:
         return f"{100 * N_GLIDERS * per_glider_fps * WORST / BITRATE:.1f} %"
 
+    # per glider and second: 4 state frames (position, motion, attitude, rates) per sample
+    base = 4 * 50 + 50 + 20
     configs = [
-        ("state 50 Hz, cmd 50 Hz, heartbeats 10 Hz both ways, no neighbours", 2 * 50 + 50 + 20),
-        ("+ 10 neighbours (seed k) per list at 2 Hz (one list per physics step)",
-         2 * 50 + 50 + 20 + 2 * 10 * 2),
-        ("+ 10 neighbours at the 10 Hz cap (`neighbor_rate_hz`)", 2 * 50 + 50 + 20 + 2 * 10 * 10),
-        ("+ 15 neighbours (profile maximum) at 10 Hz", 2 * 50 + 50 + 20 + 2 * 15 * 10),
+        ("state 50 Hz (4 frames), cmd 50 Hz, heartbeats 10 Hz both ways, no neighbours", base),
+        ("+ 10 neighbours (seed k) per list at 2 Hz (one list per control step)",
+         base + 2 * 10 * 2),
+        ("+ 10 neighbours at the 10 Hz cap (`neighbor_rate_hz`)", base + 2 * 10 * 10),
+        ("+ 15 neighbours (profile maximum) at 10 Hz", base + 2 * 15 * 10),
+        ("state without the attitude frames (2 frames), 10 neighbours at 10 Hz",
+         2 * 50 + 50 + 20 + 2 * 10 * 10),
     ]
     cfg_rows = [[c, f"{N_GLIDERS * f}", load(f)] for c, f in configs]
     computed = table(["configuration (8 gliders)", "frames/s", "worst-case load, 1 Mbit/s"],
@@ -133,7 +137,7 @@ def _bus_load(out_dir: Path) -> str:
     return (
         f"### Bus load: {N_GLIDERS} gliders at {RATE_HZ:g} Hz\n\n"
         f"Closed loop for {RUN_S:g} s (SimServer swarm, `AutopilotAdapter`, `MockAutopilot` "
-        f"commanding all {N_GLIDERS} at {RATE_HZ:g} Hz; neighbour lists arrive once per physics "
+        f"commanding all {N_GLIDERS} at {RATE_HZ:g} Hz; neighbour lists arrive once per control "
         f"step, 2 Hz). {len(data)} frames logged over {span:.2f} s; commands forwarded "
         f"{stats.get('cmd_forwarded', 0)}, link `{stats.get('can_link')}`. Goal: ≤ 50 % of a "
         f"1 Mbit/s bus.\n\n{measured}\n\nFrom frame rates, worst-case stuffing:\n\n{computed}\n\n"
