@@ -47,7 +47,12 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim_core.pose import body_rates_from_euler_rates, body_rates_from_quats, quat_from_euler
+from sim_core.pose import (
+    body_rates_from_euler_rates,
+    body_rates_from_quats,
+    euler_from_quat,
+    quat_from_euler,
+)
 from sim_core.soaring.glider import sink_rate
 
 if TYPE_CHECKING:
@@ -319,24 +324,31 @@ class PathState:
 
 
 def path_state(traj: Trajectory, t: float, dt: float = 1e-3) -> PathState:
-    """The state of a vehicle flying ``traj`` at time ``t`` s, with the attitude the path
-    implies: yaw = its heading, roll = −bank (the trajectory's bank; for a timed geometric
-    path the coordinated-turn bank), pitch = −asin(vz / speed) (the climb of the path; 0 when
-    level). Velocity, turn rate and body rates are central differences over ``dt`` s."""
+    """The state of a vehicle flying ``traj`` at time ``t`` s. Its attitude is the
+    trajectory's own when it carries one (a logged attitude, :meth:`Trajectory.attitude`),
+    otherwise the one the path implies: yaw = its heading, roll = −bank (the trajectory's bank;
+    for a timed geometric path the coordinated-turn bank), pitch = −asin(vz / speed) (the climb
+    of the path; 0 when level). Velocity, turn rate and body rates are central differences over
+    ``dt`` s."""
     times = np.array([t - dt / 2, t, t + dt / 2])
     s = traj.sample(times)
     xyz = np.stack([s["x"], s["y"], s["z"]], axis=-1)
     speed, vz = s["airspeed"], s["vz"]
-    pitch = -np.arctan2(vz, np.sqrt(np.maximum(speed * speed - vz * vz, 0.0)))
-    roll, yaw = -s["bank"], s["heading"]
-    quat = quat_from_euler(roll, pitch, yaw)
+    logged = traj.attitude(times)
+    if logged is None:
+        pitch = -np.arctan2(vz, np.sqrt(np.maximum(speed * speed - vz * vz, 0.0)))
+        roll, yaw = -s["bank"], s["heading"]
+        quat = quat_from_euler(roll, pitch, yaw)
+    else:
+        quat = logged
+        roll, pitch, yaw = euler_from_quat(quat)
     rates = body_rates_from_quats(quat[0], quat[2], dt)
-    omega = float(_wrap(np.asarray(yaw[2] - yaw[0]))) / dt
+    omega = float(_wrap(np.asarray(s["heading"][2] - s["heading"][0]))) / dt
     out = FlightOutputs(
         vz=np.asarray(vz[1]), omega=np.asarray(omega), roll=np.asarray(roll[1]),
         pitch=np.asarray(pitch[1]), yaw=np.asarray(yaw[1]), quat=quat[1], rates=rates,
     )
     return PathState(
-        position=xyz[1], velocity=(xyz[2] - xyz[0]) / dt, heading=float(yaw[1]),
+        position=xyz[1], velocity=(xyz[2] - xyz[0]) / dt, heading=float(s["heading"][1]),
         bank=float(s["bank"][1]), airspeed=float(speed[1]), outputs=out,
     )

@@ -181,3 +181,26 @@ def test_params_are_validated_and_long_steps_are_refined() -> None:
     coarse, _ = m.step(y0, u, 2.0, substeps=1)  # refined to 10 sub-steps of 0.2 s
     fine, _ = m.step(y0, u, 2.0, substeps=10)
     np.testing.assert_array_equal(coarse, fine)
+
+
+def test_a_path_flies_the_attitude_it_implies_or_the_one_it_logged() -> None:
+    from sim_core.flight import path_state
+    from sim_core.scene import Trajectory
+
+    speed, radius = 4.0, 4.0**2 / (9.81 * math.tan(math.radians(30.0)))
+    a = np.linspace(0.0, 2 * np.pi, 361)
+    xyz = np.stack([radius * np.cos(a), radius * np.sin(a), np.full(a.shape, 2.0)], axis=1)
+    circle = Trajectory.from_path(xyz, None, speed_mps=speed)
+    ps = path_state(circle, 1.0)
+    assert ps.bank == pytest.approx(math.radians(30.0), abs=math.radians(0.2))
+    assert float(ps.outputs.roll) == -ps.bank and float(ps.outputs.pitch) == 0.0
+    np.testing.assert_allclose(np.linalg.norm(ps.velocity[:2]), speed, rtol=1e-3)
+    # a logged attitude (e.g. read from a flight log) wins over the implied one
+    q = quat_from_euler(0.2, -0.1, np.linspace(0.0, 1.0, len(circle)))
+    logged = Trajectory(circle.t, circle.xyz, circle.heading, circle.bank, circle.airspeed,
+                        quat=q)
+    lp = path_state(logged, 1.0)
+    np.testing.assert_allclose(lp.outputs.quat, logged.attitude(1.0), atol=1e-12)
+    assert float(lp.outputs.roll) == pytest.approx(0.2, abs=1e-9)
+    assert float(lp.outputs.pitch) == pytest.approx(-0.1, abs=1e-9)
+    assert lp.position.tolist() == ps.position.tolist()
