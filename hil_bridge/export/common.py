@@ -1,13 +1,14 @@
 """What every exporter needs: decoded messages of a recording, glider and sonar poses.
 
 Poses follow REP 103 (world ENU, body FLU, quaternions ``[w, x, y, z]`` world-from-body).
-A ``GliderState`` that carries its attitude (``qw, qx, qy, qz``, issue 10) is used as is;
-older states get it from their fields in :func:`glider_attitudes`, the one place that derives
-it: yaw = heading, roll = −bank (positive bank is a left turn), pitch from the flight-path
-angle (``−atan2(vz, airspeed)``: FLU pitch is positive nose down). A ``SonarEcho`` that carries
-the sonar pose (``position``, ``orientation``, ``boresight``) is used as is; otherwise
-:func:`sonar_pose` rebuilds it as the server computes echoes today: at the mount vehicle's
-latest state, boresight at world azimuth ``heading + az`` and elevation ``el``.
+A ``GliderState`` that carries its attitude (a finite ``qw, qx, qy, qz``, as the server
+publishes) is used as is; older states (NaN there) get it from their fields in
+:func:`glider_attitudes`, the one place that derives it: yaw = heading, roll = −bank (positive
+bank is a left turn), pitch from the flight-path angle (``−atan2(vz, airspeed)``: FLU pitch is
+positive nose down). A ``SonarEcho`` that carries the sonar's pose at emission (finite
+``position``, ``orientation``, ``boresight``) is used as is, turned so that x is the
+boresight; older echoes are located as the server used to compute them: at the mount
+vehicle's latest state, boresight at world azimuth ``heading + az`` and elevation ``el``.
 """
 
 from __future__ import annotations
@@ -90,15 +91,16 @@ def mount_id(frame_id: str) -> int | None:
 
 def glider_attitudes(states: list[Any]) -> FloatArray:
     """World-from-body ``[w, x, y, z]`` (K, 4) of K ``GliderState`` (module docstring)."""
-    if states and all(getattr(st, "qw", None) is not None for st in states):
-        return np.array([[st.qw, st.qx, st.qy, st.qz] for st in states], dtype=np.float64)
+    given = np.array([[st.qw, st.qx, st.qy, st.qz] for st in states],
+                     dtype=np.float64).reshape(-1, 4)
+    ok = np.all(np.isfinite(given), axis=1)
+    if ok.all():
+        return given
     a = np.array([[st.heading, st.bank, st.airspeed, st.vz] for st in states],
                  dtype=np.float64).reshape(-1, 4)
     pitch = -np.arctan2(a[:, 3], np.maximum(a[:, 2], 1e-9))
     q = quat_from_euler(-a[:, 1], pitch, a[:, 0])
-    for i, st in enumerate(states):
-        if getattr(st, "qw", None) is not None:
-            q[i] = (st.qw, st.qx, st.qy, st.qz)
+    q[ok] = given[ok]
     return q
 
 
@@ -139,14 +141,16 @@ class SonarPose:
 
 def sonar_pose(echo: Any, ping: Any | None, mount_state: Any | None) -> SonarPose | None:
     """The sonar pose of ``echo`` (module docstring); None when nothing locates it."""
-    pos = getattr(echo, "position", None)
-    ori = getattr(echo, "orientation", None)
-    if pos is not None and ori is not None:
-        q = np.asarray(ori, dtype=np.float64)
-        bore = getattr(echo, "boresight", None)
-        b = (np.asarray(bore, dtype=np.float64) if bore is not None
-             else _rotate_x(q))
-        return SonarPose(np.asarray(pos, dtype=np.float64), q, b)
+    pos = np.asarray(echo.position, dtype=np.float64)
+    ori = np.asarray(echo.orientation, dtype=np.float64)
+    bore = np.asarray(echo.boresight, dtype=np.float64)
+    if np.all(np.isfinite(pos)) and np.all(np.isfinite(ori)) and np.all(np.isfinite(bore)):
+        from sim_core.pose import quat_between, quat_multiply, quat_rotate
+
+        # world-from-sonar turned by the shortest arc that takes the sonar's x (its mount's
+        # forward axis) to the ping's boresight: a frame whose x is the beam axis
+        turn = quat_between(quat_rotate(ori, [1.0, 0.0, 0.0]), bore)
+        return SonarPose(pos, quat_multiply(turn, ori), bore)
     if mount_state is None:
         return None
     az = float(ping.az) if ping is not None else 0.0
@@ -156,8 +160,3 @@ def sonar_pose(echo: Any, ping: Any | None, mount_state: Any | None) -> SonarPos
     return SonarPose(np.array([mount_state.x, mount_state.y, mount_state.z], dtype=np.float64),
                      quat_from_euler(0.0, -el, yaw), b)
 
-
-def _rotate_x(q: FloatArray) -> FloatArray:
-    from sim_core.pose import quat_rotate
-
-    return quat_rotate(q, np.array([1.0, 0.0, 0.0]))

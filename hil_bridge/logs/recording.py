@@ -3,8 +3,9 @@
 Poses from ``/glider/<id>/state`` (``GliderState``: x, y, z m ENU, heading, bank, airspeed);
 ``vehicle_id`` chooses the glider when the recording has several. Time: the states'
 ``stamp_ns`` (sim time). States with ``alive`` false are dropped; a state repeated with a new
-stamp (the server's zero-order hold between physics steps) is kept, so the replay holds too.
-When the states carry an attitude quaternion (``qw, qx, qy, qz``) it is used.
+stamp (recordings of servers older than the continuous flight model held states between
+physics steps) is kept, so the replay holds too. When the states carry an attitude quaternion
+(``qw, qx, qy, qz``, finite) it is used.
 """
 
 from __future__ import annotations
