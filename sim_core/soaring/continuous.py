@@ -225,8 +225,8 @@ class ContinuousSwarm:
 
         return Trace(
             t=np.asarray(self._trace.t[:steps], dtype=np.float64), x=col("x"), y=col("y"),
-            z=col("z"), heading=col("heading"), bank=col("bank"), airspeed=col("airspeed"), vz=col("vz"),
-            alive=col("alive").astype(bool), cohesion=col("cohesion"),
+            z=col("z"), heading=col("heading"), bank=col("bank"), airspeed=col("airspeed"),
+            vz=col("vz"), alive=col("alive").astype(bool), cohesion=col("cohesion"),
             thermal_x=th.x[run, :t_slots].copy(), thermal_y=th.y[run, :t_slots].copy(),
             thermal_radius=th.radius[run, :t_slots].copy(),
             thermal_strength=col("thermal_strength")[:, :t_slots],
