@@ -34,7 +34,7 @@ from sim_core.flight import FlightModel, FlightParams, X, Y, Z
 from sim_core.rng import make_rng
 from sim_core.soaring import Law, run_batch
 from sim_core.soaring.continuous import run_continuous
-from sim_core.soaring.thermals import UpdraftField, spawn_thermals
+from sim_core.soaring.thermals import spawn_thermals, updraft
 
 TITLE = "Continuous flight: error vs dt, seed law discrete vs continuous"
 
@@ -51,7 +51,10 @@ METRICS = ("surviving", "flightTime", "heightScore", "thermalUseScore", "explora
 def _setup() -> tuple[FlightModel, np.ndarray, np.ndarray, Any]:
     law = Law().replace(thermals=[{"x": 60.0, "y": 0.0, "radius": 400.0, "strength": 5.0}])
     th = spawn_thermals(law, make_rng(0))
-    field = UpdraftField(th, GLIDERS)
+
+    def field(xy: np.ndarray) -> np.ndarray:
+        return updraft(np.moveaxis(xy, 0, -1), th)
+
     model = FlightModel(bank_tau=FlightParams().bank_tau_s,
                         bank_rate_max=FlightParams().bank_rate_max,
                         speed_tau=FlightParams().speed_tau_s,
