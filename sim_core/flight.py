@@ -53,7 +53,7 @@ from sim_core.pose import (
     euler_from_quat,
     quat_from_euler,
 )
-from sim_core.soaring.glider import sink_rate
+from sim_core.soaring import kernels
 
 if TYPE_CHECKING:
     from sim_core.scene import Trajectory
@@ -169,6 +169,7 @@ class FlightModel:
         self.glide: B8 = np.asarray(glide, dtype=bool)
         self.any_glide = bool(self.glide.any())
         self.A, self.B, self.C = (arr(c) for c in polar)
+        self._polar_flat: dict[tuple[int, ...], tuple[F8, F8, F8]] = {}
         self.g, self.ceiling, self.floor = arr(g), arr(ceiling), arr(floor)
         #: longest sub-step :meth:`step` takes, s: half the fastest time constant (RK4 is
         #: stable on a first-order lag up to 2.78 τ; at τ/2 its error there is 3e-4 per step)
@@ -197,8 +198,19 @@ class FlightModel:
 
     # -- the right-hand side -----------------------------------------------------------------
     def _sink(self, speed: F8, bank: F8) -> F8:
-        """Polar sink (< 0), m/s: (A V² + B V + C) / √cos φ (the seed's, spec §3.3)."""
-        return sink_rate(speed, bank, self.A, self.B, self.C)
+        """Polar sink (< 0), m/s: (A V² + B V + C) / √cos φ, the seed's compiled kernel (that
+        of :func:`sim_core.soaring.sink_rate`, called on flat arrays with the polar
+        coefficients flattened once per state shape)."""
+        shape = np.broadcast_shapes(np.shape(speed), np.shape(bank))
+
+        def flat(a: ArrayLike) -> F8:  # a writable copy: the kernel's compiled signature
+            return np.array(np.broadcast_to(a, shape), dtype=np.float64).ravel()
+
+        abc = self._polar_flat.get(shape)
+        if abc is None:
+            abc = self._polar_flat[shape] = (flat(self.A), flat(self.B), flat(self.C))
+        v, b = flat(speed), flat(bank)
+        return np.asarray(kernels.sink_many(v, b, *abc)).reshape(shape)
 
     def derivative(self, y: F8, u: F8, w: F8 | float = 0.0) -> F8:
         """``dy/dt`` ``(6, *S)`` of states ``y (6, *S)`` under commands ``u (2, *S)`` with the
