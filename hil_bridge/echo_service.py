@@ -9,14 +9,14 @@ around the sonar and :func:`sim_core.sonar.synthesize`.
 :class:`EchoService` runs it off the server's tick loop. :meth:`EchoService.submit` takes an
 :class:`EchoRequest` (the ping, the sonar's :class:`SonarPose` at the ping's emission, its
 arrival time) into a bounded queue (``queue_size``; when full the oldest waiting request is
-dropped and counted) and returns at once; one worker answers requests in order and hands each
-result to ``on_echo(request, result)`` (``on_error(request, message)`` when the scene refuses
-it). The worker is a thread of the server process (``worker="thread"``: the synthesis and
-k-d tree queries release the GIL in their heavy numpy/finufft calls) or a spawned process with
-its own copy of the scene and tile cache (``"process"``, for scenes whose tile building or
-fidelity holds the GIL for long; the launching script must then be import-safe). Requests and
-results are plain data, so another scheduler (a pool, deadlines) can replace the worker behind
-the same ``submit`` / ``on_echo`` interface.
+dropped, counted and handed to ``on_drop(request)``) and returns at once; one worker answers
+requests in order and hands each result to ``on_echo(request, result)`` (``on_error(request,
+message)`` when the scene refuses it). The worker is a thread of the server process
+(``worker="thread"``: the synthesis and k-d tree queries release the GIL in their heavy
+numpy/finufft calls) or a spawned process with its own copy of the scene and tile cache
+(``"process"``, for scenes whose tile building or fidelity holds the GIL for long; the launching
+script must then be import-safe). Requests and results are plain data, so another scheduler (a
+pool, deadlines) can replace the worker behind the same ``submit`` / ``on_echo`` interface.
 """
 
 from __future__ import annotations
@@ -220,10 +220,10 @@ Points = tuple[tuple[tuple[tuple[float, float, float], float], ...], int]
 class EchoService:
     """Answers pings at given sonar poses on one worker (see the module docstring).
 
-    ``EchoService(scene, *, worker="thread", queue_size=4, on_echo, on_error, points=None,
-    on_points=None)``: ``points`` = (regions, limit) asks the worker, before the first ping,
-    for the leaf points of :func:`compute_points`, handed to ``on_points(centres, radii)``.
-    ``start()`` starts the worker; ``close()`` (idempotent) stops it.
+    ``EchoService(scene, *, worker="thread", queue_size=4, on_echo, on_error, on_drop=None,
+    points=None, on_points=None)``: ``points`` = (regions, limit) asks the worker, before the
+    first ping, for the leaf points of :func:`compute_points`, handed to ``on_points(centres,
+    radii)``. ``start()`` starts the worker; ``close()`` (idempotent) stops it.
     """
 
     def __init__(
@@ -234,6 +234,7 @@ class EchoService:
         queue_size: int = 4,
         on_echo: Callable[[EchoRequest, EchoResult], None],
         on_error: Callable[[EchoRequest, str], None],
+        on_drop: Callable[[EchoRequest], None] | None = None,
         points: Points | None = None,
         on_points: Callable[[NDArray[np.float32], NDArray[np.float32]], None] | None = None,
     ) -> None:
@@ -242,7 +243,7 @@ class EchoService:
         self.scene = scene
         self.worker = worker
         self._queue: queue.Queue[EchoRequest] = queue.Queue(maxsize=queue_size)
-        self._on_echo, self._on_error = on_echo, on_error
+        self._on_echo, self._on_error, self._on_drop = on_echo, on_error, on_drop
         self._points, self._on_points = points, on_points
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -273,12 +274,14 @@ class EchoService:
                 return not dropped
             except queue.Full:
                 try:
-                    self._queue.get_nowait()
+                    oldest = self._queue.get_nowait()
                 except queue.Empty:
                     continue
                 dropped = True
                 with self._lock:
                     self._c["dropped"] += 1
+                if self._on_drop is not None:
+                    self._on_drop(oldest)
 
     def stats(self) -> dict[str, Any]:
         """``requests``, ``dropped``, ``answered``, ``errors`` and the compute times (ms)."""

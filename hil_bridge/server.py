@@ -43,15 +43,18 @@ the tick loop by one worker: a thread (default), or ``echo_worker: process``, a 
 with its own copy of the scene (the launching script must be import-safe).
 
 **Time.** The server ticks at ``state_rate_hz`` of sim time. Clock modes: ``realtime`` (ticks
-paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (before flying the
-control period that a control step starts, wait up to ``lockstep_timeout_s`` for a new command
-from every registered autopilot; a miss counts a stall and the period is flown on held
-commands; an autopilot that misses ``lockstep_max_stalls`` steps in a row is not waited for
-again until it next sends). Stamps are integer sim nanoseconds and never decrease.
+paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (after each tick,
+:class:`hil_bridge.lockstep.LockstepGate` holds the server until the registered autopilots
+answered their state steps and the sonar heads that ping on sim time sent their due pings; a
+swarm glider's answer to a control step is needed before the period it governs is flown;
+``/clock`` says ``lockstep`` so adapters drive their devices on sim time). Within a tick,
+neighbour lists are published before the states of the same step. Stamps are integer sim
+nanoseconds and never decrease.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
@@ -66,6 +69,7 @@ import numpy as np
 
 from hil_bridge.echo_service import EchoRequest, EchoResult, EchoService, SonarPose
 from hil_bridge.fleet import Fleet, FleetStates
+from hil_bridge.lockstep import LockstepGate
 from hil_bridge.logs import load_trajectory
 from hil_bridge.messages import (
     Clock,
@@ -106,6 +110,7 @@ class ServerParams:
     state_rate_hz: float | None = None
     embed_proxy: bool = True
     autopilots: tuple[int, ...] = ()
+    sonar_heads: tuple[int, ...] = ()
     echo_queue: int = 4
     diagnostics_period_s: float = 1.0
     stop_after_s: float | None = None
@@ -137,8 +142,7 @@ _COUNTERS = (
     "ticks", "physics_steps", "control_steps", "states_published", "neighbors_published",
     "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
     "cmd_ignored", "pings_received", "ping_stamp_future", "ping_stamp_old",
-    "echoes_published", "stalls", "stalled_steps", "late_ticks", "lockstep_released",
-    "diagnostics_published", "external_steps",
+    "echoes_published", "late_ticks", "diagnostics_published", "external_steps",
 )
 
 
@@ -171,7 +175,6 @@ class SimServer:
         physics_hz = max(self.state_rate_hz, float(spec.physics_rate_hz or 0.0))
         self.substeps = max(1, math.ceil(physics_hz / self.state_rate_hz - 1e-9))
         self._lock = threading.Lock()
-        self._cmd_cond = threading.Condition(self._lock)
         self._stop = threading.Event()
         self._done = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -191,9 +194,15 @@ class SimServer:
         unknown = sorted(self._registered - set(self._glider_index) - set(self._vehicle_specs))
         if unknown:
             raise ConfigError(f"{name}.params.autopilots: unknown glider id(s) {unknown}")
-        self._freewheel: set[int] = set()
-        self._consecutive_stalls: dict[int, int] = {}
-        self._cmd_arrivals: dict[int, int] = {}
+        bad_heads = sorted(set(self.params.sonar_heads) - {s.id for s in spec.sonars})
+        if bad_heads:
+            raise ConfigError(f"{name}.params.sonar_heads: unknown sonar id(s) {bad_heads}")
+        clock = self.clock_spec
+        self._gate = LockstepGate(
+            lockstep=clock.mode == "lockstep", timeout_s=clock.lockstep_timeout_s,
+            max_stalls=clock.lockstep_max_stalls, start_timeout_s=clock.lockstep_start_timeout_s,
+            autopilots=self._registered, sonars=self.params.sonar_heads,
+        )
         self._good_cmd: dict[int, tuple[float, float]] = {}
         #: id -> the tick due when its newest good command arrived, until that command is flown
         self._cmd_pending: dict[int, int] = {}
@@ -268,6 +277,7 @@ class SimServer:
             self._echo = EchoService(
                 self.scene, worker=self.params.echo_worker, queue_size=self.params.echo_queue,
                 on_echo=self._publish_echo, on_error=self._echo_failed,
+                on_drop=lambda req: self._gate.echo_done(req.sonar_id),
                 points=self._points_request(first) if "/forest/points" in self._pubs else None,
                 on_points=self._publish_points,
             )
@@ -286,8 +296,7 @@ class SimServer:
             return
         self._stopped = True
         self._stop.set()
-        with self._cmd_cond:
-            self._cmd_cond.notify_all()
+        self._gate.interrupt()
         for t in self._threads:
             t.join()
         if self._echo is not None:
@@ -305,12 +314,12 @@ class SimServer:
             out["sim_time_s"] = self._sim_ns / 1e9
             out["tick_cpu_s"] = self._tick_cpu_s
             out["registered"] = sorted(self._registered)
-            out["freewheeling"] = sorted(self._freewheel)
             out["last_echo_error"] = self._last_echo_error
             out["tick_error"] = self._tick_error
             out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
             ping_echo = list(self._ping_echo_ms)
             effect = list(self._cmd_effect_ticks)
+        out.update(self._gate.stats())
         out["pings_dropped"] = int(echo.get("dropped", 0))
         out["echo_errors"] = int(echo.get("errors", 0))
         out["clock_mode"] = self.clock_spec.mode
@@ -335,17 +344,13 @@ class SimServer:
         return on_cmd
 
     def _on_cmd(self, gid: int, msg: GliderCmd) -> None:
-        with self._cmd_cond:
+        with self._lock:
             self._c["cmd_received"] += 1
             vehicle = self._vehicle_specs.get(gid)
             if vehicle is not None and not vehicle.commanded:
                 self._c["cmd_ignored"] += 1
                 return
             self._registered.add(gid)
-            if gid in self._freewheel:
-                self._freewheel.discard(gid)
-                self._consecutive_stalls[gid] = 0
-            self._cmd_arrivals[gid] = self._cmd_arrivals.get(gid, 0) + 1
             checked = self._check_cmd(gid, msg.bank_cmd, msg.airspeed_cmd)
             if checked is None:
                 self._c["cmd_rejected"] += 1
@@ -355,7 +360,7 @@ class SimServer:
                 self._cmd_pending.setdefault(gid, self._c["ticks"])
                 self._c["cmd_applied"] += 1
                 self._c["cmd_clipped"] += int(clipped)
-            self._cmd_cond.notify_all()
+        self._gate.on_cmd(gid, int(msg.step))
 
     def _check_cmd(self, gid: int, bank: float, speed: float) -> tuple[float, float, bool] | None:
         """Reject (None) or clip a command to glider/vehicle ``gid``'s envelope."""
@@ -384,33 +389,6 @@ class SimServer:
             self._cmd_pending.clear()
             return dict(self._good_cmd)
 
-    def _wait_lockstep(self, since: dict[int, int]) -> None:
-        """Wait for one new command from each registered, non-freewheeling autopilot."""
-        deadline = time.monotonic() + self.clock_spec.lockstep_timeout_s
-        with self._cmd_cond:
-            while True:
-                waiting = [
-                    g for g in self._registered
-                    if g in self._glider_index and g not in self._freewheel
-                    and self._cmd_arrivals.get(g, 0) <= since.get(g, 0)
-                ]
-                remaining = deadline - time.monotonic()
-                if not waiting or self._stop.is_set() or remaining <= 0:
-                    break
-                self._cmd_cond.wait(remaining)
-            if waiting and not self._stop.is_set():
-                self._c["stalled_steps"] += 1
-                self._c["stalls"] += len(waiting)
-                for g in waiting:
-                    n = self._consecutive_stalls.get(g, 0) + 1
-                    self._consecutive_stalls[g] = n
-                    if n >= self.clock_spec.lockstep_max_stalls:
-                        self._freewheel.add(g)
-                        self._c["lockstep_released"] += 1
-            for g in self._registered:
-                if g not in waiting:
-                    self._consecutive_stalls[g] = 0
-
     # ------------------------------------------------------------------ echoes
 
     def _make_ping_callback(self, sonar_id: int) -> Any:
@@ -426,6 +404,8 @@ class SimServer:
         with self._lock:
             self._c["pings_received"] += 1
             now = self._sim_ns
+        if not self._gate.on_ping(sonar_id, int(msg.stamp_ns), int(msg.next_ns)):
+            return
         emit = int(msg.stamp_ns) if msg.stamp_ns > 0 else now
         pose = self.fleet.pose_at(mount, emit)
         if pose.clamped:
@@ -435,6 +415,8 @@ class SimServer:
         if self._echo is not None:
             self._echo.submit(EchoRequest(sonar_id, msg, SonarPose(pose.t_ns, position,
                                                                    orientation), t_recv))
+        else:
+            self._gate.echo_done(sonar_id)
 
     def _publish_echo(self, req: EchoRequest, out: EchoResult) -> None:
         msg = SonarEcho(
@@ -445,12 +427,14 @@ class SimServer:
             orientation=req.pose.orientation, boresight=out.boresight, emit_ns=req.pose.t_ns,
         )
         self._pubs[f"/sonar/{req.sonar_id}/echo"].publish(msg)
+        self._gate.echo_done(req.sonar_id)
         t2 = time.monotonic()
         with self._lock:
             self._c["echoes_published"] += 1
             self._ping_echo_ms.append((t2 - req.received) * 1e3)
 
     def _echo_failed(self, req: EchoRequest, error: str) -> None:
+        self._gate.echo_done(req.sonar_id)
         with self._lock:
             self._last_echo_error = f"ping {req.ping.ping_seq} of sonar {req.sonar_id}: {error}"
         log.warning("%s: %s", self.name, self._last_echo_error)
@@ -475,9 +459,10 @@ class SimServer:
         return tuple(regions), self.params.forest_points
 
     def _publish_points(self, points: Any, radii: Any) -> None:
-        """Leaf centres as one latched PointCloud (intensity = leaf radius, m)."""
+        """Leaf centres as one latched PointCloud (intensity = leaf radius, m), stamped 0 like
+        ``/thermals``: it describes the scene, not a moment of it."""
         self._pubs["/forest/points"].publish(PointCloud(
-            stamp_ns=self._now_ns(), points=points, intensity=radii, label="leaves"))
+            stamp_ns=0, points=points, intensity=radii, label="leaves"))
 
     # ------------------------------------------------------------------ tick loop
 
@@ -503,9 +488,14 @@ class SimServer:
             self._flown_gliders.update(flown)
 
     def _publish_tick(self, st: FleetStates, decided: bool) -> None:
+        """/clock, then the neighbour lists of a control step, then every state (so a consumer
+        acting on a state already has the neighbours of the same step)."""
         pubs = self._pubs
         t_ns = st.t_ns
-        pubs["/clock"].publish(Clock(stamp_ns=t_ns))
+        pubs["/clock"].publish(Clock(stamp_ns=t_ns, lockstep=self.clock_spec.mode == "lockstep"))
+        if decided:
+            self._publish_neighbors(t_ns)
+        gliders = self._glider_index
         rows = zip(
             st.ids, st.position.tolist(), st.heading.tolist(), st.bank.tolist(),
             st.airspeed.tolist(), st.vz.tolist(), st.alive.tolist(), st.step.tolist(),
@@ -519,8 +509,7 @@ class SimServer:
                 qw=q[0], qx=q[1], qy=q[2], qz=q[3], roll_rate=w[0], pitch_rate=w[1],
                 yaw_rate=w[2],
             ))
-        if decided:
-            self._publish_neighbors(t_ns)
+            self._gate.published(gid, step, alive=alive, every_tick=gid not in gliders)
         with self._lock:
             self._c["clock_published"] += 1
             self._c["states_published"] += len(st.ids)
@@ -592,7 +581,7 @@ class SimServer:
         next_diag = wall0
         tick = 0
         decided = False
-        since: dict[int, int] = {}
+        last: tuple[FleetStates, bool] | None = None  # the last published tick
         if fleet.swarm is not None:
             self._publish_thermals(0)
         cpu0 = time.thread_time()
@@ -601,10 +590,14 @@ class SimServer:
             if stop_ns is not None and t_ns > stop_ns:
                 break
             if tick > 0:
-                if mode == "lockstep" and decided:
-                    # the one place lockstep waits: before flying a control period, for the
-                    # registered autopilots' answers to the states of its control step
-                    self._wait_lockstep(since)
+                if mode == "lockstep" and last is not None:
+                    # the one place lockstep waits: before flying from the last published tick,
+                    # for what it owes (a swarm glider's answer to a control step is needed
+                    # before the period that step governs is flown)
+                    self._gate.wait(
+                        last[0].t_ns, resend=functools.partial(self._publish_tick, *last),
+                        physics_due=last[1],
+                    )
                     if self._stop.is_set():
                         return
                 fleet.advance(self._commands_for_tick(tick))
@@ -622,10 +615,8 @@ class SimServer:
                 self._sim_ns = max(self._sim_ns, t_ns)
             if t_ns > self.clock.now_ns():
                 self.clock.set_ns(t_ns)
-            if decided:  # commands that arrive once these states are out answer them
-                with self._lock:
-                    since = dict(self._cmd_arrivals)
             self._publish_tick(states, decided)
+            last = (states, decided)
             cpu = time.thread_time()
             with self._lock:
                 self._c["ticks"] += 1
