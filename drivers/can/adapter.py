@@ -26,15 +26,15 @@ heartbeat and in ``/diagnostics``):
 
 **Lockstep** (``/clock`` says ``lockstep``; docs/can.md). The periodic state stream stops;
 instead each new state *step* of a glider is sent at once as one lockstep sample:
-GLIDER_STATE_POS with ``lockstep = 1``, the neighbour list of the same step (if one came), then
-GLIDER_STATE_MOTION, so the sample completes with its neighbours. The autopilot answers it with
-one AUTOPILOT_CMD (``answer = 1``, ``answer_counter`` = the sample's ``state_counter``), which
-is published as ``/glider/<id>/cmd`` with the ``step`` and stamp of the state it answers: the
-server waits for exactly that (:mod:`hil_bridge.lockstep`). A state the server sends again
-(the same tick again: same step and stamp) while its answer is missing is sent again. Command
-ages for HOLD and FAILSAFE are then measured in sim time, so a simulation that waits for
-something else never ages the commands; held and failsafe commands carry the step of the last
-command.
+GLIDER_STATE_POS with ``lockstep = 1``, the neighbour list of the same step (if one came), the
+attitude frames, then GLIDER_STATE_MOTION, so the sample completes with its neighbours. The
+autopilot answers it with one AUTOPILOT_CMD (``answer = 1``, ``answer_counter`` = the sample's
+``state_counter``), which is published as ``/glider/<id>/cmd`` with the ``step`` and stamp of
+the state it answers: the server waits for exactly that (:mod:`hil_bridge.lockstep`). A state
+the server sends again (the same tick again: same step and stamp) while its answer is missing is
+sent again. Command ages for HOLD and FAILSAFE are then measured in sim time, so a simulation
+that waits for something else never ages the commands; held and failsafe commands carry the step
+of the last command.
 
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
 recovery, re-open); no exception leaves the adapter's threads (anything unexpected is logged
@@ -378,7 +378,7 @@ class AutopilotAdapter(Node):
             self._c[key] += n
 
     def _send_lockstep_sample(self, g: _Glider, st: GliderState) -> None:
-        """One lockstep sample: POS (lockstep = 1), the step's neighbour list, MOTION."""
+        """One lockstep sample: POS (lockstep = 1), the neighbour list, attitude, MOTION."""
         with self._glock:
             nbs = g.neighbours
             if nbs is not None and nbs.step != st.step:
