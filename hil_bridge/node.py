@@ -53,6 +53,7 @@ from hil_bridge.domain import current as current_domain
 from hil_bridge.errors import CodecError
 from hil_bridge.messages import Clock, CmdAck, Diagnostics, Message
 from hil_bridge.qos import LATCHED, SENSOR, QoSProfile, qos_profile
+from hil_bridge.seq import SeqTracker, Verdict
 from hil_bridge.transport import Transport, open_transport
 
 __all__ = ["Node", "Publisher", "Subscription", "Timer"]
@@ -73,6 +74,7 @@ def _topic_counters() -> dict[str, int]:
         "received": 0,
         "dropped": 0,
         "duplicates": 0,
+        "epochs": 0,
         "decode_errors": 0,
         "callback_errors": 0,
         "retransmits": 0,
@@ -208,28 +210,21 @@ class Subscription(Generic[M]):
         self.qos = qos
         self.envelope = envelope
         self.queue: deque[Envelope] = deque()
-        self._last_seq: dict[str, int] = {}
-        self._seen: dict[str, tuple[set[int], deque[int]]] = {}
+        self._seq = SeqTracker(reliable=qos.reliable)
         self._counters = node._topic(topic)
 
     def _is_duplicate(self, header: Header) -> bool:
-        """Track ``seq`` per publisher: count gaps as drops, report repeats."""
-        if self.qos.reliable:
-            seen, order = self._seen.setdefault(header.src, (set(), deque()))
-            if header.seq in seen:
-                return True
-            seen.add(header.seq)
-            order.append(header.seq)
-            if len(order) > _SEEN_WINDOW:
-                seen.discard(order.popleft())
-            return False
-        last = self._last_seq.get(header.src)
-        if last is not None:
-            if header.seq <= last:
-                return True
-            if header.seq > last + 1:
-                self._counters["dropped"] += header.seq - last - 1
-        self._last_seq[header.src] = header.seq
+        """Account ``seq`` per publisher (:mod:`hil_bridge.seq`): gaps count as drops, a jump
+        or a step back starts a new epoch (counted, delivered); True only for a true re-send."""
+        tracker = self._seq
+        lost = tracker.lost
+        verdict = tracker.observe(header.src, header.seq, header.stamp_ns, header.pub_ns)
+        if verdict is Verdict.DUPLICATE:
+            return True
+        if verdict is Verdict.GAP:
+            self._counters["dropped"] += tracker.lost - lost
+        elif verdict is Verdict.EPOCH:
+            self._counters["epochs"] += 1
         return False
 
 
@@ -465,7 +460,7 @@ class Node:
             k: v for k, v in stats.items() if isinstance(v, (int, float))
         }
         for topic, c in stats["topics"].items():
-            for key in ("sent", "received", "dropped", "decode_errors"):
+            for key in ("sent", "received", "dropped", "epochs", "decode_errors"):
                 if c[key]:
                     counters[f"{key}:{topic}"] = c[key]
         return Diagnostics(stamp_ns=self.clock.now_ns(), node=self.name, counters=counters)

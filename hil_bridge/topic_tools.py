@@ -4,6 +4,9 @@
 
 - ``gaps`` / ``lost``: publisher ``seq`` jumps (per publisher ``src``): a jump from 7 to 10 is one
   gap of 2 lost messages; repeats (latched re-sends, retransmissions) count as ``duplicates``;
+  a sequence that goes back or jumps by more than :data:`~hil_bridge.seq.MAX_GAP` (a restart,
+  a wrap, a forged value) starts a new ``epochs`` and is counted like any other message
+  (:class:`~hil_bridge.seq.SeqTracker`);
 - ``rate_hz``: messages per second of the publishers' sim time (from ``stamp_ns``), and
   ``recv_rate_hz`` per second of receive time; ``bandwidth_bps`` payload+header bytes per
   receive second.
@@ -21,9 +24,13 @@ from typing import Any
 
 from hil_bridge.codec import Header, decode_topic_header
 from hil_bridge.errors import CodecError
+from hil_bridge.seq import SeqTracker, Verdict
 from hil_bridge.transport import Frames, open_transport
 
 __all__ = ["TopicMonitor", "TopicStats"]
+
+#: distinct publishers / frame ids listed per topic (a flood of forged ``src`` stays bounded)
+_MAX_NAMES = 256
 
 
 @dataclass
@@ -34,31 +41,25 @@ class TopicStats:
     types: set[str] = field(default_factory=set)
     count: int = 0
     bytes: int = 0
-    duplicates: int = 0
-    gaps: int = 0
-    lost: int = 0
     publishers: set[str] = field(default_factory=set)
     frame_ids: set[str] = field(default_factory=set)
     first_stamp_ns: int | None = None
     last_stamp_ns: int | None = None
     first_recv_ns: int | None = None
     last_recv_ns: int | None = None
-    _last_seq: dict[str, int] = field(default_factory=dict)
+    _seq: SeqTracker = field(default_factory=SeqTracker)
     _intervals_ns: list[int] = field(default_factory=list)
 
     def add(self, header: Header, nbytes: int, recv_ns: int) -> None:
         """Fold in one message: its header, its size in bytes, its receive time (ns)."""
         self.types.add(header.type)
-        self.publishers.add(header.src)
-        self.frame_ids.add(header.frame_id)
-        last = self._last_seq.get(header.src)
-        if last is not None and header.seq <= last:
-            self.duplicates += 1
+        if len(self.publishers) < _MAX_NAMES:
+            self.publishers.add(header.src)
+        if len(self.frame_ids) < _MAX_NAMES:
+            self.frame_ids.add(header.frame_id)
+        verdict = self._seq.observe(header.src, header.seq, header.stamp_ns, header.pub_ns)
+        if verdict is Verdict.DUPLICATE:
             return
-        if last is not None and header.seq > last + 1:
-            self.gaps += 1
-            self.lost += header.seq - last - 1
-        self._last_seq[header.src] = header.seq
         self.count += 1
         self.bytes += nbytes
         if self.last_stamp_ns is not None and len(self.publishers) == 1:
@@ -70,6 +71,22 @@ class TopicStats:
             self.first_recv_ns = recv_ns
         self.last_stamp_ns = header.stamp_ns
         self.last_recv_ns = recv_ns
+
+    @property
+    def duplicates(self) -> int:
+        return self._seq.duplicates
+
+    @property
+    def gaps(self) -> int:
+        return self._seq.gaps
+
+    @property
+    def lost(self) -> int:
+        return self._seq.lost
+
+    @property
+    def epochs(self) -> int:
+        return self._seq.epochs
 
     @property
     def rate_hz(self) -> float | None:
@@ -114,6 +131,7 @@ class TopicStats:
             "duplicates": self.duplicates,
             "gaps": self.gaps,
             "lost": self.lost,
+            "epochs": self.epochs,
             "publishers": sorted(self.publishers),
             "frame_ids": sorted(self.frame_ids),
             "rate_hz": self.rate_hz,

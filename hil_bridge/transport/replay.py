@@ -4,8 +4,10 @@
 recorded receive times divided by ``rate`` (``rate=0``: as fast as possible), then ``None``
 (or the recording again from the start with ``loop=1``). Headers are as recorded except
 ``pub_ns``, which is the replay's monotonic clock at delivery, so ``seq`` gaps and stamps look as
-they did live. Publishing is accepted and discarded (counted ``discarded``), so ordinary nodes
-run unchanged; no subscriber is ever reported. Use it to run tools and nodes offline::
+they did live (each ``loop`` pass counts ``seq`` from the start again: receivers see a new
+epoch, :mod:`hil_bridge.seq`). Publishing is accepted and discarded (counted ``discarded``),
+so ordinary nodes run unchanged; no subscriber is ever reported. Use it to run tools and
+nodes offline::
 
     echoloop topic hz /glider/0/state --bus "replay://run.mcap?rate=0" --duration 5
 """

@@ -379,3 +379,35 @@ def test_unexpected_errors_are_counted_and_loops_survive(sim: Sim, make_adapter:
     assert wait_until(lambda: ad.stats().get("cmd_forwarded", 0) == 1)
     assert ad.stats()["loop_errors"] == 1
     assert all(t.is_alive() for t in ad._can_threads)
+
+
+@pytest.mark.parametrize("forged", [(1 << 64) - 1, 0], ids=["max", "zero"])
+def test_spoofed_state_and_clock_do_not_freeze_the_adapter(sim: Sim, make_adapter: Any,
+                                                          forged: int) -> None:
+    """The issue's attack: one spoofed /glider/<id>/state and /clock carrying the server's
+    ``src`` and a forged ``seq``. The next real message of each stream still gets through."""
+    from hil_bridge.codec import encode
+    from hil_bridge.messages import Clock
+    from hil_bridge.transport import open_transport
+
+    ad = make_adapter()
+    clock_pub = sim.node.create_publisher(Clock, "/clock")
+    assert clock_pub.wait_for_subscribers(5.0) and sim.states[3].wait_for_subscribers(5.0)
+    for i in range(3):
+        sim.publish_state(3, x=float(i))
+        clock_pub.publish(Clock(stamp_ns=(i + 1) * 1_000_000))
+    assert wait_until(lambda: ad.stats().get("states_in") == 3 and ad.now_ns() == 3_000_000)
+    with open_transport(sim.node.bus) as attacker:
+        state = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=0.0, bank=0.0,
+                            airspeed=10.0, vz=0.0, glider_id=3)
+        attacker.publish(encode("/glider/3/state", state, seq=forged, pub_ns=0,
+                                src=sim.node.src))
+        attacker.publish(encode("/clock", Clock(stamp_ns=0), seq=forged, pub_ns=0,
+                                src=sim.node.src))
+    assert wait_until(lambda: ad.stats().get("states_in") == 4)
+    sim.publish_state(3, x=42.0)
+    clock_pub.publish(Clock(stamp_ns=9_000_000))
+    assert wait_until(lambda: ad.stats().get("states_in") == 5 and ad.now_ns() == 9_000_000)
+    for topic in ("/glider/3/state", "/clock"):  # counted as a new epoch, not as 1.8e19 lost
+        counters = ad.stats()["topics"][topic]
+        assert counters["epochs"] >= 1 and counters["dropped"] <= 3
