@@ -254,25 +254,19 @@ def decode_header(frame: bytes) -> Header:
     if not isinstance(h, dict):
         raise CodecError(f"header must be a msgpack map, got {type(h).__name__}")
     try:
-        header = Header(
-            type=h["type"],
-            v=h["v"],
-            seq=h["seq"],
-            stamp_ns=h["stamp_ns"],
-            pub_ns=h["pub_ns"],
-            frame_id=h.get("frame_id", ""),
-            src=h.get("src", ""),
-        )
+        type_, v, seq, stamp_ns, pub_ns = h["type"], h["v"], h["seq"], h["stamp_ns"], h["pub_ns"]
     except KeyError as exc:
         raise CodecError(f"header misses key {exc.args[0]!r}; expected {HEADER_KEYS}") from None
+    frame_id = h.get("frame_id", "")
+    src = h.get("src", "")
+    # exact types (a bool is not a number here); cheaper than isinstance on the hot path
     if not (
-        isinstance(header.type, str)
-        and all(isinstance(getattr(header, k), int) for k in ("v", "seq", "stamp_ns", "pub_ns"))
-        and isinstance(header.frame_id, str)
-        and isinstance(header.src, str)
+        type(type_) is str and type(v) is int and type(seq) is int
+        and type(stamp_ns) is int and type(pub_ns) is int
+        and type(frame_id) is str and type(src) is str
     ):
         raise CodecError(f"header has a value of the wrong type: {h!r}")
-    return header
+    return Header(type_, v, seq, stamp_ns, pub_ns, frame_id, src)
 
 
 def decode_payload(type_name: str, version: int, frame: bytes) -> Message:

@@ -66,6 +66,12 @@ _NODE_IDS = itertools.count()
 _NAME_RE = re.compile(r"^[A-Za-z0-9_]+$")
 _RX_SLICE_S = 0.02
 _SEEN_WINDOW = 1024
+#: a leader handles at most this many messages (or _RX_BATCH_S seconds) before handing on
+_RX_BATCH = 256
+_RX_BATCH_S = 0.005
+_RELIABLE_QUEUE_MAX = 4096
+#: undecodable messages are logged once per topic per this many seconds (with their count)
+DECODE_LOG_PERIOD_S = 10.0
 
 
 def _topic_counters() -> dict[str, int]:
@@ -202,6 +208,7 @@ class Subscription(Generic[M]):
         callback: Callable[[Any], None],
         qos: QoSProfile,
         envelope: bool,
+        priority: bool = False,
     ) -> None:
         self.node = node
         self.msg_type = msg_type
@@ -209,7 +216,12 @@ class Subscription(Generic[M]):
         self.callback = callback
         self.qos = qos
         self.envelope = envelope
+        self.priority = priority
         self.queue: deque[Envelope] = deque()
+        #: bound of the queue: keep-last ``depth`` (reliable: a large bound, never a drop in
+        #: normal operation, but a flood cannot exhaust memory)
+        self.limit = max(qos.depth, _RELIABLE_QUEUE_MAX) if qos.reliable else qos.depth
+        self._scheduled = False
         self._seq = SeqTracker(reliable=qos.reliable)
         self._counters = node._topic(topic)
 
@@ -282,7 +294,10 @@ class Node:
         self._ack_targets: dict[str, Publisher[Any]] = {}
         self._lock = threading.RLock()
         self._exec_cond = threading.Condition()
+        #: subscriptions with queued messages, served round-robin; priority ones first
         self._ready: deque[Subscription[Any]] = deque()
+        self._ready_hi: deque[Subscription[Any]] = deque()
+        self._decode_log: dict[str, list[Any]] = {}
         self._leading = False
         self._exec_busy = False
         self._next_housekeeping = 0.0
@@ -322,7 +337,7 @@ class Node:
             if profile.reliable:
                 self._ack_targets[topic] = pub
         if profile.reliable:
-            self._add_subscription(CmdAck, f"{topic}/ack", self._on_ack, SENSOR, False)
+            self._add_subscription(CmdAck, f"{topic}/ack", self._on_ack, SENSOR, False, True)
         return pub
 
     def create_subscription(
@@ -333,9 +348,11 @@ class Node:
         qos: QoSProfile | str = SENSOR,
         *,
         envelope: bool = False,
+        priority: bool = False,
     ) -> Subscription[M]:
         """Call ``callback(msg)`` for each ``msg_type`` message on ``topic`` (``envelope=True``:
-        ``callback(Envelope)`` with topic, header and raw payload)."""
+        ``callback(Envelope)`` with topic, header and raw payload). ``priority=True`` puts the
+        subscription on the control path: its callbacks run before any other queued ones."""
         self._check_type(msg_type)
         validate_topic(topic)
         profile = qos_profile(qos)
@@ -343,7 +360,7 @@ class Node:
             with self._lock:
                 if topic not in self._ack_pubs:
                     self._ack_pubs[topic] = self.create_publisher(CmdAck, f"{topic}/ack")
-        return self._add_subscription(msg_type, topic, callback, profile, envelope)
+        return self._add_subscription(msg_type, topic, callback, profile, envelope, priority)
 
     def _add_subscription(
         self,
@@ -352,8 +369,9 @@ class Node:
         callback: Callable[[Any], None],
         qos: QoSProfile,
         envelope: bool,
+        priority: bool = False,
     ) -> Subscription[M]:
-        sub = Subscription(self, msg_type, topic, callback, qos, envelope)
+        sub = Subscription(self, msg_type, topic, callback, qos, envelope, priority)
         frame = topic.encode() + b"\0"
         with self._lock:
             self._subs[frame] = [*self._subs.get(frame, []), sub]
@@ -378,7 +396,8 @@ class Node:
         return self.clock.now_ns()
 
     def follow_bus_clock(self, topic: str = "/clock") -> Subscription[Clock]:
-        """Drive this node's clock from ``/clock`` (the clock must be owner-stepped)."""
+        """Drive this node's clock from ``/clock`` (the clock must be owner-stepped); the
+        subscription has priority (the control path)."""
         if not self.clock.owner_stepped:
             raise ValueError("follow_bus_clock needs a 'lockstep' or 'fast' SimClock on the node")
 
@@ -386,7 +405,7 @@ class Node:
             if msg.stamp_ns > self.clock.now_ns():
                 self.clock.set_ns(msg.stamp_ns)
 
-        return self.create_subscription(Clock, topic, on_clock, LATCHED)
+        return self.create_subscription(Clock, topic, on_clock, LATCHED, priority=True)
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> Node:
@@ -486,10 +505,23 @@ class Node:
         if pub is not None:
             pub._ack(ack.seq)
 
-    def _decode_error(self, topic_frame: bytes, exc: Exception) -> None:
-        topic = topic_frame.rstrip(b"\0").decode(errors="replace")
-        self._topic(topic)["decode_errors"] += 1
-        log.debug("%s: dropped a message on %r: %s", self.name, topic, exc)
+    def _decode_error(self, sub: Subscription[Any], exc: Exception) -> None:
+        """Count an undecodable message on ``sub``'s topic; log once per topic per
+        :data:`DECODE_LOG_PERIOD_S` with the count since the last line (never per message)."""
+        sub._counters["decode_errors"] += 1
+        entry = self._decode_log.get(sub.topic)
+        now = time.monotonic()
+        if entry is None:
+            self._decode_log[sub.topic] = [now, 0]
+            log.warning("%s: dropped an undecodable message on %r (%s); more are counted and "
+                        "summarised every %.0f s", self.name, sub.topic, exc,
+                        DECODE_LOG_PERIOD_S)
+            return
+        entry[1] += 1
+        if now - entry[0] >= DECODE_LOG_PERIOD_S:
+            log.warning("%s: dropped %d undecodable message(s) on %r in the last %.0f s "
+                        "(last: %s)", self.name, entry[1], sub.topic, now - entry[0], exc)
+            entry[0], entry[1] = now, 0
 
     def _worker(self) -> None:
         """One of the node's two workers (leader/follower): at any time at most one of them
@@ -501,13 +533,11 @@ class Node:
                 while True:
                     if self._stopping:
                         return
-                    if not self._exec_busy and self._ready:
+                    if not self._exec_busy and (self._ready_hi or self._ready):
                         job = self._pop_ready()
-                        if job is not None:
-                            self._exec_busy = True
-                            mode = "callback"
-                            break
-                        continue
+                        self._exec_busy = True
+                        mode = "callback"
+                        break
                     if not self._leading:
                         self._leading = True
                         mode = "lead"
@@ -532,9 +562,27 @@ class Node:
                     self._next_housekeeping = time.monotonic() + wait
                 self._release_exec()
 
-    def _pop_ready(self) -> tuple[Subscription[Any], Envelope] | None:
-        sub = self._ready.popleft()
-        return (sub, sub.queue.popleft()) if sub.queue else None
+    def _pop_ready(self) -> tuple[Subscription[Any], Envelope]:
+        """Next queued delivery (``_exec_cond`` held): priority subscriptions first, one
+        message per subscription in turn, so a flooded topic cannot starve another."""
+        ready = self._ready_hi if self._ready_hi else self._ready
+        sub = ready.popleft()
+        envelope = sub.queue.popleft()
+        if sub.queue:
+            ready.append(sub)
+        else:
+            sub._scheduled = False
+        return sub, envelope
+
+    def _enqueue(self, sub: Subscription[Any], envelope: Envelope) -> None:
+        """Queue a delivery (``_exec_cond`` held); beyond the bound the oldest is dropped."""
+        if len(sub.queue) >= sub.limit:
+            sub.queue.popleft()
+            sub._counters["dropped"] += 1
+        sub.queue.append(envelope)
+        if not sub._scheduled:
+            sub._scheduled = True
+            (self._ready_hi if sub.priority else self._ready).append(sub)
 
     def _release_exec(self) -> None:
         with self._exec_cond:
@@ -542,35 +590,46 @@ class Node:
             self._exec_cond.notify_all()
 
     def _lead(self) -> tuple[Subscription[Any], Envelope] | None:
-        """Receive and process one message as the leader, then hand leadership on. Returns the
-        delivery to run inline (the executor role is then reserved for it), if any."""
-        deliveries: list[tuple[Subscription[Any], Envelope]] = []
+        """Receive as the leader: take messages off the transport (decode, deduplicate,
+        acknowledge, queue), up to ``_RX_BATCH`` of them or ``_RX_BATCH_S`` seconds while they
+        keep coming, then hand leadership on. Undecodable messages are dropped and counted here,
+        before they queue. Returns a delivery to run inline (the executor role is then reserved
+        for it): the first one that finds the executor idle and nothing queued."""
+        inline: tuple[Subscription[Any], Envelope] | None = None
+        transport = self.transport
+        cond = self._exec_cond
         try:
             now = time.monotonic()
             if now >= self._next_service:
-                self.transport.service(0.0)
+                transport.service(0.0)
                 self._next_service = now + _RX_SLICE_S
-            frames = self.transport.recv(timeout=_RX_SLICE_S)
-            if frames is not None and not self._stopping:
+            frames = transport.recv(timeout=_RX_SLICE_S)
+            handled = 0
+            until = time.monotonic() + _RX_BATCH_S
+            while frames is not None and not self._stopping:
                 subs = self._subs.get(frames[0])
-                if subs:
-                    deliveries = self._process(subs, frames)
+                deliveries = self._process(subs, frames) if subs else []
+                if deliveries:
+                    with cond:
+                        if (len(deliveries) == 1 and not self._exec_busy and not self._ready_hi
+                                and not self._ready):
+                            self._exec_busy = True
+                            inline = deliveries[0]
+                        else:
+                            for sub, envelope in deliveries:
+                                self._enqueue(sub, envelope)
+                            cond.notify_all()
+                    if inline is not None:
+                        break
+                handled += 1
+                if handled >= _RX_BATCH or time.monotonic() >= until:
+                    break
+                frames = transport.recv(timeout=0.0)
         except Exception:  # never let one message end reception
             log.exception("%s: receiving failed", self.name)
-        with self._exec_cond:
+        with cond:
             self._leading = False
-            inline = None
-            if len(deliveries) == 1 and not self._exec_busy and not self._ready:
-                self._exec_busy = True
-                inline = deliveries[0]
-            else:
-                for sub, envelope in deliveries:
-                    if len(sub.queue) >= sub.qos.depth and not sub.qos.reliable:
-                        sub.queue.popleft()
-                        sub._counters["dropped"] += 1
-                    sub.queue.append(envelope)
-                    self._ready.append(sub)
-            self._exec_cond.notify_all()
+            cond.notify_all()
         return inline
 
     def _process(
@@ -578,12 +637,12 @@ class Node:
     ) -> list[tuple[Subscription[Any], Envelope]]:
         """Decode, deduplicate, acknowledge; return what to deliver (in arrival order)."""
         if len(frames) != 3:  # a foreign ZeroMQ publisher on the proxy
-            self._decode_error(frames[0], CodecError(f"{len(frames)} frames, expected 3"))
+            self._decode_error(subs[0], CodecError(f"{len(frames)} frames, expected 3"))
             return []
         try:
             header = decode_header(frames[1])
         except CodecError as exc:
-            self._decode_error(frames[0], exc)
+            self._decode_error(subs[0], exc)
             return []
         decoded: Message | None = None
         topic = subs[0].topic
@@ -593,15 +652,14 @@ class Node:
             counters = sub._counters
             if header.type != sub.msg_type.TYPE:
                 self._decode_error(
-                    frames[0],
-                    CodecError(f"type {header.type!r} on a {sub.msg_type.TYPE} subscription"),
+                    sub, CodecError(f"type {header.type!r} on a {sub.msg_type.TYPE} subscription")
                 )
                 continue
             if decoded is None:
                 try:
                     decoded = decode_payload(header.type, header.v, payload)
                 except CodecError as exc:
-                    self._decode_error(frames[0], exc)
+                    self._decode_error(sub, exc)
                     return []
             if sub.qos.reliable:
                 self._send_ack(topic, header)

@@ -256,7 +256,8 @@ class SimServer:
                 GliderState, f"/glider/{gid}/state", qos=SENSOR
             )
             node.create_subscription(
-                GliderCmd, f"/glider/{gid}/cmd", self._make_cmd_callback(gid), qos=COMMAND
+                GliderCmd, f"/glider/{gid}/cmd", self._make_cmd_callback(gid), qos=COMMAND,
+                priority=True,
             )
         for gid in self._glider_index:
             self._pubs[f"/glider/{gid}/neighbors"] = node.create_publisher(

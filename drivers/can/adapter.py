@@ -36,6 +36,10 @@ sent again. Command ages for HOLD and FAILSAFE are then measured in sim time, so
 that waits for something else never ages the commands; held and failsafe commands carry the step
 of the last command.
 
+The control path has priority on the node's executor: state and ``/clock`` callbacks run before
+neighbour lists, and malformed bus messages are dropped and counted before they queue
+(:mod:`hil_bridge.node`), so a flood on one topic cannot hold states back.
+
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
 recovery, re-open); no exception leaves the adapter's threads (anything unexpected is logged
 and counted as ``loop_errors``). Counters are in :meth:`stats`
@@ -48,15 +52,18 @@ import logging
 import math
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from drivers.can.bus import CanBusConfig, CanLink, LinkPolicy
 from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
 from hil_bridge.clock import SimClock
+from hil_bridge.codec import Envelope
 from hil_bridge.errors import CodecError
 from hil_bridge.messages import Clock, GliderCmd, GliderNeighbors, GliderState
 from hil_bridge.node import Node, Publisher
@@ -240,16 +247,18 @@ class AutopilotAdapter(Node):
         self._lockstep = False
         self._lockstep_since_ns = 0
         self._cmd_pubs: dict[int, Publisher[GliderCmd]] = {}
+        self._state_ms: deque[float] = deque(maxlen=10000)
         for gid in self.gliders:
             self._cmd_pubs[gid] = self.create_publisher(GliderCmd, f"/glider/{gid}/cmd", SENSOR)
             self.create_subscription(
-                GliderState, f"/glider/{gid}/state", self._make_state_cb(gid), SENSOR
+                GliderState, f"/glider/{gid}/state", self._make_state_cb(gid), SENSOR,
+                envelope=True, priority=True,
             )
             self.create_subscription(
                 GliderNeighbors, f"/glider/{gid}/neighbors", self._make_nb_cb(gid), SENSOR
             )
         self.follow_bus_clock()
-        self.create_subscription(Clock, "/clock", self._on_clock, SENSOR)
+        self.create_subscription(Clock, "/clock", self._on_clock, SENSOR, priority=True)
 
     # -- launchable contract ------------------------------------------------------------------
     def start(self) -> AutopilotAdapter:
@@ -278,9 +287,10 @@ class AutopilotAdapter(Node):
         super().stop()
 
     def stats(self) -> dict[str, Any]:
-        """Node counters plus ``can_*`` (link), adapter counters, saturation and per-glider
+        """Node counters plus ``can_*`` (link), adapter counters, saturation, per-glider
         ``cmd_state:<id>`` / ``ap_alive:<id>`` / ``ap_mode:<id>`` (numbers, so they reach
-        ``/diagnostics``)."""
+        ``/diagnostics``) and ``state_latency_ms`` (bus publish -> state callback percentiles,
+        meaningful when the publisher runs on this host)."""
         out = super().stats()
         with self._glock:
             out.update(self._c)
@@ -295,6 +305,13 @@ class AutopilotAdapter(Node):
             out["can_state"] = _LINK_STATE_CODES.get(state, -1)
             out["can_link"] = state
             out["links"] = {"can": self._link.report()}
+        with self._glock:
+            lat = np.asarray(self._state_ms, dtype=np.float64)
+        out["state_latency_ms"] = (
+            {"n": int(lat.size), **dict(zip(("p50", "p99", "max"),
+                                            map(float, np.percentile(lat, [50, 99, 100])),
+                                            strict=True))}
+            if lat.size else {"n": 0})
         sat = self.codec.saturation_counts()
         out["saturated_tx"] = sum(sat["tx"].values())
         out["saturated_rx"] = sum(sat["rx"].values())
@@ -314,14 +331,19 @@ class AutopilotAdapter(Node):
             self._lockstep = bool(msg.lockstep)
 
     def _make_state_cb(self, gid: int) -> Any:
-        def on_state(msg: GliderState) -> None:
+        def on_state(env: Envelope) -> None:
+            now_ns = time.monotonic_ns()
+            msg = env.msg
+            if not isinstance(msg, GliderState):
+                return
             with self._glock:
                 g = self._glider[gid]
                 resent = g.state is not None and msg.stamp_ns == g.state.stamp_ns and (
                     g.answered_step < msg.step)
                 forward = self._lockstep and (msg.step != g.fwd_step or resent)
-                g.state, g.state_wall = msg, time.monotonic()
+                g.state, g.state_wall = msg, now_ns / 1e9
                 self._c["states_in"] += 1
+                self._state_ms.append((now_ns - env.header.pub_ns) / 1e6)
                 if forward:
                     g.fwd_step = msg.step
             if forward:

@@ -11,7 +11,10 @@ Contract of :class:`Transport` (every backend honours it; ``tests/hil_bridge/cor
    for all). They may be called from any thread.
 3. ``recv(timeout)`` returns the next matching message as a list of 3 ``bytes`` frames, or
    ``None`` when ``timeout`` seconds pass (``None`` waits forever) or :meth:`wakeup` is called.
-   One thread at a time may call ``recv``.
+   One thread at a time may call ``recv``. Messages are queued per subscribed prefix and the
+   queues are served in turn, so a flood under one prefix cannot hold back another; order is
+   kept within a prefix, not across prefixes. (A foreign publisher may send other frame
+   counts; receivers check.)
 4. ``wait_for_subscriber(topic, timeout)`` returns ``True`` once some endpoint's subscription
    covering ``topic`` is known to reach this endpoint's publications (the slow-joiner guard:
    messages published after it returns ``True`` are delivered to that subscriber).

@@ -2,10 +2,13 @@
 
 Every endpoint opened on the same ``name`` in one process joins one channel; a message published
 on any endpoint is delivered to every endpoint (itself included) with a matching subscription.
-Each endpoint has a bounded keep-last queue (``?depth=N``, default 1000): when a slow reader lets
-it fill, the oldest message is discarded and counted as ``dropped``, and the publisher never
-waits. Subscriptions take effect synchronously, so ``wait_for_subscriber`` returns at once when
-one exists; a new subscription is announced to every endpoint's ``on_subscribe`` (latching).
+Each endpoint keeps one bounded keep-last queue per subscribed prefix (``?depth=N``, default
+1000; a message goes to the first of its prefixes that matches): when a slow reader lets one
+fill, its oldest message is discarded and counted as ``dropped``, and the publisher never
+waits. ``recv`` serves the queues in turn, so a flood under one prefix cannot hold back another
+(as over ZeroMQ: order is kept within a prefix, not across prefixes). Subscriptions take
+effect synchronously, so ``wait_for_subscriber`` returns at once when one exists; a new
+subscription is announced to every endpoint's ``on_subscribe`` (latching).
 """
 
 from __future__ import annotations
@@ -56,7 +59,8 @@ class MemTransport(Transport):
         super().__init__(url)
         name, depth = _parse(url)
         self.depth = depth
-        self._queue: deque[Frames] = deque()
+        self._queues: dict[bytes, deque[Frames]] = {}
+        self._rotation: deque[bytes] = deque()
         self._cond = threading.Condition()
         self._wake = False
         self._counters["dropped"] = 0
@@ -73,13 +77,22 @@ class MemTransport(Transport):
                     self._remote_subscribed(prefix)
 
     def _deliver(self, frames: Frames) -> None:
-        if not frames[0].startswith(self._prefix_tuple):
+        topic = frames[0]
+        for prefix in self._prefix_tuple:
+            if topic.startswith(prefix):
+                break
+        else:
             return
         with self._cond:
-            if len(self._queue) >= self.depth:
-                self._queue.popleft()
+            queue = self._queues.get(prefix)
+            if queue is None:
+                queue = self._queues[prefix] = deque()
+            if not queue:
+                self._rotation.append(prefix)
+            elif len(queue) >= self.depth:
+                queue.popleft()
                 self._counters["dropped"] += 1
-            self._queue.append(frames)
+            queue.append(frames)
             self._cond.notify()
 
     def _send(self, frames: Sequence[bytes]) -> None:
@@ -90,7 +103,7 @@ class MemTransport(Transport):
     def _recv_internal(self, timeout: float | None) -> Frames | None:
         deadline = None if timeout is None else time.monotonic() + timeout
         with self._cond:
-            while not self._queue:
+            while not self._rotation:
                 if self._wake or self._closed:
                     self._wake = False
                     return None
@@ -101,7 +114,17 @@ class MemTransport(Transport):
                     if remaining <= 0:
                         return None
                     self._cond.wait(remaining)
-            return self._queue.popleft()
+            prefix = self._rotation.popleft()
+            queue = self._queues[prefix]
+            frames = queue.popleft()
+            if queue:
+                self._rotation.append(prefix)
+            return frames
+
+    def _unsubscribe(self, prefix: bytes) -> None:
+        with self._cond:
+            if self._queues.pop(prefix, None) and prefix in self._rotation:
+                self._rotation.remove(prefix)
 
     def _subscribe(self, prefix: bytes) -> None:
         for endpoint in self._channel.endpoints:
@@ -119,5 +142,6 @@ class MemTransport(Transport):
             if not channel.endpoints and _CHANNELS.get(channel.name) is channel:
                 del _CHANNELS[channel.name]
         with self._cond:
-            self._queue.clear()
+            self._queues.clear()
+            self._rotation.clear()
             self._cond.notify_all()

@@ -17,6 +17,11 @@ subscriptions the proxy forwards (the proxy's XPUB is verbose): that gives
 A full queue drops (ZeroMQ HWM semantics) and never blocks the publisher; the receiving node
 counts the loss from publisher ``seq`` gaps.
 
+Receiving: every subscribed prefix has its own SUB socket, i.e. its own queue (bounded by
+``hwm``) and connection to the proxy; ``recv`` serves the lanes in turn, one message each, so a
+flood under one prefix waits its turn instead of holding back the clock or another topic.
+Order is kept within a prefix, not across prefixes.
+
 Threading: ``publish`` is safe from any thread (a lock guards the publish socket);
 ``subscribe`` is safe from any thread (applied by the receiving thread, which it wakes);
 one thread at a time calls ``recv``.
@@ -32,6 +37,7 @@ import itertools
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +54,8 @@ PUB_LINGER_MS = 1000
 __all__ = ["ZmqEndpoints", "ZmqTransport", "parse_zmq_url"]
 
 _WAKE_IDS = itertools.count()
+#: with a lane that never runs dry, the others are polled at least every this many messages
+_POLL_EVERY = 16
 _KNOWN_OPTIONS = ("curve_client", "curve_server", "hwm", "sub")
 
 
@@ -105,16 +113,23 @@ def parse_zmq_url(url: str) -> ZmqEndpoints:
     return ZmqEndpoints(base, sub, hwm, server, client)
 
 
-def _apply_curve(sock: zmq.Socket, ends: ZmqEndpoints) -> None:
+_CurveKeys = tuple[bytes, bytes, bytes]
+
+
+def _load_curve(ends: ZmqEndpoints) -> _CurveKeys | None:
+    """(server public, client public, client secret) of a CURVE client URL, else None."""
     if ends.curve_server is None or ends.curve_client is None:
-        return
+        return None
     server_public, _ = zmq.auth.load_certificate(Path(ends.curve_server))
     client_public, client_secret = zmq.auth.load_certificate(Path(ends.curve_client))
     if client_secret is None:
         raise ValueError(f"curve_client={ends.curve_client!r} holds no secret key (.key_secret)")
-    sock.curve_serverkey = server_public
-    sock.curve_publickey = client_public
-    sock.curve_secretkey = client_secret
+    return server_public, client_public, client_secret
+
+
+def _apply_curve(sock: zmq.Socket, keys: _CurveKeys | None) -> None:
+    if keys is not None:
+        sock.curve_serverkey, sock.curve_publickey, sock.curve_secretkey = keys
 
 
 class ZmqTransport(Transport):
@@ -125,41 +140,42 @@ class ZmqTransport(Transport):
     def __init__(self, url: str) -> None:
         super().__init__(url)
         self.endpoints = ends = parse_zmq_url(url)
-        ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
+        self._curve = _load_curve(ends)
+        self._ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
         self._pub_lock = threading.Lock()
         self._rx_lock = threading.Lock()
         self._rx_done = threading.Condition(self._rx_lock)
         self._in_recv = False
         self._wake_flag = False
         self._pending: list[tuple[int, bytes]] = []
-        pub = ctx.socket(zmq.XPUB)
-        sub = ctx.socket(zmq.SUB)
-        wake_rx = ctx.socket(zmq.PAIR)
-        wake_tx = ctx.socket(zmq.PAIR)
-        self._sockets = (pub, sub, wake_rx, wake_tx)
+        #: one SUB socket per subscribed prefix (its own queue), and the ones known to hold
+        #: messages, served in turn
+        self._lanes: dict[bytes, zmq.Socket[bytes]] = {}
+        self._rotation: deque[zmq.Socket[bytes]] = deque()
+        self._since_poll = 0
+        pub = self._ctx.socket(zmq.XPUB)
+        wake_rx = self._ctx.socket(zmq.PAIR)
+        wake_tx = self._ctx.socket(zmq.PAIR)
+        sockets = (pub, wake_rx, wake_tx)
         try:
-            for sock in self._sockets:
+            for sock in sockets:
                 sock.linger = 0
             pub.setsockopt(zmq.XPUB_VERBOSE, 1)
             pub.sndhwm = ends.hwm
-            sub.rcvhwm = ends.hwm
-            _apply_curve(pub, ends)
-            _apply_curve(sub, ends)
+            _apply_curve(pub, self._curve)
             wake = f"inproc://hil-bridge-wake-{next(_WAKE_IDS)}"
             wake_rx.bind(wake)
             wake_tx.connect(wake)
-            for sock, endpoint in ((pub, ends.pub), (sub, ends.sub)):
-                try:
-                    sock.connect(endpoint)
-                except zmq.ZMQError as exc:
-                    raise ValueError(f"cannot connect to {endpoint!r}: {exc.strerror}") from None
+            try:
+                pub.connect(ends.pub)
+            except zmq.ZMQError as exc:
+                raise ValueError(f"cannot connect to {ends.pub!r}: {exc.strerror}") from None
         except (zmq.ZMQError, OSError, ValueError):
-            for sock in self._sockets:
+            for sock in sockets:
                 sock.close(0)
             raise
-        self._pub, self._sub, self._wake_rx, self._wake_tx = pub, sub, wake_rx, wake_tx
+        self._pub, self._wake_rx, self._wake_tx = pub, wake_rx, wake_tx
         self._poller = zmq.Poller()
-        self._poller.register(sub, zmq.POLLIN)
         self._poller.register(wake_rx, zmq.POLLIN)
 
     # -- publishing -------------------------------------------------------------------------
@@ -185,10 +201,31 @@ class ZmqTransport(Transport):
                 self._remote_cond.wait(min(timeout, 0.01) - 0.002)
 
     # -- receiving --------------------------------------------------------------------------
+    def _open_lane(self, prefix: bytes) -> zmq.Socket[bytes]:
+        sock = self._ctx.socket(zmq.SUB)
+        try:
+            sock.linger = 0
+            sock.rcvhwm = self.endpoints.hwm
+            _apply_curve(sock, self._curve)
+            sock.connect(self.endpoints.sub)
+            sock.setsockopt(zmq.SUBSCRIBE, prefix)
+        except zmq.ZMQError as exc:
+            sock.close(0)
+            raise ValueError(f"cannot connect to {self.endpoints.sub!r}: {exc.strerror}") from None
+        return sock
+
     def _apply_pending(self) -> None:
-        for op, prefix in self._pending:
-            self._sub.setsockopt(op, prefix)
-        self._pending.clear()
+        pending, self._pending = self._pending, []
+        for op, prefix in pending:
+            if op == zmq.SUBSCRIBE:
+                sock = self._lanes[prefix] = self._open_lane(prefix)
+                self._poller.register(sock, zmq.POLLIN)
+            else:
+                sock = self._lanes.pop(prefix)
+                self._poller.unregister(sock)
+                if sock in self._rotation:
+                    self._rotation.remove(sock)
+                sock.close(0)
 
     def _subscribe(self, prefix: bytes) -> None:
         self._queue_op(zmq.SUBSCRIBE, prefix)
@@ -216,16 +253,48 @@ class ZmqTransport(Transport):
             if self._in_recv:
                 self._poke()
 
+    def _admit(self, ready: dict[zmq.Socket[bytes], int]) -> None:
+        """Put lanes the poller found readable at the back of the rotation."""
+        rotation = self._rotation
+        for sock in ready:
+            if sock is not self._wake_rx and sock not in rotation:
+                rotation.append(sock)
+        self._since_poll = 0
+
+    def _next_queued(self) -> Frames | None:
+        """One message from the next lane in turn (no waiting), or None if all are drained.
+
+        While one lane keeps yielding (a flood), the others are polled again after a round of
+        the rotation (at least every ``_POLL_EVERY`` messages), so a lane that just became
+        readable waits for at most one message of each busy lane."""
+        rotation = self._rotation
+        if self._since_poll >= max(len(rotation), _POLL_EVERY):
+            self._admit(dict(self._poller.poll(0)))
+        while rotation:
+            sock = rotation.popleft()
+            try:
+                frames = sock.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                continue
+            rotation.append(sock)
+            self._since_poll += 1
+            return frames
+        return None
+
     def _recv_internal(self, timeout: float | None) -> Frames | None:
         with self._rx_lock:
             if self._wake_flag or self._closed:
                 self._wake_flag = False
                 return None
             self._in_recv = True
-            self._apply_pending()
+            if self._pending:
+                self._apply_pending()
         try:
             deadline = None if timeout is None else time.monotonic() + timeout
             while True:
+                frames = self._next_queued()
+                if frames is not None:
+                    return frames
                 wait_ms = None
                 if deadline is not None:
                     wait_ms = max(0, math.ceil((deadline - time.monotonic()) * 1000))
@@ -238,14 +307,14 @@ class ZmqTransport(Transport):
                         if self._wake_flag or self._closed:
                             self._wake_flag = False
                             return None
-                if self._sub in ready:
-                    return self._sub.recv_multipart(zmq.NOBLOCK)
                 if not ready:
                     return None
+                self._admit(ready)
         finally:
             with self._rx_lock:
                 self._in_recv = False
-                self._apply_pending()
+                if self._pending:
+                    self._apply_pending()
                 self._rx_done.notify_all()
 
     def _close(self) -> None:
@@ -256,5 +325,7 @@ class ZmqTransport(Transport):
                 self._rx_done.wait_for(lambda: not self._in_recv, timeout=2.0)
             with self._pub_lock:
                 self._pub.close(linger=PUB_LINGER_MS)
-                for sock in (self._sub, self._wake_rx, self._wake_tx):
+                for sock in (*self._lanes.values(), self._wake_rx, self._wake_tx):
                     sock.close(0)
+                self._lanes.clear()
+                self._rotation.clear()

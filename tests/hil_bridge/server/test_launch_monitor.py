@@ -17,10 +17,12 @@ def test_monitor_counts_gaps_and_not_retransmissions() -> None:
     try:
         with open_transport(bus) as pub:
             msg = GliderCmd(stamp_ns=0, bank_cmd=0.1, airspeed_cmd=10.0)
-            # a late retransmission of 1, then 3 (nothing lost there), then 6 (4, 5 lost)
+            frames = {seq: encode("/glider/0/cmd", msg, seq=seq, pub_ns=time.monotonic_ns(),
+                                  src="pilot") for seq in (0, 1, 2, 3, 6)}
+            # a late retransmission of 1 (the same frames again), then 3 (nothing lost there),
+            # then 6 (4, 5 lost)
             for seq in (0, 1, 2, 1, 3, 6):
-                pub.publish(encode("/glider/0/cmd", msg, seq=seq, pub_ns=time.monotonic_ns(),
-                                   src="pilot"))
+                pub.publish(frames[seq])
             deadline = time.monotonic() + 10.0
             while monitor.stats()["messages"] + monitor.stats()["duplicates"] < 6:
                 assert time.monotonic() < deadline, monitor.stats()
