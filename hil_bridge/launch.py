@@ -16,7 +16,8 @@ A launch file is plain data (no substitutions, conditions or event handlers)::
 It is validated once, at load, into :class:`LaunchSpec` (unknown keys raise a
 :class:`~sim_core.config.ConfigError` naming the key; every ``entry`` must import and name a
 class). Each entry implements the *launchable* contract: ``Cls(name, *, bus, **params)``,
-``start()`` (non-blocking), ``stop()`` (idempotent, joins its threads) and ``stats() -> dict``.
+``start()`` (non-blocking), ``stop()`` (idempotent, joins its threads) and ``stats() -> dict``,
+and optionally ``failure() -> str | None`` (why it failed; the run then exits non-zero).
 
 Why threads in one process, not processes: python-can's ``virtual`` interface only connects
 buses of one process (the CAN adapter and the mock autopilot must share it), the mock sonar
@@ -41,6 +42,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib
+import logging
 import math
 import signal
 import sys
@@ -78,6 +80,8 @@ __all__ = [
     "resolve_entry",
     "run",
 ]
+
+log = logging.getLogger(__name__)
 
 
 #: exit status of a run that went well
@@ -383,10 +387,14 @@ def collect_links(nodes: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str,
 
 def judge(
     summary: RunSummary, *, expectations: Sequence[Expectation] = (),
-    allow_disconnected: bool = False,
+    allow_disconnected: bool = False, failed: Sequence[tuple[str, str]] = (),
 ) -> list[Failure]:
-    """The one place that decides what failed in a run (and so its exit status)."""
-    failures: list[Failure] = []
+    """The one place that decides what failed in a run (and so its exit status).
+
+    ``failed`` holds ``(source, reason)`` for launchables (nodes, the recorder) that reported
+    failing (their optional ``failure()``) or whose ``stop()``/``stats()`` raised."""
+    failures = [Failure(EXIT_FAILED, source, f"{source} failed: {reason}")
+                for source, reason in failed]
     if not allow_disconnected:
         for key, link in summary.links.items():
             if not link.get("connected"):
@@ -401,6 +409,31 @@ def judge(
         if problem is not None:
             failures.append(Failure(EXIT_EXPECT, "expect", problem))
     return failures
+
+
+def _failure_of(obj: Any) -> str | None:
+    """A launchable's own account of failing: its optional ``failure() -> str | None``."""
+    report = getattr(obj, "failure", None)
+    return report() if callable(report) else None
+
+
+def _stop_and_collect(name: str, obj: Any, failed: list[tuple[str, str]]) -> dict[str, Any]:
+    """Stop one launchable and take its stats; whatever goes wrong is noted in ``failed``."""
+    stats: dict[str, Any] = {}
+    for step in ("stop", "stats", "failure"):
+        try:
+            if step == "stop":
+                obj.stop()
+            elif step == "stats":
+                stats = obj.stats()
+            else:
+                reason = _failure_of(obj)
+                if reason:
+                    failed.append((name, reason))
+        except Exception as exc:  # one broken node must not hide the others' results
+            log.exception("%s: %s() raised", name, step)
+            failed.append((name, f"{step}() raised {type(exc).__name__}: {exc}"))
+    return stats
 
 
 class _StopFlag:
@@ -441,6 +474,7 @@ def run(
     domain: Domain | int | str | None = None,
     expect: Sequence[str | Expectation] = (),
     allow_disconnected: bool = False,
+    overwrite: bool = False,
 ) -> RunSummary:
     """Start every node of a launch file in order, wait, stop them in reverse order.
 
@@ -452,11 +486,13 @@ def run(
     ``ECHOLOOP_DOMAIN``, else 0) gives every default the file leaves out: the bus, pty links,
     virtual CAN channels, the live-view port. ``on_started(spec)`` is called once every node
     runs, with ``spec.bus`` the bus in use. A node that fails to construct or start stops every
-    node already constructed (reverse order) and re-raises.
+    node already constructed (reverse order) and re-raises. ``overwrite`` lets ``record``
+    replace an existing file.
 
     ``expect`` (``"NODE.COUNTER OP VALUE"`` strings, checked for unknown nodes before anything
-    starts) and ``allow_disconnected`` decide the summary's ``failures`` and ``exit_status``
-    (the module docstring).
+    starts), ``allow_disconnected`` and the launchables that fail (their optional ``failure()``
+    returns a reason, or ``stop()``/``stats()`` raise) decide the summary's ``failures`` and
+    ``exit_status`` (the module docstring).
     """
     spec = path if isinstance(path, LaunchSpec) else load(path, params_overrides=params_overrides)
     dom = resolve(domain)
@@ -478,7 +514,7 @@ def run(
         def _on_signal(signum: int, _frame: FrameType | None) -> None:
             flag.set(signal.Signals(signum).name)
 
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             previous[sig] = signal.signal(sig, _on_signal)
 
     made: list[tuple[str, Any]] = []
@@ -494,8 +530,7 @@ def run(
             if record_path is not None:
                 from hil_bridge.bag import Recorder
 
-                Path(record_path).parent.mkdir(parents=True, exist_ok=True)
-                recorder = Recorder(record_path, bus=bus_url)
+                recorder = Recorder(record_path, bus=bus_url, overwrite=overwrite)
                 recorder.start()
                 extras.append(recorder)
             _instantiate(spec, bus_url, made)
@@ -520,18 +555,18 @@ def run(
                 break
             flag.event.wait(0.05 if remaining is None else min(0.05, remaining))
     finally:
+        failed: list[tuple[str, str]] = []
         node_stats: dict[str, dict[str, Any]] = {}
         for name, obj in reversed(made):
-            obj.stop()
-            node_stats[name] = obj.stats()
+            node_stats[name] = _stop_and_collect(name, obj, failed)
         monitor_stats: dict[str, Any] = {}
         extra_stats: dict[str, dict[str, Any]] = {}
         for extra in reversed(extras):
-            extra.stop()
+            stats = _stop_and_collect(extra.name, extra, failed)
             if isinstance(extra, BusMonitor):
-                monitor_stats = extra.stats()
+                monitor_stats = stats
             else:
-                extra_stats[extra.name] = extra.stats()
+                extra_stats[extra.name] = stats
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         held.close()
@@ -548,7 +583,8 @@ def run(
         links=collect_links(nodes),
     )
     summary.failures = judge(
-        summary, expectations=expectations, allow_disconnected=allow_disconnected
+        summary, expectations=expectations, allow_disconnected=allow_disconnected,
+        failed=failed,
     )
     return summary
 

@@ -10,7 +10,11 @@ writes it through :func:`atomic_output`:
    onto the output only when the ``with`` block ends without an exception; on an exception
    the temporary file is removed. The rename replaces a symlink itself, never its target.
 
-Missing parent directories are created.
+Missing parent directories are created. Writers whose life is ``start()``/``stop()`` rather
+than one ``with`` block (recorders, captures, CAN logs) use :class:`AtomicOutput`, the same
+rules in three calls: construct (checks, creates the temporary file), :meth:`~AtomicOutput.commit`
+(checks again, renames), :meth:`~AtomicOutput.discard`. A process killed in between leaves the
+temporary file, never a half-written output.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from pathlib import Path
 
 from hil_bridge.errors import OutputExistsError
 
-__all__ = ["atomic_output", "check_output"]
+__all__ = ["AtomicOutput", "atomic_output", "check_output"]
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -50,22 +54,53 @@ def check_output(
     return out
 
 
+class AtomicOutput:
+    """One output file written through a temporary file beside it (module docstring).
+
+    ``AtomicOutput(path, overwrite=False, inputs=())`` refuses the output now (rules 1 and 2)
+    and creates ``tmp``; write ``tmp``, then :meth:`commit` (rules re-checked, then renamed
+    onto ``path``) or :meth:`discard`. Both are idempotent; after either, the other does
+    nothing.
+    """
+
+    def __init__(
+        self, path: str | os.PathLike[str], *, overwrite: bool = False,
+        inputs: Iterable[str | os.PathLike[str]] = (),
+    ) -> None:
+        self.inputs = tuple(inputs)
+        self.overwrite = overwrite
+        self.path = check_output(path, overwrite=overwrite, inputs=self.inputs)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = self.path.with_name(f".{self.path.name}.{secrets.token_hex(4)}.part")
+        with open(self.tmp, "xb"):
+            pass
+        self.done = False
+
+    def commit(self) -> Path:
+        """Rename the temporary file onto the output; returns the output path."""
+        if not self.done:
+            check_output(self.path, overwrite=self.overwrite, inputs=self.inputs)
+            os.replace(self.tmp, self.path)
+            self.done = True
+        return self.path
+
+    def discard(self) -> None:
+        """Remove the temporary file (the output is left as it was)."""
+        if not self.done:
+            self.done = True
+            with suppress(FileNotFoundError):
+                self.tmp.unlink()
+
+
 @contextmanager
 def atomic_output(
     path: str | os.PathLike[str], *, overwrite: bool = False,
     inputs: Iterable[str | os.PathLike[str]] = (),
 ) -> Iterator[Path]:
     """Yield a temporary path to write; it becomes ``path`` when the block succeeds."""
-    inputs = tuple(inputs)
-    out = check_output(path, overwrite=overwrite, inputs=inputs)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{secrets.token_hex(4)}.part")
-    with open(tmp, "xb"):
-        pass
+    out = AtomicOutput(path, overwrite=overwrite, inputs=inputs)
     try:
-        yield tmp
-        check_output(out, overwrite=overwrite, inputs=inputs)
-        os.replace(tmp, out)
+        yield out.tmp
+        out.commit()
     finally:
-        with suppress(FileNotFoundError):
-            tmp.unlink()
+        out.discard()

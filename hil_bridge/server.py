@@ -332,6 +332,11 @@ class SimServer:
             out["gliders_alive"] = int(np.count_nonzero(self.fleet.swarm.alive[0]))
         return out
 
+    def failure(self) -> str | None:
+        """Why the server failed (its tick loop died), or None (the launch run summary)."""
+        with self._lock:
+            return f"tick loop failed: {self._tick_error}" if self._tick_error else None
+
     def wait_done(self, timeout: float | None = None) -> bool:
         """Block until the tick loop ended (``stop_after_s`` reached or stopped)."""
         return self._done.wait(timeout)

@@ -18,12 +18,14 @@ import argparse
 import json
 import math
 import signal
+import sys
 import threading
 import time
 from types import FrameType
 
 from hil_bridge.bag import Player, Recorder, bag_info, export_json
 from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
+from hil_bridge.outputs import atomic_output
 
 
 def _rate(text: str) -> float:
@@ -41,8 +43,8 @@ def _stop_on_signals() -> threading.Event:
     def on_signal(signum: int, frame: FrameType | None) -> None:
         stop.set()
 
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, on_signal)
     return stop
 
 
@@ -53,23 +55,28 @@ def _fmt(x: float | None, unit: str) -> str:
 def _record(args: argparse.Namespace) -> int:
     stop = _stop_on_signals()
     recorder = Recorder(args.file, args.topics, bus=args.bus, chunk_size=args.chunk_size,
-                        flush_period_s=args.flush_period, compression=args.compression)
+                        flush_period_s=args.flush_period, compression=args.compression,
+                        overwrite=args.overwrite)
     recorder.start()
     deadline = None if args.duration is None else time.monotonic() + args.duration
     try:
         print(f"recording {'all topics' if args.topics is None else args.topics} from "
               f"{args.bus} into {args.file} (Ctrl-C stops)", flush=True)
-        while not stop.is_set():
+        while not stop.is_set() and recorder.failure() is None:
             left = None if deadline is None else deadline - time.monotonic()
             if left is not None and left <= 0:
                 break
-            stop.wait(0.5 if left is None else min(0.5, left))
-            if recorder.error is not None:
-                raise OSError(f"recorder failed: {recorder.error}")
+            stop.wait(0.1 if left is None else min(0.1, left))
     finally:
         recorder.stop()
     s = recorder.stats()
     print(f"recorded {s['messages']} messages ({s['bytes']} payload bytes) into {args.file}")
+    failure = recorder.failure()
+    if failure is not None:
+        print(f"echoloop bag record: error: {args.file}: the recording is incomplete: {failure} "
+              f"({s['lost_after_error'] + s['not_recorded']} messages not recorded)",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -113,7 +120,8 @@ def _info(args: argparse.Namespace) -> int:
 
 def _export(args: argparse.Namespace) -> int:
     if args.json_out is not None:
-        counts = export_json(args.file, args.json_out, topics=args.topics)
+        with atomic_output(args.json_out, overwrite=args.overwrite, inputs=[args.file]) as tmp:
+            counts = export_json(args.file, tmp, topics=args.topics)
         print(f"wrote {counts['messages']} JSON messages to {args.json_out}"
               + (f" (skipped {counts['skipped']} undecodable)" if counts["skipped"] else ""))
         return 0
@@ -143,6 +151,7 @@ def main(argv: list[str]) -> int:
     rec.add_argument("--flush-period", type=float, default=1.0,
                      help="seconds between forced chunk flushes (data at risk on a crash)")
     rec.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
+    rec.add_argument("--overwrite", action="store_true", help="replace an existing file")
     rec.set_defaults(run=_record)
 
     play = sub.add_parser("play", help="publish a recording on the bus")

@@ -19,6 +19,7 @@ from typing import Any
 from hil_bridge.cli._args import add_domain_argument, domain_for_run, seconds
 from hil_bridge.domain import Domain
 from hil_bridge.launch import LaunchSpec, RunSummary, parse_param_overrides, run
+from hil_bridge.outputs import atomic_output, check_output
 from hil_bridge.recording_plot import plot_recording
 
 
@@ -43,6 +44,8 @@ def _parser() -> argparse.ArgumentParser:
                         "(otherwise exit 3)")
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every topic to an MCAP file")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing output files (--record, --plot)")
     p.add_argument("--bus", default=None, metavar="URL",
                    help="bus URL replacing the file's and the domain's (e.g. mem://demo)")
     add_domain_argument(p, auto=True)
@@ -143,6 +146,7 @@ def format_summary(summary: RunSummary, *, verbose: bool = False) -> str:
             f"{k}={v}" for k, v in stats.items() if isinstance(v, int | float | str | bool)
         )
         lines.append(f"node {name}: {shown}")
+    lines += [f"FAILED {f.source}: {f.message}" for f in summary.failures]
     return "\n".join(lines)
 
 
@@ -178,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     if args.plot and not args.record:
         raise ValueError("--plot needs --record FILE.mcap (the plot is drawn from the recording)")
+    if args.plot:
+        check_output(args.plot, overwrite=args.overwrite, inputs=[args.record])
     with domain_for_run(args, "echoloop launch") as domain:
         summary = run(
             args.file,
@@ -190,13 +196,15 @@ def main(argv: list[str] | None = None) -> int:
             domain=domain,
             expect=args.expect,
             allow_disconnected=args.allow_disconnected,
+            overwrite=args.overwrite,
         )
     if args.json:
         print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))
     else:
         print(format_summary(summary, verbose=args.verbose))
     if args.plot:
-        plot_recording(args.record, args.plot)
+        with atomic_output(args.plot, overwrite=args.overwrite, inputs=[args.record]) as tmp:
+            plot_recording(args.record, tmp)
         if not args.json:
             print(f"plot: {args.plot}")
     return report_failures(summary)

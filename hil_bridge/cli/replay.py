@@ -56,6 +56,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--bus", default=None, metavar="URL", help="bus URL (default: the domain's)")
     add_domain_argument(p)
     p.add_argument("--record", default=None, metavar="FILE.mcap", help="record every topic")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --record file")
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     return p
 
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     duration = args.duration if args.duration is not None else max(length_s, 0.5)
     domain = domain_from(args, "echoloop replay")
     summary = run(launch, duration=duration, record=args.record, domain=domain,
-                  on_started=announcer(domain, "echoloop replay"))
+                  on_started=announcer(domain, "echoloop replay"), overwrite=args.overwrite)
     if args.json:
         out = _jsonable(summary.to_dict())
         out["log"] = report.as_dict()

@@ -59,6 +59,12 @@ def _record_sample(bus: str, path: Path, n: int = 40) -> None:
         rec.stop()
 
 
+def _part(path: Path) -> Path:
+    """The temporary file of a recording that was never finished."""
+    (part,) = path.parent.glob(f".{path.name}.*.part")
+    return part
+
+
 def _signature(path: Path) -> list[tuple[object, ...]]:
     return [
         (m.topic, m.header.type, m.header.v, m.header.seq, m.header.stamp_ns,
@@ -123,6 +129,8 @@ def test_sigkilled_recording_is_readable_to_its_last_chunk(tmp_path: Path) -> No
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
     assert proc.returncode == -signal.SIGKILL
+    assert not path.exists()  # never renamed: the recording is its temporary file
+    path = _part(path)
     info = bag_info(path)
     assert info.truncated
     stamps = [decode_payload(m.header.type, m.header.v, m.payload).stamp_ns  # type: ignore[attr-defined]
@@ -246,10 +254,11 @@ def test_cli_record_until_sigint_writes_a_complete_file(tmp_path: Path) -> None:
                 assert pub.wait_for_subscribers(WAIT)
                 for i in range(30):
                     pub.publish(_state(i))
-                # the recorder flushes a chunk every 0.05 s: poll the growing file
+                # the recorder flushes a chunk every 0.05 s: poll the growing temporary file
                 deadline = time.monotonic() + WAIT
                 tick = threading.Event()
-                while not (path.exists() and bag_info(path).messages >= 30):
+                while not (list(tmp_path.glob("*.part"))
+                           and bag_info(_part(path)).messages >= 30):
                     assert time.monotonic() < deadline and proc.poll() is None
                     tick.wait(0.02)
         finally:
