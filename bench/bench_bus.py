@@ -22,11 +22,11 @@ import numpy as np
 import zmq
 
 from bench._util import fmt_s, median, table, time_it
-from hil_bridge.bag import Recorder
 from hil_bridge.codec import Envelope, decode, encode
 from hil_bridge.messages import GliderState, Message, SonarEcho
 from hil_bridge.node import Node
 from hil_bridge.proxy import Proxy
+from hil_bridge.recorder import Recorder
 
 TITLE = "Bus: state-path latency, recorder throughput, codec costs"
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import struct
 import threading
 import time
 import typing
@@ -35,17 +34,14 @@ from pathlib import Path
 from typing import IO, Any
 
 from mcap.data_stream import RecordBuilder
-from mcap.exceptions import McapError
 from mcap.records import Channel, Schema
 from mcap.records import Message as McapMessage
-from mcap.stream_reader import StreamReader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
 from hil_bridge.codec import (
     Header,
     decode_payload,
-    decode_topic_header,
     encode,
     pack_header,
     payload_to_jsonable,
@@ -54,8 +50,9 @@ from hil_bridge.codec import (
 )
 from hil_bridge.domain import current as current_domain
 from hil_bridge.errors import CodecError, HilError
-from hil_bridge.messages import REGISTRY, Clock, Diagnostics, Message
-from hil_bridge.outputs import AtomicOutput
+from hil_bridge.mcap_scan import ScanReport, check_mcap, scan
+from hil_bridge.messages import REGISTRY, Clock, Message
+from hil_bridge.outputs import atomic_output
 from hil_bridge.topic_tools import TopicStats
 from hil_bridge.transport import Transport, open_transport
 
@@ -64,13 +61,14 @@ __all__ = [
     "MAX_PUBLISHERS_PER_TOPIC",
     "BagInfo",
     "BagMessage",
+    "BagWriter",
     "ChannelLimitError",
     "Player",
-    "Recorder",
     "bag_info",
     "export_json",
     "json_schema",
     "read_bag",
+    "recover",
 ]
 
 log = logging.getLogger(__name__)
@@ -154,7 +152,7 @@ class BagMessage:
 
 @dataclass
 class BagInfo:
-    """Summary of a bag (``echoloop bag info``)."""
+    """Summary of a bag (``echoloop bag info``); ``scan`` says what was skipped as corrupt."""
 
     path: str
     messages: int = 0
@@ -164,6 +162,9 @@ class BagInfo:
     end_ns: int | None = None
     channels: int = 0
     topics: dict[str, TopicStats] = field(default_factory=dict)
+    #: messages on channels whose topic is not a bus topic name (not read)
+    skipped: int = 0
+    scan: ScanReport | None = None
 
     @property
     def duration_s(self) -> float:
@@ -171,60 +172,28 @@ class BagInfo:
             return 0.0
         return (self.end_ns - self.start_ns) / 1e9
 
+    @property
+    def damaged(self) -> bool:
+        """Corrupt chunks or bytes were skipped, or the file was cut short."""
+        return self.scan is not None and self.scan.damaged
+
     def as_dict(self) -> dict[str, Any]:
+        scan = self.scan
         return {
             "path": self.path,
             "messages": self.messages,
             "channels": self.channels,
             "truncated": self.truncated,
+            "finished": bool(scan and scan.finished),
+            "corrupt_chunks": scan.corrupt_chunks if scan else 0,
+            "lost_messages": scan.lost if scan else 0,
+            "skipped": self.skipped,
             "error": self.error,
             "duration_s": self.duration_s,
             "start_ns": self.start_ns,
             "end_ns": self.end_ns,
             "topics": {t: s.as_dict() for t, s in sorted(self.topics.items())},
         }
-
-
-#: the 8 bytes every MCAP file starts with
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-
-
-class _Reader:
-    """Linear, truncation-tolerant pass over an MCAP file's records."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self.truncated = False
-        self.error = ""
-        self.channels: dict[int, Channel] = {}
-        self.schemas: dict[int, Schema] = {}
-
-    def messages(self) -> Iterator[tuple[Channel, McapMessage]]:
-        with open(self.path, "rb") as f:
-            head = f.read(len(MCAP_MAGIC))
-            if head != MCAP_MAGIC:
-                raise ValueError(f"{self.path}: not an MCAP file (starts with {head[:8]!r})")
-            f.seek(0)
-            records = StreamReader(f, validate_crcs=True).records
-            while True:
-                try:
-                    record = next(records)
-                except StopIteration:
-                    return
-                except (McapError, EOFError, struct.error, ValueError) as exc:
-                    # a recorder killed mid-write leaves a partial record: stop at the last
-                    # complete one (a chunk is written whole, so every earlier message is good)
-                    self.truncated = True
-                    self.error = f"{type(exc).__name__}: {exc}"
-                    return
-                if isinstance(record, Schema):
-                    self.schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    self.channels[record.id] = record
-                elif isinstance(record, McapMessage):
-                    channel = self.channels.get(record.channel_id)
-                    if channel is not None:
-                        yield channel, record
 
 
 def _header_of(channel: Channel, msg: McapMessage) -> Header:
@@ -249,20 +218,39 @@ def read_bag(
 ) -> Iterator[BagMessage]:
     """Recorded messages in file (= receive) order, optionally only ``topics``.
 
-    A truncated file yields every message of its complete chunks; pass ``info`` to learn whether
-    it was truncated (``info.truncated``, ``info.error``).
+    Reads with :func:`hil_bridge.mcap_scan.scan`: a truncated file yields every message of its
+    complete chunks, a corrupt chunk is skipped and the rest read. Pass ``info`` to learn what
+    was skipped (``info.scan``, ``info.truncated``, ``info.error``).
     """
     wanted = None if topics is None else set(topics)
-    reader = _Reader(path)
-    for channel, msg in reader.messages():
-        if wanted is not None and channel.topic not in wanted:
-            continue
-        yield BagMessage(channel.topic, _header_of(channel, msg), msg.data, msg.log_time,
-                         channel.id)
+    report = ScanReport(str(path))
+    channels: dict[int, Channel | None] = {}
+    for record in scan(path, report):
+        if isinstance(record, Channel):
+            channels[record.id] = record if _is_topic(record.topic) else None
+        elif isinstance(record, McapMessage):
+            channel = channels.get(record.channel_id)
+            if channel is None:
+                if info is not None:
+                    info.skipped += 1
+                continue
+            if wanted is not None and channel.topic not in wanted:
+                continue
+            yield BagMessage(channel.topic, _header_of(channel, record), record.data,
+                             record.log_time, channel.id)
     if info is not None:
-        info.truncated = reader.truncated
-        info.error = reader.error
-        info.channels = len(reader.channels)
+        info.scan = report
+        info.truncated = report.truncated
+        info.error = "; ".join(report.errors[:3])
+        info.channels = len(channels)
+
+
+def _is_topic(name: str) -> bool:
+    try:
+        validate_topic(name)
+    except ValueError:
+        return False
+    return True
 
 
 def bag_info(path: str | Path) -> BagInfo:
@@ -283,7 +271,7 @@ class ChannelLimitError(HilError):
     """A recording reached :data:`MAX_CHANNELS` channels; messages of new channels are lost."""
 
 
-class _BagWriter:
+class BagWriter:
     """MCAP writer keyed by channel (topic, type, v, frame_id, src) with one schema per type.
 
     At most :data:`MAX_PUBLISHERS_PER_TOPIC` publishers of one (topic, type, v, frame_id) get a
@@ -377,255 +365,6 @@ class _BagWriter:
         )
 
 
-class Recorder:
-    """Record bus topics into an MCAP file; launchable: ``start()``, ``stop()``, ``stats()``,
-    ``failure()``.
-
-    ``Recorder(path, topics=None, *, bus=None, chunk_size=65536, flush_period_s=1.0,
-    compression="zstd", overwrite=False, diagnostics_period_s=1.0)``; ``topics=None`` records
-    every topic. The file is written as a temporary file beside ``path`` (``.NAME.XXXX.part``)
-    and renamed onto ``path`` by :meth:`stop` (an existing ``path`` is refused unless
-    ``overwrite``); a recorder killed without warning leaves the ``.part`` file, readable to its
-    last flushed chunk and repaired by ``echoloop bag recover``.
-
-    A recorder never fails in silence: a write error (disk full, file size limit, I/O error) or
-    the channel limit makes :meth:`failure` return the reason, is logged at once, sent on
-    ``/diagnostics`` (counter ``failed`` = 1) and ends in the run summary (non-zero exit of
-    ``echoloop launch`` and ``bag record``); what arrives afterwards is counted
-    (``lost_after_error``), and what was written stays readable. ``wait_for(n, timeout)``
-    blocks until ``n`` messages are written (for tests and tools).
-    """
-
-    def __init__(
-        self,
-        path: str | Path,
-        topics: Iterable[str] | None = None,
-        *,
-        bus: str | None = None,
-        chunk_size: int = 64 * 1024,
-        flush_period_s: float = 1.0,
-        compression: str = "zstd",
-        overwrite: bool = False,
-        diagnostics_period_s: float = 1.0,
-        max_channels: int = MAX_CHANNELS,
-        name: str = "recorder",
-    ) -> None:
-        self.path = Path(path)
-        self.topics = None if topics is None else [validate_topic(t) for t in topics]
-        self.bus = bus if bus is not None else current_domain().bus_url
-        self.name = name
-        if not flush_period_s > 0:
-            raise ValueError(f"flush_period_s must be > 0, got {flush_period_s}")
-        if compression not in _COMPRESSION:
-            raise ValueError(
-                f"unknown compression {compression!r}; expected one of {sorted(_COMPRESSION)}"
-            )
-        if diagnostics_period_s < 0:
-            raise ValueError(f"diagnostics_period_s must be >= 0, got {diagnostics_period_s}")
-        self.chunk_size = chunk_size
-        self.flush_period_s = flush_period_s
-        self.compression = compression
-        self.overwrite = overwrite
-        self.diagnostics_period_s = diagnostics_period_s
-        self.max_channels = max_channels
-        self._output: AtomicOutput | None = None
-        self._transport: Transport | None = None
-        self._thread: threading.Thread | None = None
-        self._stopping = threading.Event()
-        self._cond = threading.Condition()
-        self._lock = threading.Lock()
-        self._stopped = False
-        self._bag: _BagWriter | None = None
-        self._counters = {"messages": 0, "bytes": 0, "decode_errors": 0, "flushes": 0,
-                          "lost_after_error": 0, "not_recorded": 0}
-        self._diag_seq = 0
-        #: the first failure (None while all is well)
-        self.error: str | None = None
-
-    def start(self) -> Recorder:
-        """Open the file and the transport, subscribe, start the writer thread (idempotent)."""
-        with self._lock:
-            if self._thread is not None or self._stopped:
-                return self
-            output = AtomicOutput(self.path, overwrite=self.overwrite)
-            transport = open_transport(self.bus)
-            try:
-                prefixes = [b""] if self.topics is None else [topic_frame(t) for t in self.topics]
-                for prefix in prefixes:
-                    transport.subscribe(prefix)
-                stream = open(output.tmp, "wb")
-            except BaseException:
-                transport.close()
-                output.discard()
-                raise
-            try:
-                # the MCAP header is on disk before start() returns: the file is a readable
-                # (empty) recording from then on, even if the process is killed
-                bag = _BagWriter(stream, chunk_size=self.chunk_size,
-                                 compression=self.compression,
-                                 message_encoding=MessageEncoding.MessagePack, as_json=False,
-                                 max_channels=self.max_channels)
-                stream.flush()
-            except BaseException:
-                stream.close()
-                transport.close()
-                output.discard()
-                raise
-            self._output, self._transport, self._bag = output, transport, bag
-            self._thread = threading.Thread(
-                target=self._run, args=(transport, stream, bag), name=f"{self.name}-rec",
-                daemon=True,
-            )
-            self._thread.start()
-        return self
-
-    def failure(self) -> str | None:
-        """Why the recording is incomplete (first failure), or None."""
-        return self.error
-
-    def _fail(self, reason: str, transport: Transport) -> None:
-        with self._cond:
-            first = self.error is None
-            if first:
-                self.error = reason
-            self._cond.notify_all()
-        if first:
-            log.error("%s: recording into %s failed: %s", self.name, self.path, reason)
-            self._publish_diagnostics(transport)
-
-    def _publish_diagnostics(self, transport: Transport) -> None:
-        if self.diagnostics_period_s <= 0:
-            return
-        counters = {k: v for k, v in self.stats().items()
-                    if isinstance(v, int | float) and not isinstance(v, bool)}
-        msg = Diagnostics(stamp_ns=time.monotonic_ns(), node=self.name, counters=counters)
-        try:
-            transport.publish(encode("/diagnostics", msg, seq=self._diag_seq,
-                                     pub_ns=time.monotonic_ns(), src=f"{self.name}#recorder"))
-            self._diag_seq += 1
-        except HilError:
-            log.debug("%s: diagnostics not sent", self.name, exc_info=True)
-
-    def _run(self, transport: Transport, stream: IO[bytes], bag: _BagWriter) -> None:
-        # log_time: Unix-epoch ns that never steps back (wall anchor + monotonic offset)
-        wall0, mono0 = time.time_ns(), time.monotonic_ns()
-        dirty = False
-        writing = True
-        next_flush = time.monotonic() + self.flush_period_s
-        next_diag = time.monotonic() + self.diagnostics_period_s
-        try:
-            while not self._stopping.is_set():
-                frames = transport.recv(timeout=max(0.0, min(0.1, next_flush - time.monotonic())))
-                if frames is not None:
-                    recv_ns = wall0 + (time.monotonic_ns() - mono0)
-                    try:
-                        topic, header = decode_topic_header(frames)
-                    except CodecError:
-                        self._counters["decode_errors"] += 1
-                        continue
-                    payload = bytes(frames[2])
-                    if not writing:
-                        self._counters["lost_after_error"] += 1
-                        continue
-                    try:
-                        bag.add(topic, header, payload, recv_ns)
-                    except ChannelLimitError as exc:
-                        self._counters["not_recorded"] += 1
-                        self._fail(str(exc), transport)
-                        continue
-                    dirty = True
-                    with self._cond:
-                        self._counters["messages"] += 1
-                        self._counters["bytes"] += len(payload)
-                        self._cond.notify_all()
-                now = time.monotonic()
-                if dirty and writing and now >= next_flush:
-                    bag.writer.flush()
-                    self._counters["flushes"] += 1
-                    dirty = False
-                if now >= next_flush:
-                    next_flush = now + self.flush_period_s
-                if self.diagnostics_period_s > 0 and now >= next_diag:
-                    self._publish_diagnostics(transport)
-                    next_diag = now + self.diagnostics_period_s
-            if writing:
-                bag.writer.finish()
-        except (OSError, ValueError, struct.error) as exc:
-            # disk full, a file size limit (EFBIG), an I/O error, or the writer's own limits
-            writing = False
-            self._fail(f"{type(exc).__name__}: {exc}", transport)
-            self._drain_after_error(transport)
-        except BaseException as exc:
-            self._fail(f"{type(exc).__name__}: {exc}", transport)
-            raise
-        finally:
-            try:
-                stream.close()
-            except OSError as exc:  # the last buffered bytes could not be written
-                self._fail(f"{type(exc).__name__}: {exc}", transport)
-            with self._cond:
-                self._cond.notify_all()
-
-    def _drain_after_error(self, transport: Transport) -> None:
-        """After a write error: keep receiving until stopped, counting what is not recorded,
-        and keep reporting on ``/diagnostics``."""
-        next_diag = time.monotonic() + self.diagnostics_period_s
-        while not self._stopping.is_set():
-            if transport.recv(timeout=0.1) is not None:
-                self._counters["lost_after_error"] += 1
-            if self.diagnostics_period_s > 0 and time.monotonic() >= next_diag:
-                self._publish_diagnostics(transport)
-                next_diag = time.monotonic() + self.diagnostics_period_s
-
-    def wait_for(self, n: int, timeout: float) -> bool:
-        """True once ``n`` messages were recorded; False after ``timeout`` s or a failure."""
-        with self._cond:
-            return self._cond.wait_for(
-                lambda: self._counters["messages"] >= n or self.error is not None, timeout
-            ) and self._counters["messages"] >= n
-
-    def stop(self) -> None:
-        """Stop receiving, finish the file (summary + index), rename it onto ``path``, close
-        everything. Idempotent. A file that could not be renamed (``path`` appeared meanwhile)
-        stays at its temporary name, reported by :meth:`failure`."""
-        with self._lock:
-            if self._stopped:
-                return
-            self._stopped = True
-            thread, transport, output = self._thread, self._transport, self._output
-        self._stopping.set()
-        if transport is not None:
-            transport.wakeup()
-        if thread is not None:
-            thread.join()
-        if output is not None:
-            try:
-                output.commit()
-            except OSError as exc:
-                reason = f"{exc}; the recording is in {output.tmp}"
-                with self._cond:
-                    self.error = self.error or reason
-                log.error("%s: %s", self.name, reason)
-        if transport is not None:
-            transport.close()
-
-    def stats(self) -> dict[str, Any]:
-        """Counters: ``messages``, ``bytes``, ``decode_errors``, ``flushes``, ``channels``,
-        ``src_shared`` (messages recorded without their own ``src`` channel),
-        ``not_recorded`` (channel limit), ``lost_after_error``, ``failed`` (0/1), plus
-        ``path`` and ``error``."""
-        with self._cond:
-            out: dict[str, Any] = dict(self._counters)
-            error = self.error
-        bag = self._bag
-        out["channels"] = len(bag.channels) if bag is not None else 0
-        out["src_shared"] = bag.src_shared if bag is not None else 0
-        out["failed"] = int(error is not None)
-        out["error"] = error or ""
-        out["path"] = str(self.path)
-        return out
-
-
 class Player:
     """Re-publish a bag on the bus (launchable-like: ``start()``, ``stop()``, ``stats()``).
 
@@ -661,6 +400,7 @@ class Player:
         self.path = Path(path)
         if not self.path.is_file():
             raise ValueError(f"bag {str(self.path)!r} does not exist")
+        check_mcap(self.path)
         self.bus = bus if bus is not None else current_domain().bus_url
         self.rate = float(rate)
         self.loop = loop
@@ -678,6 +418,8 @@ class Player:
         self._stopped = False
         self._counters = {"published": 0, "passes": 0, "clock_published": 0}
         self.truncated = False
+        #: what the last pass read (corrupt chunks skipped, truncation)
+        self.info: BagInfo | None = None
         self.error: BaseException | None = None
 
     def start(self) -> Player:
@@ -755,6 +497,7 @@ class Player:
             transport.publish([topic_frame(m.topic), pack_header(header), m.payload])
             self._counters["published"] += 1
         self.truncated = self.truncated or info.truncated
+        self.info = info
         return clock_seq
 
     def wait(self, timeout: float | None = None) -> bool:
@@ -780,18 +523,20 @@ class Player:
 
 
 def export_json(
-    src: str | Path, dst: str | Path, *, topics: Iterable[str] | None = None
+    src: str | Path, dst: str | Path, *, topics: Iterable[str] | None = None,
+    info: BagInfo | None = None,
 ) -> dict[str, int]:
     """Write ``dst``: a JSON-encoded MCAP (JSON Schemas) of ``src`` that Foxglove can open.
 
     Arrays become nested lists, non-finite floats ``null``. Messages of unknown types or newer
-    versions are skipped and counted. Returns ``{"messages", "skipped"}``.
+    versions are skipped and counted; corrupt chunks of ``src`` are skipped (``info.scan``).
+    Returns ``{"messages", "skipped"}``.
     """
     counts = {"messages": 0, "skipped": 0}
     with open(dst, "wb") as stream:
-        bag = _BagWriter(stream, chunk_size=1024 * 1024, compression="zstd",
+        bag = BagWriter(stream, chunk_size=1024 * 1024, compression="zstd",
                          message_encoding=MessageEncoding.JSON, as_json=True)
-        for m in read_bag(src, topics):
+        for m in read_bag(src, topics, info=info):
             try:
                 msg = decode_payload(m.header.type, m.header.v, m.payload)
             except CodecError:
@@ -802,3 +547,62 @@ def export_json(
             counts["messages"] += 1
         bag.writer.finish()
     return counts
+
+
+def recover(
+    src: str | Path, dst: str | Path, *, overwrite: bool = False, chunk_size: int = 1 << 20,
+) -> ScanReport:
+    """Write ``dst``: a valid, indexed MCAP (summary, chunk and message indexes) of everything
+    readable in ``src`` — a recording cut short, killed, or with corrupt chunks.
+
+    Schemas and channels keep their content (ids may be renumbered); messages keep their
+    data, times and sequence, in file order. Returns the :class:`ScanReport` of ``src``
+    (``messages`` kept, ``lost``, what was skipped). ``dst`` goes through
+    :class:`~hil_bridge.outputs.AtomicOutput` (never ``src``, never an existing file unless
+    ``overwrite``).
+    """
+    report = ScanReport(str(src))
+    with atomic_output(dst, overwrite=overwrite, inputs=[src]) as tmp, open(tmp, "wb") as out:
+        writer = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        started = False
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
+        schema_ids: dict[int, int] = {}
+        channel_ids: dict[int, int] = {}
+        for record in scan(src, report):
+            if not started:
+                writer.start(profile=report.profile or PROFILE, library=LIBRARY)
+                started = True
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            else:
+                cid = channel_ids.get(record.channel_id)
+                if cid is None:
+                    channel = channels[record.channel_id]
+                    sid = 0
+                    schema = schemas.get(channel.schema_id)
+                    if schema is not None:
+                        sid = schema_ids.get(schema.id, 0)
+                        if not sid:
+                            sid = schema_ids[schema.id] = writer.register_schema(
+                                name=schema.name, encoding=schema.encoding, data=schema.data)
+                    cid = channel_ids[record.channel_id] = writer.register_channel(
+                        topic=channel.topic, message_encoding=channel.message_encoding,
+                        schema_id=sid, metadata=dict(channel.metadata))
+                writer.add_message(channel_id=cid, log_time=record.log_time, data=record.data,
+                                   publish_time=record.publish_time, sequence=record.sequence)
+        if not started:
+            writer.start(profile=report.profile or PROFILE, library=LIBRARY)
+        writer.finish()
+    return report
+
+
+def __getattr__(name: str) -> Any:
+    """``hil_bridge.bag.Recorder`` still works; the recorder lives in :mod:`hil_bridge.recorder`."""
+    if name == "Recorder":
+        from hil_bridge.recorder import Recorder
+
+        return Recorder
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

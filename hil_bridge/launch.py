@@ -528,7 +528,7 @@ def run(
             monitor.start()
             extras.append(monitor)
             if record_path is not None:
-                from hil_bridge.bag import Recorder
+                from hil_bridge.recorder import Recorder
 
                 recorder = Recorder(record_path, bus=bus_url, overwrite=overwrite)
                 recorder.start()

@@ -10,6 +10,12 @@
 
 ``record`` and ``play`` use the domain's bus (``--domain`` or ``ECHOLOOP_DOMAIN``) unless
 ``--bus`` names one.
+    echoloop bag recover broken.mcap fixed.mcap            # a valid, indexed copy of what reads
+
+A corrupt chunk is skipped with a warning on stderr (info, play, export) and the rest is read;
+``recover`` writes everything readable into a new file with a summary and index (any MCAP
+reader opens it) and says how many messages it kept and lost. Outputs are never overwritten
+without ``--overwrite`` and never written onto their input.
 """
 
 from __future__ import annotations
@@ -23,9 +29,10 @@ import threading
 import time
 from types import FrameType
 
-from hil_bridge.bag import Player, Recorder, bag_info, export_json
+from hil_bridge.bag import BagInfo, Player, bag_info, export_json, recover
 from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
 from hil_bridge.outputs import atomic_output
+from hil_bridge.recorder import Recorder
 
 
 def _rate(text: str) -> float:
@@ -80,6 +87,14 @@ def _record(args: argparse.Namespace) -> int:
     return 0
 
 
+def _warn_damage(info: BagInfo) -> None:
+    """One line on stderr when corrupt chunks or bytes were skipped (reading went on)."""
+    if info.scan is not None and (info.scan.corrupt_chunks or info.scan.resyncs or info.skipped):
+        print(f"echoloop bag: warning: {info.path}: {info.scan.describe()}"
+              + (f", {info.skipped} messages on channels that are not bus topics"
+                 if info.skipped else ""), file=sys.stderr)
+
+
 def _play(args: argparse.Namespace) -> int:
     stop = _stop_on_signals()
     player = Player(args.file, bus=args.bus, rate=args.rate, loop=args.loop,
@@ -93,7 +108,9 @@ def _play(args: argparse.Namespace) -> int:
     finally:
         player.stop()
     if player.error is not None:
-        raise OSError(f"player failed: {player.error}")
+        raise OSError(f"{args.file}: playback failed: {player.error}")
+    if player.info is not None:
+        _warn_damage(player.info)
     s = player.stats()
     note = " (bag truncated: played up to its last complete chunk)" if s["truncated"] else ""
     print(f"published {s['published']} messages in {s['passes']} pass(es){note}")
@@ -102,6 +119,7 @@ def _play(args: argparse.Namespace) -> int:
 
 def _info(args: argparse.Namespace) -> int:
     info = bag_info(args.file)
+    _warn_damage(info)
     if args.json:
         print(json.dumps(info.as_dict(), indent=2))
         return 0
@@ -109,7 +127,10 @@ def _info(args: argparse.Namespace) -> int:
     print(f"messages:  {info.messages} on {len(info.topics)} topics, {info.channels} channels")
     print(f"duration:  {info.duration_s:.3f} s")
     if info.truncated:
-        print(f"truncated: yes, read up to the last complete chunk ({info.error})")
+        print("truncated: yes, no summary (read up to the last complete chunk; "
+              "'echoloop bag recover' writes a finished copy)")
+    if info.damaged and info.scan is not None:
+        print(f"damage:    {info.scan.describe()}")
     width = max((len(t) for t in info.topics), default=5)
     print(f"{'topic':<{width}}  {'count':>7}  {'rate':>10}  {'gaps':>5}  {'lost':>6}  type")
     for topic, st in sorted(info.topics.items()):
@@ -120,8 +141,10 @@ def _info(args: argparse.Namespace) -> int:
 
 def _export(args: argparse.Namespace) -> int:
     if args.json_out is not None:
+        info = BagInfo(args.file)
         with atomic_output(args.json_out, overwrite=args.overwrite, inputs=[args.file]) as tmp:
-            counts = export_json(args.file, tmp, topics=args.topics)
+            counts = export_json(args.file, tmp, topics=args.topics, info=info)
+        _warn_damage(info)
         print(f"wrote {counts['messages']} JSON messages to {args.json_out}"
               + (f" (skipped {counts['skipped']} undecodable)" if counts["skipped"] else ""))
         return 0
@@ -133,6 +156,19 @@ def _export(args: argparse.Namespace) -> int:
     print(f"wrote {result.written} {kind} messages from {result.messages} recorded to "
           f"{getattr(args, kind)}" + (f" (skipped: {skipped})" if skipped else "")
           + (" (bag truncated: read up to its last complete chunk)" if result.truncated else ""))
+    return 0
+
+
+def _recover(args: argparse.Namespace) -> int:
+    report = recover(args.file, args.out, overwrite=args.overwrite)
+    state = "finished" if report.finished else "unfinished (no summary)"
+    print(f"recovered {args.file} ({state}) into {args.out}: kept {report.messages} messages, "
+          f"lost {report.lost}" + ("" if report.stated_messages is not None or not report.damaged
+                                   else " or more"))
+    if report.damaged:
+        print(f"  {report.describe()}")
+        for line in report.errors:
+            print(f"  {line}")
     return 0
 
 
@@ -184,6 +220,12 @@ def main(argv: list[str]) -> int:
     exp.add_argument("--topics", nargs="+", default=None, help="--json only: these topics")
     exp.add_argument("--overwrite", action="store_true", help="replace an existing output")
     exp.set_defaults(run=_export)
+
+    rec = sub.add_parser("recover", help="write a valid, indexed copy of what is readable")
+    rec.add_argument("file", help="a recording cut short, killed, or with corrupt chunks")
+    rec.add_argument("out", help="the repaired MCAP file to write")
+    rec.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    rec.set_defaults(run=_recover)
 
     args = parser.parse_args(argv)
     if args.cmd in ("record", "play") and args.bus is None:

@@ -17,12 +17,13 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
-from hil_bridge.bag import MAX_PUBLISHERS_PER_TOPIC, Recorder, bag_info, read_bag
+from hil_bridge.bag import MAX_PUBLISHERS_PER_TOPIC, bag_info, read_bag
 from hil_bridge.codec import encode
 from hil_bridge.errors import OutputExistsError
 from hil_bridge.messages import Clock, Diagnostics, SonarEcho
 from hil_bridge.node import Node
 from hil_bridge.proxy import Proxy
+from hil_bridge.recorder import Recorder
 from hil_bridge.transport import open_transport
 from tests.hil_bridge.core.bus_test_util import WAIT, poll_until
 
