@@ -42,6 +42,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib
+import inspect
 import logging
 import math
 import signal
@@ -449,12 +450,27 @@ class _StopFlag:
             self.event.set()
 
 
-def _instantiate(spec: LaunchSpec, bus: str, made: list[tuple[str, Any]]) -> None:
-    """Construct every node into ``made`` (so the caller can stop those built before a failure)."""
+def _takes_overwrite(cls: type) -> bool:
+    try:
+        return "overwrite" in inspect.signature(cls).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def _instantiate(
+    spec: LaunchSpec, bus: str, made: list[tuple[str, Any]], *, overwrite: bool
+) -> None:
+    """Construct every node into ``made`` (so the caller can stop those built before a failure).
+
+    With ``overwrite``, nodes whose constructor takes an ``overwrite`` parameter (those that
+    write files: captures, CAN logs) get ``overwrite=True`` unless their params set it."""
     for i, node in enumerate(spec.nodes):
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry")
+        params = dict(node.params)
+        if overwrite and "overwrite" not in params and _takes_overwrite(cls):
+            params["overwrite"] = True
         try:
-            obj = cls(node.name, bus=bus, **node.params)
+            obj = cls(node.name, bus=bus, **params)
         except TypeError as exc:
             raise ConfigError(f"nodes[{i}] ({node.name}).params: {exc}") from None
         made.append((node.name, obj))
@@ -486,8 +502,8 @@ def run(
     ``ECHOLOOP_DOMAIN``, else 0) gives every default the file leaves out: the bus, pty links,
     virtual CAN channels, the live-view port. ``on_started(spec)`` is called once every node
     runs, with ``spec.bus`` the bus in use. A node that fails to construct or start stops every
-    node already constructed (reverse order) and re-raises. ``overwrite`` lets ``record``
-    replace an existing file.
+    node already constructed (reverse order) and re-raises. ``overwrite`` lets ``record`` and
+    the nodes' own outputs (nodes with an ``overwrite`` parameter) replace existing files.
 
     ``expect`` (``"NODE.COUNTER OP VALUE"`` strings, checked for unknown nodes before anything
     starts), ``allow_disconnected`` and the launchables that fail (their optional ``failure()``
@@ -533,7 +549,7 @@ def run(
                 recorder = Recorder(record_path, bus=bus_url, overwrite=overwrite)
                 recorder.start()
                 extras.append(recorder)
-            _instantiate(spec, bus_url, made)
+            _instantiate(spec, bus_url, made, overwrite=overwrite)
             for _, obj in made:
                 obj.start()
             if want_live:

@@ -6,7 +6,7 @@ writes it through :func:`atomic_output`:
 1. an existing output (a file, a directory entry, or a symlink, dangling or not) is refused
    with :class:`~hil_bridge.errors.OutputExistsError` unless ``overwrite=True``;
 2. an output that is one of the command's inputs is refused, with or without ``overwrite``;
-3. the data go to a temporary file beside the output (``.NAME.XXXXXXXX.part``), renamed
+3. the data go to a temporary file beside the output (``.STEM.XXXXXXXX.part.EXT``), renamed
    onto the output only when the ``with`` block ends without an exception; on an exception
    the temporary file is removed. The rename replaces a symlink itself, never its target.
 
@@ -27,7 +27,7 @@ from pathlib import Path
 
 from hil_bridge.errors import OutputExistsError
 
-__all__ = ["AtomicOutput", "atomic_output", "check_output"]
+__all__ = ["AtomicOutput", "atomic_output", "check_output", "temporary_name"]
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -54,6 +54,20 @@ def check_output(
     return out
 
 
+_COMPRESSED = frozenset({".gz", ".bz2", ".xz", ".zst", ".lz4"})
+
+
+def temporary_name(path: Path) -> Path:
+    """``.STEM.XXXXXXXX.part.EXT`` beside ``path``: hidden, unique, and with the same suffix
+    (two for ``.log.gz``-like names), so writers that pick the format from the suffix
+    (matplotlib, ``numpy.savez``, python-can loggers) still do."""
+    suffixes = path.suffixes
+    keep = 2 if len(suffixes) > 1 and path.suffix in _COMPRESSED else 1 if suffixes else 0
+    ext = "".join(suffixes[len(suffixes) - keep:])
+    stem = path.name[:len(path.name) - len(ext)]
+    return path.with_name(f".{stem}.{secrets.token_hex(4)}.part{ext}")
+
+
 class AtomicOutput:
     """One output file written through a temporary file beside it (module docstring).
 
@@ -71,7 +85,7 @@ class AtomicOutput:
         self.overwrite = overwrite
         self.path = check_output(path, overwrite=overwrite, inputs=self.inputs)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = self.path.with_name(f".{self.path.name}.{secrets.token_hex(4)}.part")
+        self.tmp = temporary_name(self.path)
         with open(self.tmp, "xb"):
             pass
         self.done = False

@@ -35,10 +35,10 @@ class Recorder:
 
     ``Recorder(path, topics=None, *, bus=None, chunk_size=65536, flush_period_s=1.0,
     compression="zstd", overwrite=False, diagnostics_period_s=1.0)``; ``topics=None`` records
-    every topic. The file is written as a temporary file beside ``path`` (``.NAME.XXXX.part``)
-    and renamed onto ``path`` by :meth:`stop` (an existing ``path`` is refused unless
-    ``overwrite``); a recorder killed without warning leaves the ``.part`` file, readable to its
-    last flushed chunk and repaired by ``echoloop bag recover``.
+    every topic. The file is written as a temporary file beside ``path``
+    (``.STEM.XXXX.part.mcap``) and renamed onto ``path`` by :meth:`stop` (an existing ``path``
+    is refused unless ``overwrite``); a recorder killed without warning leaves the temporary
+    file, readable to its last flushed chunk and repaired by ``echoloop bag recover``.
 
     A recorder never fails in silence: a write error (disk full, file size limit, I/O error) or
     the channel limit makes :meth:`failure` return the reason, is logged at once, sent on

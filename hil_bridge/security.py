@@ -11,20 +11,28 @@ Key directory layout (``echoloop bus --keygen DIR`` writes it; ``--curve-keys DI
     DIR/server.key_secret     proxy secret key   (stays on the proxy host)
     DIR/authorized/*.key      allowed client public keys
     DIR/<client>.key_secret   a client's key pair (?curve_client=...), one per client
+
+Secret key files are written with mode 0600 (a new ``DIR`` 0700), existing key files are
+never replaced without ``overwrite``, and a secret key is read only from a regular file that
+neither group nor others can read (:func:`read_secret_key`; ``SecurityError`` naming the file
+and the fix otherwise), as OpenSSH does for its private keys.
 """
 
 from __future__ import annotations
 
 import ipaddress
-import shutil
+import os
+import stat
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlsplit
 
+import zmq
 import zmq.auth
 
 from hil_bridge.errors import SecurityError
+from hil_bridge.outputs import atomic_output, check_output
 
 __all__ = [
     "CurveKeys",
@@ -33,6 +41,8 @@ __all__ = [
     "generate_keys",
     "is_loopback_endpoint",
     "is_loopback_host",
+    "read_public_key",
+    "read_secret_key",
 ]
 
 
@@ -84,27 +94,87 @@ class CurveKeys:
         secret_file = root / "server.key_secret"
         if not secret_file.is_file():
             raise ValueError(f"CURVE key directory {root}: missing {secret_file.name}")
-        public, secret = zmq.auth.load_certificate(secret_file)
-        if secret is None:
-            raise ValueError(f"{secret_file} holds no secret key")
+        public, secret = read_secret_key(secret_file)
         authorized = root / "authorized"
         keys = sorted(authorized.glob("*.key")) if authorized.is_dir() else []
         if not keys:
             raise ValueError(f"CURVE key directory {root}: no client keys in authorized/*.key")
-        allowed = frozenset(zmq.auth.load_certificate(k)[0] for k in keys)
+        allowed = frozenset(read_public_key(k) for k in keys)
         return cls(public, secret, allowed)
 
 
-def generate_keys(directory: str | Path, clients: list[str]) -> Path:
-    """Write a server key pair and one key pair per client name, authorising every client."""
+def _load(path: Path) -> tuple[bytes, bytes | None]:
+    try:
+        return zmq.auth.load_certificate(path)
+    except (OSError, ValueError, KeyError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a CURVE key file ({type(exc).__name__}: {exc})") from None
+
+
+def read_public_key(path: str | Path) -> bytes:
+    """The z85 public key in a ``.key`` (or ``.key_secret``) file."""
+    public, _ = _load(Path(path))
+    if not public:
+        raise ValueError(f"{path}: holds no public key")
+    return public
+
+
+def read_secret_key(path: str | Path) -> tuple[bytes, bytes]:
+    """(public, secret) z85 keys from a ``.key_secret`` file that only its owner can read."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError as exc:
+        raise ValueError(f"{p}: cannot read the secret key file ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{p}: the secret key is not a regular file")
+    if st.st_mode & 0o077:
+        raise SecurityError(
+            f"{p}: secret key file is readable by group or others (mode "
+            f"{stat.S_IMODE(st.st_mode):04o}); keys are read only from files of mode 0600 or "
+            f"stricter: chmod 600 {p}"
+        )
+    public, secret = _load(p)
+    if not secret:
+        raise ValueError(f"{p}: holds no secret key (expected a .key_secret file)")
+    return public, secret
+
+
+def _write_key(path: Path, public: bytes, secret: bytes | None, *, overwrite: bool) -> None:
+    """A certificate file in ``zmq.auth``'s format; a secret one gets mode 0600 before any
+    key byte is written."""
+    kind = "**Secret** Certificate" if secret else "Certificate"
+    lines = [f"#   ZeroMQ CURVE {kind} (echoloop bus --keygen)", "", "metadata", "curve",
+             f'    public-key = "{public.decode()}"']
+    if secret:
+        lines.insert(1, "#   DO NOT PROVIDE THIS FILE TO OTHER USERS nor change its permissions.")
+        lines.append(f'    secret-key = "{secret.decode()}"')
+    with atomic_output(path, overwrite=overwrite) as tmp:
+        os.chmod(tmp, 0o600 if secret else 0o644)
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def generate_keys(directory: str | Path, clients: list[str], *, overwrite: bool = False) -> Path:
+    """Write a server key pair and one key pair per client name, authorising every client.
+
+    Secret files are 0600; existing key files are refused unless ``overwrite``."""
     root = Path(directory)
-    (root / "authorized").mkdir(parents=True, exist_ok=True)
-    zmq.auth.create_certificates(root, "server")
     for name in clients:
         if not name.isidentifier() or name == "server":
             raise ValueError(f"client name must be an identifier other than 'server', got {name!r}")
-        public_file, _ = zmq.auth.create_certificates(root, name)
-        shutil.copy(public_file, root / "authorized" / Path(public_file).name)
+    names = ["server", *clients]
+    planned = [root / f"{n}.key" for n in names] + [root / f"{n}.key_secret" for n in names]
+    planned += [root / "authorized" / f"{n}.key" for n in clients]
+    for path in planned:  # refuse before writing any key
+        check_output(path, overwrite=overwrite)
+    if not root.exists():
+        root.mkdir(mode=0o700, parents=True)
+    (root / "authorized").mkdir(exist_ok=True)
+    for name in names:
+        public, secret = zmq.curve_keypair()
+        _write_key(root / f"{name}.key", public, None, overwrite=overwrite)
+        _write_key(root / f"{name}.key_secret", public, secret, overwrite=overwrite)
+        if name != "server":
+            _write_key(root / "authorized" / f"{name}.key", public, None, overwrite=overwrite)
     return root
 
 

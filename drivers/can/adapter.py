@@ -67,6 +67,7 @@ from hil_bridge.codec import Envelope
 from hil_bridge.errors import CodecError
 from hil_bridge.messages import Clock, GliderCmd, GliderNeighbors, GliderState
 from hil_bridge.node import Node, Publisher
+from hil_bridge.outputs import check_output
 from hil_bridge.qos import SENSOR
 from sim_core.soaring.law import Law
 
@@ -182,7 +183,7 @@ class AutopilotAdapter(Node):
     ``cmd_timeout_s`` (1.0), ``failsafe_after_s`` (3.0), ``failsafe_bank_rad`` (0),
     ``failsafe_airspeed_mps`` (best glide), ``heartbeat_timeout_s`` (1.0), ``can_options``
     (extra ``can.Bus`` kwargs), ``faults`` (:class:`CanFaultConfig` mapping),
-    ``diagnostics_period_s`` (1.0).
+    ``diagnostics_period_s`` (1.0), ``overwrite`` (replace an existing ``can_log``).
     """
 
     def __init__(
@@ -207,6 +208,7 @@ class AutopilotAdapter(Node):
         can_options: Mapping[str, Any] | None = None,
         faults: Mapping[str, Any] | None = None,
         diagnostics_period_s: float = 1.0,
+        overwrite: bool = False,
     ) -> None:
         self.gliders = parse_gliders(gliders)
         self.state_rate_hz = _positive("state_rate_hz", state_rate_hz)
@@ -232,6 +234,9 @@ class AutopilotAdapter(Node):
             options=dict(can_options or {}), faults=dict(faults) if faults else None,
         )
         self.can_log = can_log
+        self.overwrite = overwrite
+        if can_log is not None:
+            check_output(can_log, overwrite=overwrite)
         super().__init__(
             name, bus=bus, clock=SimClock("lockstep"), diagnostics_period_s=diagnostics_period_s
         )
@@ -266,7 +271,8 @@ class AutopilotAdapter(Node):
         if self._can_threads or self._stop_evt.is_set():
             return self
         self._link = CanLink(
-            self.bus_config, policy=LinkPolicy(), log_path=self.can_log, stop_event=self._stop_evt
+            self.bus_config, policy=LinkPolicy(), log_path=self.can_log,
+            stop_event=self._stop_evt, overwrite=self.overwrite,
         )
         super().start()
         self._start_wall = time.monotonic()

@@ -21,7 +21,9 @@
    consecutive receive errors re-open the bus. A bus that cannot be opened leaves the link
    ``down`` and is retried with back-off.
 4. With ``log_path`` every frame sent and received (error frames too) is written by python-can's
-   ``can.Logger`` (``.log`` = candump ``-L`` format, readable by ``can.LogReader``).
+   ``can.Logger`` (``.log`` = candump ``-L`` format, readable by ``can.LogReader``), through a
+   temporary file renamed at :meth:`CanLink.close`; an existing log is refused unless
+   ``overwrite``.
 5. ``close()`` is idempotent and flushes the log.
 6. :meth:`CanLink.report` says whether the bus was ever open and its state when closed (the run
    summary's ``links``, :func:`hil_bridge.launch.collect_links`).
@@ -50,6 +52,7 @@ from drivers.faults.can_bus import (
     fault_rngs,
 )
 from hil_bridge.domain import current as current_domain
+from hil_bridge.outputs import AtomicOutput
 from sim_core.config import from_dict
 
 log = logging.getLogger(__name__)
@@ -147,6 +150,7 @@ class CanLink:
         policy: LinkPolicy | None = None,
         log_path: str | Path | None = None,
         stop_event: threading.Event | None = None,
+        overwrite: bool = False,
     ) -> None:
         self.config = config
         self.policy = policy if policy is not None else LinkPolicy()
@@ -173,13 +177,17 @@ class CanLink:
         self.last_error = ""
         self.counters: Counter[str] = Counter()
         self._logger: can.Listener | None = None
+        self._log_output: AtomicOutput | None = None
         if log_path is not None:
-            path = Path(log_path)
-            path.parent.mkdir(parents=True, exist_ok=True)
+            out = self._log_output = AtomicOutput(log_path, overwrite=overwrite)
             kwargs: dict[str, Any] = {}
-            if path.suffix == ".log":
+            if out.path.suffix == ".log":
                 kwargs["channel"] = str(config.channel)
-            self._logger = can.Logger(path, **kwargs)
+            try:
+                self._logger = can.Logger(out.tmp, **kwargs)
+            except BaseException:
+                out.discard()
+                raise
         self._try_open(first=True)
 
     # -- state --------------------------------------------------------------------------------
@@ -434,6 +442,8 @@ class CanLink:
             if self._logger is not None:
                 self._logger.stop()
                 self._logger = None
+            if self._log_output is not None:
+                self._log_output.commit()
 
     def __enter__(self) -> CanLink:
         return self

@@ -48,6 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 from drivers.can.bus import CanBusConfig, CanLink
 from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
 from hil_bridge.errors import CodecError
+from hil_bridge.outputs import check_output
 from sim_core.soaring.boids import GliderObs, controller_command
 from sim_core.soaring.law import Law
 
@@ -348,7 +349,8 @@ class MockAutopilot:
     default the packaged seed law), ``rate_hz`` (control rate; default ``1 / law.dt`` for Boids,
     10 Hz for ``path``), ``heartbeat_hz``, ``state_timeout_s``, ``waypoints`` ((M, 2) route for
     ``path``; default :func:`figure_eight_waypoints`), ``path_airspeed_mps``, ``lookahead_m``,
-    ``bank_max_rad`` (path follower), ``can_log`` (candump log of its own traffic), ``faults``.
+    ``bank_max_rad`` (path follower), ``can_log`` (candump log of its own traffic; ``overwrite``
+replaces an existing one), ``faults``.
     """
 
     def __init__(
@@ -371,6 +373,7 @@ class MockAutopilot:
         bank_max_rad: float = math.radians(30.0),
         can_log: str | Path | None = None,
         faults: Mapping[str, Any] | None = None,
+        overwrite: bool = False,
     ) -> None:
         if controller not in CONTROLLER_CODES:
             raise ValueError(
@@ -396,6 +399,9 @@ class MockAutopilot:
             interface=interface, channel=channel, bitrate=bitrate, faults=dict(faults or {}) or None
         )
         self.can_log = can_log
+        self.overwrite = overwrite
+        if can_log is not None:
+            check_output(can_log, overwrite=overwrite)
         self.follower: PathFollower | None = None
         if controller == "path":
             route = figure_eight_waypoints() if waypoints is None else waypoints
@@ -422,7 +428,8 @@ class MockAutopilot:
         if self._started:
             return
         self._started = True
-        self._link = CanLink(self.bus_config, log_path=self.can_log, stop_event=self._stop)
+        self._link = CanLink(self.bus_config, log_path=self.can_log, stop_event=self._stop,
+                             overwrite=self.overwrite)
         for target, suffix in ((self._rx_loop, "rx"), (self._tx_loop, "tx")):
             t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
             t.start()

@@ -55,6 +55,8 @@ def main(argv: list[str]) -> int:
                         help="path controller: pure-pursuit look-ahead distance")
     parser.add_argument("--can-log", default=None, metavar="PATH",
                         help="candump-format log of the mock's traffic (.log)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing --can-log file")
     parser.add_argument("--duration", type=seconds, default=None, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C)")
     parser.add_argument("--every", type=float, default=2.0, metavar="S",
@@ -76,7 +78,7 @@ def main(argv: list[str]) -> int:
             "mock_autopilot", interface=args.interface, channel=args.channel,
             bitrate=args.bitrate, gliders=args.gliders, controller=args.controller, law=args.law,
             rate_hz=args.rate, waypoints=waypoints, path_airspeed_mps=args.path_airspeed,
-            lookahead_m=args.lookahead, can_log=args.can_log,
+            lookahead_m=args.lookahead, can_log=args.can_log, overwrite=args.overwrite,
         )
     mock.start()
     done = threading.Event()

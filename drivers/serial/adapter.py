@@ -106,7 +106,8 @@ class SonarHeadParams:
 
 
 class SonarHeadAdapter(Node):
-    """Serial sonar head <-> bus (module docstring). ``Cls(name, *, bus, **params)``."""
+    """Serial sonar head <-> bus (module docstring). ``Cls(name, *, bus, **params)``;
+    ``overwrite=True`` lets ``capture`` replace existing capture files."""
 
     def __init__(
         self,
@@ -114,6 +115,7 @@ class SonarHeadAdapter(Node):
         *,
         bus: str | None = None,
         clock: SimClock | None = None,
+        overwrite: bool = False,
         **params: Any,
     ) -> None:
         self.params = p = from_dict(SonarHeadParams, params)
@@ -129,7 +131,8 @@ class SonarHeadAdapter(Node):
         self.host = SonarHeadHost(
             self.port, baudrate=p.baudrate, encoding=p.encoding, f_center_hz=p.f_center_hz,
             decimation=p.decimation, follow_head_config=p.follow_head_config,
-            capture=p.capture, on_ping=self._on_ping, on_config=self._on_config,
+            capture=p.capture, overwrite=overwrite, on_ping=self._on_ping,
+            on_config=self._on_config,
             backoff_initial_s=p.backoff_initial_s, backoff_max_s=p.backoff_max_s,
             tx_queue_bytes=p.tx_queue_bytes, name=name)
         if not self.budget.fits:

@@ -141,6 +141,7 @@ class SonarHeadHost:
         decimation: int = 20,
         follow_head_config: bool = True,
         capture: str | Path | None = None,
+        overwrite: bool = False,
         on_ping: Callable[[PingPayload, Frame], None] | None = None,
         on_config: Callable[[ConfigPayload], None] | None = None,
         backoff_initial_s: float = 0.05,
@@ -160,7 +161,7 @@ class SonarHeadHost:
         self._on_config = on_config
         self.decoder = FrameDecoder()
         self.link = Link(port, baudrate=baudrate, on_bytes=self._on_bytes,
-                         on_connect=self._on_connect, capture=capture,
+                         on_connect=self._on_connect, capture=capture, overwrite=overwrite,
                          backoff_initial_s=backoff_initial_s, backoff_max_s=backoff_max_s,
                          tx_queue_bytes=tx_queue_bytes, name=name)
         self._tx_lock = threading.Lock()

@@ -19,6 +19,8 @@ above never knows which.
 4. With ``capture=PREFIX`` every byte read goes to ``PREFIX.rx.bin`` and every byte written to
    ``PREFIX.tx.bin``, byte-exact and in order, across reconnects; ``PREFIX.index.tsv`` has one
    line per read/write/open/close with a monotonic timestamp (format in docs/serial.md).
+   Existing capture files are refused at construction unless ``overwrite``; the files appear
+   (renamed from temporary files) when the link stops.
 5. ``stop()`` is idempotent, joins both threads and closes the port and capture files.
 6. :meth:`Link.report` says whether the port was ever open and its state when the link stopped
    (the run summary's ``links``, :func:`hil_bridge.launch.collect_links`).
@@ -39,8 +41,10 @@ import serial
 
 from drivers import urlhandlers
 from hil_bridge.errors import TransportTimeout
+from hil_bridge.outputs import AtomicOutput, check_output
 
-__all__ = ["KNOWN_SCHEMES", "PORT_ERRORS", "Capture", "Link", "check_url", "open_link"]
+__all__ = ["KNOWN_SCHEMES", "PORT_ERRORS", "Capture", "Link", "capture_paths", "check_capture",
+           "check_url", "open_link"]
 
 log = logging.getLogger(__name__)
 
@@ -76,19 +80,42 @@ def check_url(url: str) -> str:
     return url
 
 
-class Capture:
-    """Byte-exact capture of both directions of a link (see docs/serial.md for the format)."""
+def capture_paths(prefix: str | Path) -> tuple[Path, Path, Path]:
+    """The three files of a capture: ``PREFIX.rx.bin``, ``PREFIX.tx.bin``, ``PREFIX.index.tsv``."""
+    prefix = Path(prefix)
+    return (prefix.with_name(prefix.name + ".rx.bin"), prefix.with_name(prefix.name + ".tx.bin"),
+            prefix.with_name(prefix.name + ".index.tsv"))
 
-    def __init__(self, prefix: str | Path, url: str) -> None:
-        prefix = Path(prefix)
-        prefix.parent.mkdir(parents=True, exist_ok=True)
-        self.rx_path = prefix.with_name(prefix.name + ".rx.bin")
-        self.tx_path = prefix.with_name(prefix.name + ".tx.bin")
-        self.index_path = prefix.with_name(prefix.name + ".index.tsv")
+
+def check_capture(prefix: str | Path, *, overwrite: bool = False) -> None:
+    """Refuse a capture whose files exist (unless ``overwrite``), before anything is opened."""
+    for path in capture_paths(prefix):
+        check_output(path, overwrite=overwrite)
+
+
+class Capture:
+    """Byte-exact capture of both directions of a link (see docs/serial.md for the format).
+
+    The three files are written through temporary files renamed at :meth:`close`
+    (:class:`~hil_bridge.outputs.AtomicOutput`); existing ones are refused unless
+    ``overwrite``."""
+
+    def __init__(self, prefix: str | Path, url: str, *, overwrite: bool = False) -> None:
+        check_capture(prefix, overwrite=overwrite)
+        self.rx_path, self.tx_path, self.index_path = capture_paths(prefix)
+        self._outputs: list[AtomicOutput] = []
+        try:
+            for path in (self.rx_path, self.tx_path, self.index_path):
+                self._outputs.append(AtomicOutput(path, overwrite=overwrite))
+        except BaseException:
+            for out in self._outputs:
+                out.discard()
+            raise
+        rx, tx, index = (out.tmp for out in self._outputs)
         self._lock = threading.Lock()
-        self._rx: BinaryIO = open(self.rx_path, "wb")
-        self._tx: BinaryIO = open(self.tx_path, "wb")
-        self._index: TextIO = open(self.index_path, "w", encoding="utf-8")
+        self._rx: BinaryIO = open(rx, "wb")
+        self._tx: BinaryIO = open(tx, "wb")
+        self._index: TextIO = open(index, "w", encoding="utf-8")
         self._offsets = {"rx": 0, "tx": 0}
         self._index.write(
             f"# echoloop serial capture v1 url={url} start_unix_ns={time.time_ns()} "
@@ -115,9 +142,12 @@ class Capture:
                 )
 
     def close(self) -> None:
+        """Close the files and rename them into place (idempotent)."""
         with self._lock:
             for f in (self._rx, self._tx, self._index):
                 f.close()
+            for out in self._outputs:
+                out.commit()
 
 
 class Link:
@@ -132,6 +162,7 @@ class Link:
         on_connect: Callable[[], None] | None = None,
         on_disconnect: Callable[[], None] | None = None,
         capture: str | Path | None = None,
+        overwrite: bool = False,
         backoff_initial_s: float = 0.05,
         backoff_max_s: float = 2.0,
         read_timeout_s: float = 0.05,
@@ -139,6 +170,9 @@ class Link:
         name: str = "link",
     ) -> None:
         self.url = check_url(url)
+        if capture is not None:
+            check_capture(capture, overwrite=overwrite)
+        self._overwrite = overwrite
         if int(baudrate) <= 0:
             raise ValueError(f"baudrate {baudrate!r} must be a positive integer")
         if not 0 < backoff_initial_s <= backoff_max_s:
@@ -187,7 +221,7 @@ class Link:
             return self
         self._started = True
         if self._capture_prefix is not None:
-            self.capture = Capture(self._capture_prefix, self.url)
+            self.capture = Capture(self._capture_prefix, self.url, overwrite=self._overwrite)
         for target, suffix in ((self._read_loop, "rx"), (self._write_loop, "tx")):
             t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
             self._threads.append(t)

@@ -7,15 +7,13 @@
     echoloop bag export out.mcap --ros2 out_ros2.mcap      # ROS 2 bag (CDR, ros2msg schemas)
     echoloop bag export out.mcap --foxglove out_fox.mcap   # Foxglove well-known schemas (3D)
     echoloop bag export out.mcap --mat out.mat             # MATLAB v5: echoes, pings, tracks
-
-``record`` and ``play`` use the domain's bus (``--domain`` or ``ECHOLOOP_DOMAIN``) unless
-``--bus`` names one.
     echoloop bag recover broken.mcap fixed.mcap            # a valid, indexed copy of what reads
 
-A corrupt chunk is skipped with a warning on stderr (info, play, export) and the rest is read;
-``recover`` writes everything readable into a new file with a summary and index (any MCAP
-reader opens it) and says how many messages it kept and lost. Outputs are never overwritten
-without ``--overwrite`` and never written onto their input.
+``record`` and ``play`` use the domain's bus (``--domain`` or ``ECHOLOOP_DOMAIN``) unless
+``--bus`` names one. A corrupt chunk is skipped with a warning on stderr (info, play,
+export) and the rest is read; ``recover`` writes everything readable into a new file with a
+summary and index (any MCAP reader opens it) and says how many messages it kept and lost.
+Outputs are never overwritten without ``--overwrite`` and never written onto their input.
 """
 
 from __future__ import annotations

@@ -35,11 +35,13 @@ def main(argv: list[str]) -> int:
                         help="write a server key pair and client key pairs into DIR, then exit")
     parser.add_argument("--clients", default="client",
                         help="comma-separated client names for --keygen (default %(default)s)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="--keygen: replace existing key files")
     args = parser.parse_args(argv)
 
     if args.keygen is not None:
         names = [n for n in args.clients.split(",") if n]
-        root = generate_keys(args.keygen, names)
+        root = generate_keys(args.keygen, names, overwrite=args.overwrite)
         print(f"wrote CURVE keys to {root}: server.key(_secret), "
               + ", ".join(f"{n}.key(_secret)" for n in names) + "; authorized/ holds the clients")
         return 0

@@ -23,6 +23,7 @@ import numpy as np
 
 from hil_bridge.cli._echo_physics import add_physics_arguments, physics_meta, physics_params
 from hil_bridge.export.echo_file import WAV_FORMATS, check_echo_output, write_echo
+from hil_bridge.outputs import check_output
 from sim_core.sonar import FIDELITIES, Beam, EchoParams, synthesize
 
 __all__ = ["load_leaves", "main", "parse_floats"]
@@ -106,6 +107,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
     add_physics_arguments(parser)
     args = parser.parse_args(_join_vector_values(argv))
+    if args.plot is not None:  # refuse before computing anything (--out: check_echo_output)
+        check_output(args.plot, overwrite=args.overwrite, inputs=[args.leaves])
 
     position = parse_floats(args.position, 3, "--position")
     az, el = parse_floats(args.boresight, 2, "--boresight")

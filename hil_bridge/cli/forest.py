@@ -17,6 +17,8 @@ import sys
 import time
 from pathlib import Path
 
+from hil_bridge.outputs import atomic_output, check_output
+
 __all__ = ["main"]
 
 
@@ -33,6 +35,7 @@ def _parser() -> argparse.ArgumentParser:
     gen.add_argument("--out", type=Path, required=True, metavar="FILE.npz", help="output file")
     gen.add_argument("--plot", type=Path, metavar="FILE.png", help="also write a forest figure")
     gen.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    gen.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     sub.add_parser("presets", help="list the preset names")
     return parser
 
@@ -49,17 +52,21 @@ def main(argv: list[str]) -> int:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
     if args.out.suffix != ".npz":
         raise ValueError(f"--out must name a .npz file, got {str(args.out)!r}")
+    inputs = [args.scene] if args.scene is not None else []
+    for out in (args.out, args.plot):
+        if out is not None:  # refuse before building anything
+            check_output(out, overwrite=args.overwrite, inputs=inputs)
     spec = get_preset(args.preset) if args.preset else load_forest_spec(args.scene)
     t0 = time.perf_counter()
     forest = build_forest(spec, seed=args.seed)
     seconds = time.perf_counter() - t0
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    forest.save_npz(args.out)
+    with atomic_output(args.out, overwrite=args.overwrite, inputs=inputs) as tmp:
+        forest.save_npz(tmp)
     if args.plot is not None:
         from sim_core.world.plots import plot_forest
 
-        args.plot.parent.mkdir(parents=True, exist_ok=True)
-        plot_forest(forest, args.plot, title=args.preset or args.scene.name)
+        with atomic_output(args.plot, overwrite=args.overwrite, inputs=inputs) as tmp:
+            plot_forest(forest, tmp, title=args.preset or args.scene.name)
     counts = forest.species_counts()
     summary = {
         "trees": forest.n_trees,

@@ -45,7 +45,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every topic to an MCAP file")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace existing output files (--record, --plot)")
+                   help="replace existing output files (--record, --plot, node captures/logs)")
     p.add_argument("--bus", default=None, metavar="URL",
                    help="bus URL replacing the file's and the domain's (e.g. mem://demo)")
     add_domain_argument(p, auto=True)

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from hil_bridge.outputs import atomic_output, check_output
 from sim_core.sonar import FIDELITIES, Echo, EchoParams, synthesize
 from sim_core.sonar.scenarios import (
     TABLE1_BEAMWIDTHS_DEG,
@@ -112,12 +113,18 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--fidelity", default="fast", choices=sorted(FIDELITIES))
     parser.add_argument("--repeat", type=int, default=1, help="table1: best of this many runs")
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the scenario's files if they exist in --out")
     args = parser.parse_args(argv)
     if args.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
     if args.repeat < 1:
         raise ValueError(f"--repeat must be >= 1, got {args.repeat}")
-    args.out.mkdir(parents=True, exist_ok=True)
+    if args.out.exists() and not args.out.is_dir():
+        raise ValueError(f"--out {args.out}: exists and is not a directory")
+    names = {"fig6": ["fig6.png"], "fig7": ["fig7.png"], "table1": ["table1.png", "table1.md"]}
+    for name in names[args.name]:  # refuse before computing anything
+        check_output(args.out / name, overwrite=args.overwrite)
     from sim_core.sonar import plots
 
     params = EchoParams()
@@ -126,19 +133,23 @@ def main(argv: list[str]) -> int:
         leaves, pings = fig6_scene(seed=args.seed)
         echoes, secs = run_pings(leaves, pings, params, args.fidelity)
         png = args.out / "fig6.png"
-        plots.plot_fig6(leaves, pings, echoes, params, png)
+        with atomic_output(png, overwrite=args.overwrite) as tmp:
+            plots.plot_fig6(leaves, pings, echoes, params, tmp)
         result.update(pings=_summary(pings, echoes, secs), figure=str(png))
     elif args.name == "fig7":
         forest, pings, _ = fig7_scene(seed=args.seed)
         echoes, secs = run_pings(forest.leaves, pings, params, args.fidelity)
         png = args.out / "fig7.png"
-        plots.plot_fig7(forest.leaves, pings, echoes, params, png)
+        with atomic_output(png, overwrite=args.overwrite) as tmp:
+            plots.plot_fig7(forest.leaves, pings, echoes, params, tmp)
         result.update(pings=_summary(pings, echoes, secs), figure=str(png))
     else:
         seconds, leaves_in = time_table1(args.fidelity, seed=args.seed, repeat=args.repeat)
         png, md = args.out / "table1.png", args.out / "table1.md"
-        plots.plot_table1(seconds, args.fidelity, png)
-        md.write_text(table1_markdown(seconds, args.fidelity) + "\n", encoding="utf-8")
+        with atomic_output(png, overwrite=args.overwrite) as tmp:
+            plots.plot_table1(seconds, args.fidelity, tmp)
+        with atomic_output(md, overwrite=args.overwrite) as tmp:
+            tmp.write_text(table1_markdown(seconds, args.fidelity) + "\n", encoding="utf-8")
         result.update(seconds=seconds, leaves_in_beam=leaves_in, figure=str(png), table=str(md))
     if args.json:
         print(json.dumps(result))

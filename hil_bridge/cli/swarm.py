@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hil_bridge.outputs import atomic_output, check_output
 from sim_core.config import parse_override
 
 __all__ = ["main"]
@@ -55,6 +56,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="integration rate of --physics continuous (default 50 Hz)")
     r.add_argument("--flight", action="append", default=[], metavar="KEY=VALUE",
                    help="flight model parameter of --physics continuous, e.g. bank_tau_s=0.5")
+    r.add_argument("--overwrite", action="store_true", help="replace existing --trace/--plot")
 
     s = sub.add_parser("sweep", help="run a parameter grid into a results table")
     law_args(s)
@@ -83,6 +85,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--by", metavar="PARAM", help="table column to split the histograms by")
     p.add_argument("--metric", default="survivingPercent",
                    help="table column to histogram (default survivingPercent)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     return parser
 
 
@@ -105,6 +108,12 @@ def main(argv: list[str]) -> int:
 def _run(law: Any, args: argparse.Namespace) -> int:
     from sim_core.soaring.swarm import run
 
+    if args.trace and Path(args.trace).suffix.lower() not in (".npz", ".csv"):
+        raise ValueError(f"--trace must name a .npz or .csv file, got {args.trace!r}")
+    inputs = [] if args.law == "default" else [args.law]
+    for out in (args.trace, args.plot):
+        if out:  # refuse before flying anything
+            check_output(out, overwrite=args.overwrite, inputs=inputs)
     want_trace = bool(args.trace or args.plot)
     if args.physics == "continuous":
         from sim_core.config import from_dict
@@ -125,11 +134,13 @@ def _run(law: Any, args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     if result.trace is not None:
         if args.trace:
-            result.trace.save(args.trace)
+            with atomic_output(args.trace, overwrite=args.overwrite, inputs=inputs) as tmp:
+                result.trace.save(tmp)
         if args.plot:
             from sim_core.soaring.plots import plot_paths
 
-            plot_paths(result.trace, args.plot)
+            with atomic_output(args.plot, overwrite=args.overwrite, inputs=inputs) as tmp:
+                plot_paths(result.trace, tmp)
     metrics = {**result.metrics.to_json(), "seconds": round(seconds, 4)}
     if args.json:
         print(json.dumps({k: metrics[k] for k in JSON_KEYS}))
@@ -163,27 +174,31 @@ def _sweep(law: Any, args: argparse.Namespace) -> int:
 def _plot(args: argparse.Namespace) -> int:
     from sim_core.soaring import plots
 
+    source = args.table if args.table is not None else args.trace
+    check_output(args.out, overwrite=args.overwrite, inputs=[source])
     if args.table is not None:
         if not args.by:
             raise ValueError("--table needs --by PARAM (the column to split the histograms by)")
         from hil_bridge.sweep import read_table
 
-        out = plots.plot_survival_histograms(read_table(args.table), args.by, args.out,
-                                             metric=args.metric)
+        table = read_table(args.table)
+        with atomic_output(args.out, overwrite=args.overwrite, inputs=[source]) as tmp:
+            plots.plot_survival_histograms(table, args.by, tmp, metric=args.metric)
     else:
         from sim_core.soaring.trace import Trace
 
         trace = Trace.load_npz(args.trace)
-        if args.agents:
-            try:
-                ids = [int(a) for a in args.agents.split(",")]
-            except ValueError:
-                msg = f"--agents: expected ids like 3,7,19, got {args.agents!r}"
-                raise ValueError(msg) from None
-            lo = -math.inf if args.t0 is None else args.t0
-            hi = math.inf if args.t1 is None else args.t1
-            out = plots.plot_agent_series(trace, ids, args.out, t_range=(lo, hi))
-        else:
-            out = plots.plot_paths(trace, args.out)
-    print(f"wrote {out}")
+        with atomic_output(args.out, overwrite=args.overwrite, inputs=[source]) as tmp:
+            if args.agents:
+                try:
+                    ids = [int(a) for a in args.agents.split(",")]
+                except ValueError:
+                    msg = f"--agents: expected ids like 3,7,19, got {args.agents!r}"
+                    raise ValueError(msg) from None
+                lo = -math.inf if args.t0 is None else args.t0
+                hi = math.inf if args.t1 is None else args.t1
+                plots.plot_agent_series(trace, ids, tmp, t_range=(lo, hi))
+            else:
+                plots.plot_paths(trace, tmp)
+    print(f"wrote {args.out}")
     return 0

@@ -40,11 +40,9 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 import zmq
-import zmq.auth
 
 from hil_bridge.transport.base import Frames, Transport
 
@@ -120,11 +118,10 @@ def _load_curve(ends: ZmqEndpoints) -> _CurveKeys | None:
     """(server public, client public, client secret) of a CURVE client URL, else None."""
     if ends.curve_server is None or ends.curve_client is None:
         return None
-    server_public, _ = zmq.auth.load_certificate(Path(ends.curve_server))
-    client_public, client_secret = zmq.auth.load_certificate(Path(ends.curve_client))
-    if client_secret is None:
-        raise ValueError(f"curve_client={ends.curve_client!r} holds no secret key (.key_secret)")
-    return server_public, client_public, client_secret
+    from hil_bridge.security import read_public_key, read_secret_key
+
+    client_public, client_secret = read_secret_key(ends.curve_client)
+    return read_public_key(ends.curve_server), client_public, client_secret
 
 
 def _apply_curve(sock: zmq.Socket, keys: _CurveKeys | None) -> None:

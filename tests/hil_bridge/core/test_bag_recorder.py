@@ -196,7 +196,7 @@ def test_recording_has_a_summary_however_the_run_ends(proxy: Proxy, tmp_path: Pa
                 pub.publish(Clock(stamp_ns=i))
 
             def flushed() -> bool:  # the recorder flushes a chunk at least once a second
-                parts = list(tmp_path.glob(".run.mcap.*.part"))
+                parts = list(tmp_path.glob(".run.*.part.mcap"))
                 return bool(parts) and bag_info(parts[0]).topics.get("/probe") is not None \
                     and bag_info(parts[0]).topics["/probe"].count == 20
 

@@ -135,7 +135,7 @@ def test_killed_recording_is_recovered_into_a_standard_mcap(tmp_path: Path) -> N
     finally:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
-    (part,) = tmp_path.glob(".killed.mcap.*.part")
+    (part,) = tmp_path.glob(".killed.*.part.mcap")
     with open(part, "rb") as f, pytest.raises(Exception):  # noqa: B017 - any reader error
         list(make_reader(f).iter_messages())  # the standard reader needs the summary
     fixed = tmp_path / "fixed.mcap"

@@ -61,7 +61,7 @@ def _record_sample(bus: str, path: Path, n: int = 40) -> None:
 
 def _part(path: Path) -> Path:
     """The temporary file of a recording that was never finished."""
-    (part,) = path.parent.glob(f".{path.name}.*.part")
+    (part,) = path.parent.glob(f".{path.stem}.*.part{path.suffix}")
     return part
 
 
@@ -257,7 +257,7 @@ def test_cli_record_until_sigint_writes_a_complete_file(tmp_path: Path) -> None:
                 # the recorder flushes a chunk every 0.05 s: poll the growing temporary file
                 deadline = time.monotonic() + WAIT
                 tick = threading.Event()
-                while not (list(tmp_path.glob("*.part"))
+                while not (list(tmp_path.glob("*.part.mcap"))
                            and bag_info(_part(path)).messages >= 30):
                     assert time.monotonic() < deadline and proc.poll() is None
                     tick.wait(0.02)

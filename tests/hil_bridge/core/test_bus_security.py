@@ -50,7 +50,8 @@ def test_loopback_classification(endpoint: str, loopback: bool) -> None:
 
 def test_curve_known_client_talks_unknown_client_is_rejected_and_counted(tmp_path: Path) -> None:
     keys = generate_keys(tmp_path / "keys", ["sim"])
-    intruder_public, _ = zmq.auth.create_certificates(tmp_path, "intruder")
+    intruder_public, intruder_secret = zmq.auth.create_certificates(tmp_path, "intruder")
+    Path(intruder_secret).chmod(0o600)  # the intruder keeps its own key private
     curve = CurveKeys.from_dir(keys)
     assert len(curve.allowed) == 1
     with Proxy("tcp://127.0.0.1:0", "tcp://127.0.0.1:0", curve=curve) as proxy:
@@ -82,7 +83,8 @@ def test_curve_known_client_talks_unknown_client_is_rejected_and_counted(tmp_pat
 def test_key_dir_errors_name_the_missing_file(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"server\.key_secret"):
         CurveKeys.from_dir(tmp_path)
-    zmq.auth.create_certificates(tmp_path, "server")
+    _, secret = zmq.auth.create_certificates(tmp_path, "server")
+    Path(secret).chmod(0o600)
     with pytest.raises(ValueError, match="authorized"):
         CurveKeys.from_dir(tmp_path)
 
@@ -106,3 +108,39 @@ def test_cli_bus_runs_a_proxy_until_sigterm() -> None:
         proc.terminate()
         _out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
+
+
+def test_keygen_writes_secret_keys_0600_and_never_replaces_keys(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from hil_bridge.cli import main as echoloop
+
+    keys = tmp_path / "keys"
+    assert echoloop(["bus", "--keygen", str(keys), "--clients", "sim,viewer"]) == 0
+    modes = {p.relative_to(keys).as_posix(): p.stat().st_mode & 0o777
+             for p in keys.rglob("*") if p.is_file()}
+    assert {k: v for k, v in modes.items() if k.endswith("_secret")} == {
+        "server.key_secret": 0o600, "sim.key_secret": 0o600, "viewer.key_secret": 0o600}
+    assert keys.stat().st_mode & 0o077 == 0
+    assert not [p for p in keys.rglob("*.part*")]
+    before = (keys / "server.key_secret").read_bytes()
+    assert echoloop(["bus", "--keygen", str(keys), "--clients", "sim"]) == 1
+    assert "server.key: exists; pass --overwrite" in capsys.readouterr().err
+    assert (keys / "server.key_secret").read_bytes() == before
+    assert echoloop(["bus", "--keygen", str(keys), "--clients", "sim", "--overwrite"]) == 0
+    assert (keys / "server.key_secret").read_bytes() != before
+    assert CurveKeys.from_dir(keys).allowed  # what was written loads
+
+
+@pytest.mark.parametrize("mode", [0o644, 0o640, 0o604])
+def test_secret_keys_readable_by_others_are_refused(tmp_path: Path, mode: int) -> None:
+    keys = generate_keys(tmp_path / "keys", ["sim"])
+    (keys / "sim.key_secret").chmod(mode)
+    url = (f"tcp://127.0.0.1:7999?curve_server={keys / 'server.key'}"
+           f"&curve_client={keys / 'sim.key_secret'}")
+    with pytest.raises(SecurityError, match=r"sim\.key_secret: secret key file is readable by "
+                                            r"group or others .*chmod 600"):
+        open_transport(url)
+    (keys / "server.key_secret").chmod(mode)
+    with pytest.raises(SecurityError, match=r"server\.key_secret: .*chmod 600"):
+        CurveKeys.from_dir(keys)

@@ -11,7 +11,7 @@ from hil_bridge.outputs import atomic_output
 
 
 def _leftovers(d: Path) -> list[str]:
-    return sorted(p.name for p in d.iterdir() if p.name.endswith(".part"))
+    return sorted(p.name for p in d.iterdir() if ".part" in p.name)
 
 
 def test_writes_through_a_temp_file_and_renames(tmp_path: Path) -> None:
