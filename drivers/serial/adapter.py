@@ -87,6 +87,7 @@ class SonarHeadParams:
     backoff_initial_s: float = 0.05
     backoff_max_s: float = 2.0
     tx_queue_bytes: int = 256 * 1024
+    echo_fs_hz: int = 400_000
     diagnostics_period_s: float = 1.0
 
     def __post_init__(self) -> None:
@@ -134,7 +135,7 @@ class SonarHeadAdapter(Node):
             capture=p.capture, overwrite=overwrite, on_ping=self._on_ping,
             on_config=self._on_config,
             backoff_initial_s=p.backoff_initial_s, backoff_max_s=p.backoff_max_s,
-            tx_queue_bytes=p.tx_queue_bytes, name=name)
+            tx_queue_bytes=p.tx_queue_bytes, echo_fs_hz=p.echo_fs_hz, name=name)
         if not self.budget.fits:
             self.host.state = LinkState.OVER_BUDGET
         self._ping_pub = self.create_publisher(SonarPing, f"/sonar/{p.sonar_id}/ping")
@@ -244,6 +245,7 @@ class SonarHeadAdapter(Node):
             "echoes_dropped": serial.get("echoes_dropped", 0),
             "echo_errors": serial.get("echo_errors", 0),
             "pings_in": serial.get("pings_in", 0),
+            "configs_refused": serial.get("configs_refused", 0),
             "reconnects": serial["reconnects"],
             "link_state": serial["state"],
             "link_connected": int(bool(serial["link_connected"])),

@@ -29,6 +29,7 @@ from drivers.serial.protocol import (
     ECHO_SAMPLE_BYTES,
     HEARTBEAT,
     HEARTBEAT_LOCKSTEP,
+    MAX_ERROR_TEXT,
     PING,
     STATUS,
     ConfigPayload,
@@ -127,7 +128,10 @@ def baseband(
 class SonarHeadHost:
     """One head on one serial link: decode its frames, send it echoes, keep counters.
 
-    ``on_ping(ping, frame)`` runs on the link's reader thread for each valid PING.
+    ``on_ping(ping, frame)`` runs on the link's reader thread for each valid PING. A CONFIG
+    with a field out of range (:meth:`ConfigPayload.problems`, for echoes sampled at
+    ``echo_fs_hz``) is refused with an ERROR frame (``BAD_CONFIG``, counted
+    ``configs_refused``) and the previous configuration stays.
     ``send_echo`` may be called from any thread; chunks of one echo are queued contiguously.
     """
 
@@ -147,9 +151,13 @@ class SonarHeadHost:
         backoff_initial_s: float = 0.05,
         backoff_max_s: float = 2.0,
         tx_queue_bytes: int = 256 * 1024,
+        echo_fs_hz: int = 400_000,
         name: str = "sonar_head",
     ) -> None:
         self.name = name
+        if not 0 < echo_fs_hz < 1 << 32:
+            raise ValueError(f"echo_fs_hz {echo_fs_hz!r} must be in 1..2**32-1")
+        self.echo_fs_hz = int(echo_fs_hz)
         self.encoding = Encoding.parse(encoding)
         if not 0 < f_center_hz < 1 << 32 or not 1 <= decimation <= 0xFFFF:
             raise ValueError(f"f_center_hz {f_center_hz!r} must be in 1..2**32-1 and "
@@ -306,6 +314,13 @@ class SonarHeadHost:
                 self._on_ping(ping, frame)
         elif t == MsgType.CONFIG:
             cfg = ConfigPayload.unpack(frame.payload)
+            problems = cfg.problems(self.echo_fs_hz)
+            if problems:
+                self.counts["configs_refused"] += 1
+                text = "CONFIG refused, previous kept: " + "; ".join(problems)
+                self.send_error(ErrorCode.BAD_CONFIG, frame.seq, text[:MAX_ERROR_TEXT])
+                log.warning("%s: %s", self.name, text)
+                return
             changed = cfg != self.head_config
             self.head_config = cfg
             self.counts["configs_in"] += 1

@@ -98,6 +98,10 @@ _HEARTBEAT_V1 = struct.Struct("<IB")
 HEARTBEAT_LOCKSTEP = 0x01
 ERROR = struct.Struct("<HH")  # 4 bytes + UTF-8 text
 MAX_ERROR_TEXT = 200
+#: CONFIG ranges a host accepts (docs/serial.md); a CONFIG outside them is refused
+CONFIG_MAX_CHANNELS = 16
+CONFIG_BAUD_RANGE = (1200, 20_000_000)
+CONFIG_MAX_DECIMATION = 1000
 
 
 def _payload_error(kind: str, data: bytes, size: int) -> ValueError:
@@ -192,6 +196,34 @@ class ConfigPayload:
         ver, enc, ch, flags, rate, baud, fc, dec = CONFIG.unpack(data)
         return cls(Encoding.parse(enc), ch, rate, baud, fc, dec, ver, flags)
 
+    def problems(self, echo_fs_hz: int) -> list[str]:
+        """Every field out of its range (docs/serial.md, CONFIG), as ``"name value: rule"``;
+        empty when the CONFIG can be applied to echoes sampled at ``echo_fs_hz``."""
+        out: list[str] = []
+
+        def check(name: str, value: int, ok: bool, rule: str) -> None:
+            if not ok:
+                out.append(f"{name} {value}: {rule}")
+
+        check("proto_version", self.proto_version, self.proto_version == 1, "expected 1")
+        check("channels", self.channels, 1 <= self.channels <= CONFIG_MAX_CHANNELS,
+              f"expected 1..{CONFIG_MAX_CHANNELS}")
+        check("flags", self.flags, self.flags == 0, "reserved, expected 0")
+        check("ping_rate_mhz", self.ping_rate_mhz, self.ping_rate_mhz <= 1_000_000,
+              "expected 0 (unknown) or up to 1000000 (1 kHz)")
+        check("baudrate", self.baudrate,
+              self.baudrate == 0 or CONFIG_BAUD_RANGE[0] <= self.baudrate <= CONFIG_BAUD_RANGE[1],
+              f"expected 0 (unknown) or {CONFIG_BAUD_RANGE[0]}..{CONFIG_BAUD_RANGE[1]}")
+        nyquist = echo_fs_hz // 2
+        check("f_center_hz", self.f_center_hz, self.f_center_hz < nyquist,
+              f"expected 0 (host default) or below the echo's Nyquist rate {nyquist} Hz")
+        check("decimation", self.decimation,
+              self.decimation == 0 or (self.decimation <= CONFIG_MAX_DECIMATION
+                                       and echo_fs_hz % self.decimation == 0),
+              f"expected 0 (host default) or 1..{CONFIG_MAX_DECIMATION} dividing the echo "
+              f"rate {echo_fs_hz} Hz (the baseband rate must be a whole number of Hz)")
+        return out
+
 
 class LinkState(IntEnum):
     """``state`` of a STATUS payload."""
@@ -269,6 +301,7 @@ class ErrorCode(IntEnum):
     OVER_BUDGET = 3
     ECHO_INCOMPLETE = 4
     NO_ECHO = 5  # no echo for this ping (e.g. no simulator answered in time)
+    BAD_CONFIG = 6  # a CONFIG with a field out of range: refused, the previous one stays
 
 
 @dataclass(frozen=True, slots=True)

@@ -216,3 +216,37 @@ def test_unsupported_encoding_in_a_ping_is_answered_with_an_error() -> None:
     err = next(e for e in host.head_errors if e.code == ErrorCode.UNSUPPORTED_ENCODING)
     assert err.ref_seq == 77 and "encoding" in err.text
     assert host.counts["bad_payloads"] == 1 and host.counts["pings_in"] == 0
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("decimation", 65535), ("decimation", 7), ("channels", 0), ("channels", 200),
+    ("flags", 1), ("proto_version", 2), ("ping_rate_mhz", 5_000_000), ("baudrate", 300),
+    ("f_center_hz", 250_000),
+], ids=lambda v: str(v))
+def test_a_bad_config_is_refused_and_the_previous_one_stays(field: str, value: int) -> None:
+    """One CRC-valid CONFIG out of range (the issue: decimation 65535 silenced every echo) is
+    answered with an ERROR frame and changes nothing; a sane CONFIG afterwards applies."""
+    import dataclasses
+
+    from drivers.serial.framing import MsgType, frame_bytes
+    from drivers.serial.host import SonarHeadHost
+    from drivers.serial.protocol import ConfigPayload, Encoding, ErrorCode
+
+    good = ConfigPayload(Encoding.IQ16, 1, 10_000, 921600, 70_000, 20)
+    host = SonarHeadHost("loop://", encoding="int16", decimation=10, f_center_hz=65_000)
+    host.start()
+    try:
+        assert host.link.wait_connected(5.0)
+        bad = dataclasses.replace(good, **{field: value})
+        host.link.send(frame_bytes(MsgType.CONFIG, 41, 0, bad.pack()))
+        assert host.wait_for(lambda h: any(e.code == ErrorCode.BAD_CONFIG
+                                           for e in h.head_errors), 5.0)
+        err = next(e for e in host.head_errors if e.code == ErrorCode.BAD_CONFIG)
+        assert err.ref_seq == 41 and f"{field} {value}" in err.text
+        assert host.head_config is None and host.counts["configs_refused"] == 1
+        assert (host.encoding, host.decimation, host.f_center_hz) == (Encoding.INT16, 10, 65_000)
+        host.link.send(frame_bytes(MsgType.CONFIG, 42, 0, good.pack()))
+        assert host.wait_for(lambda h: h.head_config == good, 5.0)
+        assert (host.encoding, host.decimation, host.f_center_hz) == (Encoding.IQ16, 20, 70_000)
+    finally:
+        host.stop()
