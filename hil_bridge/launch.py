@@ -3,6 +3,7 @@
 A launch file is plain data (no substitutions, conditions or event handlers)::
 
     bus: mem://demo              # optional; default the domain's (hil_bridge.domain)
+    allow_modules: [my_lab.nodes]   # optional; entries outside hil_bridge/drivers/sim_core
     duration: 20                 # optional default run time in seconds (CLI --duration wins)
     record: out/run.mcap         # optional MCAP recording of every topic (CLI --record wins)
     nodes:
@@ -15,9 +16,14 @@ A launch file is plain data (no substitutions, conditions or event handlers)::
 
 It is validated once, at load, into :class:`LaunchSpec` (unknown keys raise a
 :class:`~sim_core.config.ConfigError` naming the key; every ``entry`` must import and name a
-class). Each entry implements the *launchable* contract: ``Cls(name, *, bus, **params)``,
-``start()`` (non-blocking), ``stop()`` (idempotent, joins its threads) and ``stats() -> dict``,
-and optionally ``failure() -> str | None`` (why it failed; the run then exits non-zero).
+class). **A launch file runs code**: importing an entry runs its module. Entries may come only
+from the project's packages (the installed ``hil_bridge``, ``drivers``, ``sim_core``) and from
+modules listed under ``allow_modules:`` (or ``--allow-module``), and every entry is checked
+against that list before the first import (:func:`check_entry_module`).
+
+Each entry implements the *launchable* contract: ``Cls(name, *, bus, **params)``, ``start()``
+(non-blocking), ``stop()`` (idempotent, joins its threads) and ``stats() -> dict``, and
+optionally ``failure() -> str | None`` (why it failed; the run then exits non-zero).
 
 Why threads in one process, not processes: python-can's ``virtual`` interface only connects
 buses of one process (the CAN adapter and the mock autopilot must share it), the mock sonar
@@ -42,6 +48,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib
+import importlib.util
 import inspect
 import logging
 import math
@@ -66,6 +73,7 @@ __all__ = [
     "EXIT_EXPECT",
     "EXIT_FAILED",
     "EXIT_OK",
+    "PROJECT_PACKAGES",
     "BusMonitor",
     "Failure",
     "LaunchSpec",
@@ -73,6 +81,7 @@ __all__ = [
     "NodeSpec",
     "RunSummary",
     "check_duration",
+    "check_entry_module",
     "collect_links",
     "judge",
     "load",
@@ -144,10 +153,14 @@ class LaunchSpec:
     record: str | None = None
     live: bool = False
     description: str = ""
+    allow_modules: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.nodes:
             raise ValueError("nodes: expected at least one node")
+        for name in self.allow_modules:
+            if not all(part.isidentifier() for part in name.split(".")):
+                raise ValueError(f"allow_modules: expected dotted module names, got {name!r}")
         seen: set[str] = set()
         for node in self.nodes:
             if node.name in seen:
@@ -163,9 +176,49 @@ class LaunchSpec:
         raise KeyError(name)
 
 
-def resolve_entry(entry: str, *, where: str = "entry") -> type:
-    """Import ``"pkg.module:Class"``; a missing module or attribute raises ConfigError."""
+#: the project's own packages: launch entries may always come from these
+PROJECT_PACKAGES = ("hil_bridge", "drivers", "sim_core")
+_PROJECT_ROOT = Path(__file__).resolve().parent.parent
+
+
+def _covered(module: str, allowed: Sequence[str]) -> bool:
+    return any(module == a or module.startswith(a + ".") for a in allowed)
+
+
+def check_entry_module(module_name: str, allow_modules: Sequence[str] = (), *,
+                       where: str = "entry") -> None:
+    """Refuse, before anything is imported, an entry module that is neither in the project's
+    packages (:data:`PROJECT_PACKAGES`, and only the installed copy of them: a package of the
+    same name planted in the working directory is refused) nor in ``allow_modules`` (a module
+    or a package, with everything below it). ``ConfigError`` says which and how to allow it."""
+    if _covered(module_name, allow_modules):
+        return
+    top = module_name.split(".")[0]
+    if top in PROJECT_PACKAGES:
+        loaded = sys.modules.get(top)
+        origin = getattr(loaded, "__file__", None) if loaded is not None else None
+        if origin is None:
+            spec = importlib.util.find_spec(top)  # locates the package; runs none of its code
+            origin = spec.origin if spec is not None else None
+        if origin is not None and Path(origin).resolve().is_relative_to(_PROJECT_ROOT / top):
+            return
+        raise ConfigError(
+            f"{where}: module {module_name!r} would be imported from {origin}, not from the "
+            f"installed echoloop ({_PROJECT_ROOT}); refusing to run it"
+        )
+    raise ConfigError(
+        f"{where}: module {module_name!r} is not allowed: launch entries come from the "
+        f"project's packages {list(PROJECT_PACKAGES)} or from modules the launch file lists "
+        f"under 'allow_modules:' (or --allow-module {module_name}); a launch file runs the "
+        "code it names"
+    )
+
+
+def resolve_entry(entry: str, *, where: str = "entry", allow_modules: Sequence[str] = ()) -> type:
+    """Import ``"pkg.module:Class"`` once :func:`check_entry_module` allows it; a refused,
+    missing module or attribute raises ConfigError."""
     module_name, _, attr = entry.partition(":")
+    check_entry_module(module_name, allow_modules, where=where)
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
@@ -198,11 +251,14 @@ def load(
     path: str | Path | Mapping[str, Any],
     *,
     params_overrides: Mapping[str, Mapping[str, Any]] | None = None,
+    allow_modules: Sequence[str] = (),
 ) -> LaunchSpec:
     """Load and validate a launch file (or an already parsed mapping).
 
     ``params_overrides`` maps node name -> {dotted param key: value}; an unknown node name raises.
-    Every entry is imported here, so a typo fails before any node starts.
+    Every entry is checked against the allowed modules (the project's packages, the file's
+    ``allow_modules``, and ``allow_modules`` here, from ``--allow-module``) before any import,
+    then imported here, so a typo fails before any node starts.
     """
     data = path if isinstance(path, Mapping) else load_yaml(path)
     where = "launch" if isinstance(path, Mapping) else str(path)
@@ -227,8 +283,15 @@ def load(
         spec = from_dict(LaunchSpec, data)
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from None
+    if allow_modules:
+        spec = dataclasses.replace(
+            spec, allow_modules=(*spec.allow_modules, *allow_modules))
+    for i, node in enumerate(spec.nodes):  # every entry checked before the first import
+        check_entry_module(node.entry.partition(":")[0], spec.allow_modules,
+                           where=f"{where}: nodes[{i}].entry")
     for i, node in enumerate(spec.nodes):
-        resolve_entry(node.entry, where=f"{where}: nodes[{i}].entry")
+        resolve_entry(node.entry, where=f"{where}: nodes[{i}].entry",
+                      allow_modules=spec.allow_modules)
     return spec
 
 
@@ -465,7 +528,8 @@ def _instantiate(
     With ``overwrite``, nodes whose constructor takes an ``overwrite`` parameter (those that
     write files: captures, CAN logs) get ``overwrite=True`` unless their params set it."""
     for i, node in enumerate(spec.nodes):
-        cls = resolve_entry(node.entry, where=f"nodes[{i}].entry")
+        cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
+                            allow_modules=spec.allow_modules)
         params = dict(node.params)
         if overwrite and "overwrite" not in params and _takes_overwrite(cls):
             params["overwrite"] = True
@@ -491,6 +555,7 @@ def run(
     expect: Sequence[str | Expectation] = (),
     allow_disconnected: bool = False,
     overwrite: bool = False,
+    allow_modules: Sequence[str] = (),
 ) -> RunSummary:
     """Start every node of a launch file in order, wait, stop them in reverse order.
 
@@ -510,7 +575,8 @@ def run(
     returns a reason, or ``stop()``/``stats()`` raise) decide the summary's ``failures`` and
     ``exit_status`` (the module docstring).
     """
-    spec = path if isinstance(path, LaunchSpec) else load(path, params_overrides=params_overrides)
+    spec = path if isinstance(path, LaunchSpec) else load(
+        path, params_overrides=params_overrides, allow_modules=allow_modules)
     dom = resolve(domain)
     bus_url = bus if bus is not None else spec.bus or dom.bus_url
     spec = dataclasses.replace(spec, bus=bus_url)

@@ -44,6 +44,9 @@ def _parser() -> argparse.ArgumentParser:
                         "(otherwise exit 3)")
     p.add_argument("--record", default=None, metavar="FILE.mcap",
                    help="record every topic to an MCAP file")
+    p.add_argument("--allow-module", action="append", default=[], metavar="MODULE",
+                   help="also allow launch entries from MODULE (and below it); repeatable. "
+                        "A launch file runs the code its entries name")
     p.add_argument("--overwrite", action="store_true",
                    help="replace existing output files (--record, --plot, node captures/logs)")
     p.add_argument("--bus", default=None, metavar="URL",
@@ -197,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
             expect=args.expect,
             allow_disconnected=args.allow_disconnected,
             overwrite=args.overwrite,
+            allow_modules=args.allow_module,
         )
     if args.json:
         print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))

@@ -108,3 +108,71 @@ def test_sigterm_stops_a_launch_cleanly(tmp_path: Path) -> None:
     # the server ran and was stopped cleanly (it may not have ticked yet on a loaded machine)
     assert summary["nodes"]["server"]["tick_error"] == ""
     assert summary["nodes"]["server"]["sim_time_s"] >= 0.0
+
+
+_PLANTED = '''
+from pathlib import Path
+Path("imported.marker").write_text("the planted module ran")
+
+
+class Node:
+    def __init__(self, name, *, bus):
+        self.name = name
+
+    def start(self):
+        pass
+
+    def stop(self):
+        pass
+
+    def stats(self):
+        return {}
+'''
+
+
+def _launch_in(cwd: Path, data: dict[str, Any], *extra: str) -> subprocess.CompletedProcess[str]:
+    (cwd / "l.yaml").write_text(yaml.safe_dump(data), encoding="utf-8")
+    return subprocess.run(
+        [sys.executable, "-m", "hil_bridge.cli", "launch", "l.yaml", "--duration", "0.2",
+         "--bus", "mem://planted", *extra],
+        cwd=cwd, capture_output=True, text=True, timeout=120, check=False,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+
+
+@pytest.mark.parametrize("planted", ["planted", "drivers"])
+def test_a_module_planted_in_the_working_directory_never_runs(tmp_path: Path,
+                                                             planted: str) -> None:
+    """Entries are checked before any import: a module in the working directory (or a package
+    there shadowing one of the project's) is refused, and its code never runs."""
+    if planted == "drivers":
+        (tmp_path / "drivers").mkdir()
+        (tmp_path / "drivers" / "__init__.py").write_text(_PLANTED, encoding="utf-8")
+        entry = "drivers:Node"
+        match = "not from the installed echoloop"
+    else:
+        (tmp_path / "planted.py").write_text(_PLANTED, encoding="utf-8")
+        entry = "planted:Node"
+        match = "is not allowed"
+    proc = _launch_in(tmp_path, {"nodes": [SERVER, {"name": "x", "entry": entry}]})
+    assert proc.returncode == 1, proc.stderr
+    assert match in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert not (tmp_path / "imported.marker").exists()
+
+
+def test_allow_modules_and_allow_module_let_a_listed_module_in(tmp_path: Path) -> None:
+    (tmp_path / "planted.py").write_text(_PLANTED, encoding="utf-8")
+    node = {"name": "x", "entry": "planted:Node"}
+    proc = _launch_in(tmp_path, {"allow_modules": ["planted"], "nodes": [node]})
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "imported.marker").exists()
+    (tmp_path / "imported.marker").unlink()
+    proc = _launch_in(tmp_path, {"nodes": [node]}, "--allow-module", "planted")
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "imported.marker").exists()
+    (tmp_path / "imported.marker").unlink()
+    # every entry is checked before the first import: an allowed one is not imported either
+    proc = _launch_in(tmp_path, {"allow_modules": ["planted"],
+                                 "nodes": [node, {"name": "y", "entry": "evil:Node"}]})
+    assert proc.returncode == 1 and "'evil' is not allowed" in proc.stderr
+    assert not (tmp_path / "imported.marker").exists()
