@@ -286,6 +286,8 @@ class MockSonarHead:
         self._tx_uart = _Uart(self.cfg.baudrate, self.cfg.throttle)
         self._rx_uart = _Uart(self.cfg.baudrate, self.cfg.throttle)
         self._pending: dict[int, tuple[float, Encoding]] = {}
+        #: ping_seqs that timed out lately (an echo of one arriving afterwards is late)
+        self._expired: collections.deque[int] = collections.deque(maxlen=256)
         self._latencies: collections.deque[float] = collections.deque(maxlen=_LATENCY_WINDOW)
         self.ranges: collections.deque[float | None] = collections.deque(maxlen=_LATENCY_WINDOW)
         self._seq = 0
@@ -355,16 +357,29 @@ class MockSonarHead:
         self.stop()
 
     def wait_echoes(self, n: int, timeout: float) -> bool:
-        """Block until ``n`` echoes have completed (True) or ``timeout`` s pass (False)."""
+        """Block until ``n`` pings had their echo complete in time (True) or ``timeout`` s
+        pass (False)."""
         with self._echo_done:
-            return self._echo_done.wait_for(lambda: self._assembler.complete >= n, timeout)
+            return self._echo_done.wait_for(lambda: self._counts["echoes_complete"] >= n,
+                                            timeout)
 
     def stats(self) -> dict[str, Any]:
+        """Counters. Every ping sent has exactly one outcome, so ``pings_sent`` =
+        ``echoes_complete`` (its echo arrived whole in time) + ``echoes_incomplete`` (its echo
+        was abandoned part way) + ``echo_timeouts`` (nothing whole within ``echo_timeout_s``)
+        + ``pings_in_flight``. ``echoes_late`` (whole, after the timeout),
+        ``echoes_unsolicited`` and the reassembler's raw ``assembled_*`` counts are extra."""
         with self._lock:
             lat = np.asarray(self._latencies, dtype=np.float64)
             last_range = self.ranges[-1] if self.ranges else None
-            out: dict[str, Any] = dict(self._counts)
-            out.update(self._assembler.stats())
+            out: dict[str, Any] = dict.fromkeys(
+                ("pings_sent", "echoes_complete", "echoes_incomplete", "echo_timeouts",
+                 "echoes_late"), 0)
+            out.update(self._counts)
+            out["pings_in_flight"] = len(self._pending)
+            out["assembled_complete"] = self._assembler.complete
+            out["assembled_incomplete"] = self._assembler.incomplete
+            out["chunk_duplicates"] = self._assembler.duplicates
             out.update({f"decoder_{k}": v for k, v in self._decoder.stats().items()})
         out["crc_errors"] = self._decoder.crc_errors
         out["frames_dropped"] = self._decoder.dropped
@@ -495,6 +510,7 @@ class MockSonarHead:
             old = [s for s, (t, _) in self._pending.items() if now - t > self.cfg.echo_timeout_s]
             for s in old:
                 del self._pending[s]
+                self._expired.append(s)
             self._counts["echo_timeouts"] += len(old)
 
     # ---- receive side ----------------------------------------------------------------------
@@ -566,16 +582,20 @@ class MockSonarHead:
             incomplete = self._assembler.incomplete
             echo = self._assembler.feed(chunk)
             if self._assembler.incomplete > incomplete:
-                lost = self._assembler.last_abandoned_ping
+                lost = self._assembler.last_incomplete_ping
                 ref = chunk.ping_seq if lost is None else lost
                 self._report(ErrorPayload(ErrorCode.ECHO_INCOMPLETE, ref,
                                           f"echo of ping {ref} incomplete"))
+                if self._pending.pop(ref, None) is not None:
+                    self._counts["echoes_incomplete"] += 1
             if echo is None:
                 return
             sent = self._pending.pop(echo.ping_seq, None)
             if sent is None:
-                self._counts["echoes_unsolicited"] += 1
+                late = echo.ping_seq in self._expired
+                self._counts["echoes_late" if late else "echoes_unsolicited"] += 1
             else:
+                self._counts["echoes_complete"] += 1
                 self._latencies.append(now - sent[0])
                 if sent[1] != echo.encoding:
                     self._counts["encoding_mismatch"] += 1

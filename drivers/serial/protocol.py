@@ -469,6 +469,8 @@ class EchoAssembler:
         self.complete = 0
         self.incomplete = 0
         self.duplicates = 0
+        #: ping_seq of the echo most recently counted in ``incomplete`` (any of the reasons)
+        self.last_incomplete_ping: int | None = None
 
     @property
     def last_abandoned_ping(self) -> int | None:
@@ -483,6 +485,7 @@ class EchoAssembler:
         if self._key is not None:
             self.incomplete += 1
             self._abandoned = self._key
+            self.last_incomplete_ping = self._key[0]
         self._key, self._next, self._parts = None, 0, []
 
     def flush(self) -> None:
@@ -500,6 +503,7 @@ class EchoAssembler:
             if c.chunk != 0:
                 if c.chunk == c.n_chunks - 1 and key != self._abandoned:
                     self.incomplete += 1  # an echo whose first chunk(s) never arrived
+                    self.last_incomplete_ping = c.ping_seq
                 return None
             self._key = key
         self._parts.append(c.data)
@@ -510,6 +514,7 @@ class EchoAssembler:
         self._key, self._next, self._parts = None, 0, []
         if len(data) != c.n_samples * c.channels * ECHO_SAMPLE_BYTES[c.encoding]:
             self.incomplete += 1
+            self.last_incomplete_ping = c.ping_seq
             return None
         self.complete += 1
         return AssembledEcho(c.ping_seq, c.encoding, c.fs_hz, c.scale,

@@ -82,10 +82,13 @@ def headline(summary: RunSummary) -> list[str]:
     """The closed-loop figures, from whichever nodes report them (server, mocks, adapters)."""
     lines: list[str] = []
     for head in _find(summary, "echoes_complete"):
-        lines.append(
-            f"sonar: {head['pings_sent']} pings, {head['echoes_complete']} echoes complete "
-            f"({head.get('echoes_incomplete', 0)} incomplete, {head.get('echo_timeouts', 0)} "
-            f"timed out, {head.get('crc_errors', 0)} CRC errors); ping -> last chunk "
+        late = head.get("echoes_late", 0)
+        lines.append(  # the four outcomes of a ping add up to the pings sent
+            f"sonar: {head['pings_sent']} pings = {head['echoes_complete']} echoes complete "
+            f"+ {head.get('echoes_incomplete', 0)} incomplete + {head.get('echo_timeouts', 0)} "
+            f"timed out{f' ({late} arrived late)' if late else ''} + "
+            f"{head.get('pings_in_flight', 0)} in flight; "
+            f"{head.get('crc_errors', 0)} CRC errors; ping -> last chunk "
             f"p50 {head.get('latency_p50_ms', float('nan')):.1f} ms, "
             f"p99 {head.get('latency_p99_ms', float('nan')):.1f} ms"
         )

@@ -54,6 +54,8 @@ def test_closed_loop_echoes_complete_and_commands_fly_the_gliders(tmp_path: Path
     head = summary.nodes["sonar_head_mock"]
     assert head["echoes_complete"] >= 5
     assert head["echoes_incomplete"] == 0
+    assert head["pings_sent"] == (head["echoes_complete"] + head["echoes_incomplete"]
+                                  + head["echo_timeouts"] + head["pings_in_flight"]), head
     assert head["crc_errors"] == 0
 
     server = summary.nodes["server"]
