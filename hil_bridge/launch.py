@@ -615,7 +615,12 @@ def run(
                 recorder = Recorder(record_path, bus=bus_url, overwrite=overwrite)
                 recorder.start()
                 extras.append(recorder)
-            _instantiate(spec, bus_url, made, overwrite=overwrite)
+            try:
+                _instantiate(spec, bus_url, made, overwrite=overwrite)
+            except ConfigError as exc:  # a node refused its params: say which launch file
+                if isinstance(path, str | Path) and str(path) not in str(exc):
+                    raise ConfigError(f"{path}: {exc}") from None
+                raise
             for _, obj in made:
                 obj.start()
             if want_live:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import re
 import stat
 import threading
 from dataclasses import dataclass
@@ -29,10 +30,10 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 import zmq
-import zmq.auth
 
 from hil_bridge.errors import SecurityError
 from hil_bridge.outputs import atomic_output, check_output
+from sim_core.config import read_text
 
 __all__ = [
     "CurveKeys",
@@ -103,11 +104,28 @@ class CurveKeys:
         return cls(public, secret, allowed)
 
 
+_KEY_LINE = re.compile(r'^\s*(public|secret)-key\s*=\s*"([^"]*)"\s*$')
+_Z85 = re.compile(r"^[0-9a-zA-Z.\-:+=^!/*?&<>()\[\]{}@%$#]{40}$")
+
+
 def _load(path: Path) -> tuple[bytes, bytes | None]:
-    try:
-        return zmq.auth.load_certificate(path)
-    except (OSError, ValueError, KeyError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a CURVE key file ({type(exc).__name__}: {exc})") from None
+    """(public, secret or None) of a ``zmq.auth`` certificate file, checked strictly: UTF-8
+    text, 40-character Z85 keys, and a secret key that yields its public key (so one flipped
+    bit in either is caught, not used)."""
+    keys: dict[str, bytes] = {}
+    for line in read_text(path).splitlines():
+        m = _KEY_LINE.match(line)
+        if m is not None:
+            if not _Z85.match(m.group(2)):
+                raise ValueError(f"{path}: the {m.group(1)} key is not 40 Z85 characters")
+            keys[m.group(1)] = m.group(2).encode()
+    public, secret = keys.get("public"), keys.get("secret")
+    if public is None:
+        raise ValueError(f"{path}: not a CURVE key file (no public-key line)")
+    if secret is not None and zmq.curve_public(secret) != public:
+        raise ValueError(f"{path}: the secret key does not match the public key: a damaged "
+                         "key file")
+    return public, secret
 
 
 def read_public_key(path: str | Path) -> bytes:

@@ -23,7 +23,16 @@ from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_
 
 import yaml
 
-__all__ = ["ConfigError", "apply_overrides", "from_dict", "load_yaml", "parse_override"]
+__all__ = [
+    "NPZ_MAX_BYTES",
+    "ConfigError",
+    "apply_overrides",
+    "from_dict",
+    "load_npz",
+    "load_yaml",
+    "parse_override",
+    "read_text",
+]
 
 T = TypeVar("T")
 
@@ -157,19 +166,97 @@ def from_dict(cls: type[T], data: Any, *, path: str = "") -> T:
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def load_yaml(path: str | Path) -> Any:
-    """Read a YAML file; a syntax error becomes a :class:`ConfigError` naming file and line."""
+def read_text(path: str | Path) -> str:
+    """A UTF-8 text file; ``ConfigError`` naming the file when it cannot be read or is not
+    text (binary data, another encoding)."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        data = p.read_bytes()
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read ({exc.strerror or exc})") from None
     try:
-        return yaml.safe_load(text)
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {data[exc.start]:#04x} at offset "
+                          f"{exc.start}): a binary or damaged file?") from None
+
+
+def load_yaml(path: str | Path) -> Any:
+    """Read a YAML file; ``ConfigError`` naming the file (and line) when it cannot be read, is
+    not UTF-8 text, is not valid YAML, or holds no document at all (empty or only comments:
+    a configuration file that says nothing is taken for a mistake, not for the defaults)."""
+    p = Path(path)
+    text = read_text(p)
+    try:
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{p}:{mark.line + 1}" if mark is not None else str(p)
         raise ConfigError(f"{where}: invalid YAML ({getattr(exc, 'problem', exc)})") from None
+    if data is None:
+        raise ConfigError(f"{p}: empty, no YAML document (write '{{}}' for all defaults)")
+    return data
+
+
+#: the most bytes :func:`load_npz` reads from one file
+NPZ_MAX_BYTES = 4 << 30
+
+
+def _npy_headers() -> dict[tuple[int, int], Any]:
+    import numpy as np
+
+    return {(1, 0): np.lib.format.read_array_header_1_0,
+            (2, 0): np.lib.format.read_array_header_2_0}
+
+
+def load_npz(path: str | Path, *, max_bytes: int = NPZ_MAX_BYTES) -> dict[str, Any]:
+    """Every array of an ``.npz`` file, checked before it is read: ``ConfigError`` naming the
+    file when it is empty, not a zip archive, damaged (CRC), holds pickled objects, an array
+    whose header declares more data than the archive holds (a truncated file or a forged
+    shape), or more than ``max_bytes`` in all."""
+    import zipfile
+
+    import numpy as np
+
+    p = Path(path)
+    arrays: dict[str, Any] = {}
+    total = 0
+    headers = _npy_headers()
+    try:
+        with zipfile.ZipFile(p) as zf:
+            for info in zf.infolist():
+                name = info.filename.removesuffix(".npy")
+                with zf.open(info) as member:
+                    version = np.lib.format.read_magic(member)
+                    read_header = headers.get(version)
+                    if read_header is None:
+                        raise ConfigError(f"{p}: array {name!r} has .npy format {version}; "
+                                          "expected 1.0 or 2.0")
+                    shape, fortran, dtype = read_header(member)
+                    if dtype.hasobject:
+                        raise ConfigError(f"{p}: array {name!r} holds Python objects "
+                                          "(pickled data is never loaded)")
+                    need = math.prod(shape) * dtype.itemsize
+                    header = member.tell()
+                    if header + need != info.file_size:
+                        raise ConfigError(
+                            f"{p}: array {name!r} declares shape {tuple(shape)} of {dtype} "
+                            f"({need} bytes) but the file holds {info.file_size - header}: "
+                            "truncated or forged")
+                    total += need
+                    if total > max_bytes:
+                        raise ConfigError(f"{p}: more than {max_bytes} bytes of arrays")
+                    data = np.frombuffer(member.read(need), dtype=dtype)
+                    arrays[name] = data.reshape(shape, order="F" if fortran else "C").copy()
+    except ConfigError:
+        raise
+    except zipfile.BadZipFile as exc:
+        raise ConfigError(f"{p}: not a readable .npz archive ({exc})") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    except (ValueError, EOFError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{p}: damaged .npz archive ({type(exc).__name__}: {exc})") from None
+    return arrays
 
 
 def parse_override(text: str) -> tuple[str, Any]:

@@ -64,15 +64,25 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
 
     from drivers.mocks.autopilot import MockAutopilot
+    from sim_core.config import read_text
 
     waypoints = None
     if args.waypoints is not None:
         delimiter = "," if args.waypoints.endswith(".csv") else None
+        text = read_text(args.waypoints)
+        if not text.strip():
+            raise ValueError(f"{args.waypoints}: empty; expected rows of two columns x y")
         try:
-            waypoints = np.loadtxt(args.waypoints, delimiter=delimiter, ndmin=2)
+            waypoints = np.loadtxt(text.splitlines(), delimiter=delimiter, ndmin=2)
         except ValueError as exc:
-            raise ValueError(f"--waypoints {args.waypoints}: expected two numeric columns x y "
+            raise ValueError(f"{args.waypoints}: expected two numeric columns x y "
                              f"({exc})") from None
+        if waypoints.ndim != 2 or waypoints.shape[0] < 2 or waypoints.shape[1] != 2:
+            raise ValueError(f"{args.waypoints}: expected at least 2 rows of two columns x y, "
+                             f"got shape {waypoints.shape}")
+        if not np.all(np.isfinite(waypoints)):
+            row = int(np.argwhere(~np.isfinite(waypoints))[0][0])
+            raise ValueError(f"{args.waypoints}: row {row + 1} is not finite")
     with use(domain_from(args, "echoloop mock autopilot")):
         mock = MockAutopilot(
             "mock_autopilot", interface=args.interface, channel=args.channel,

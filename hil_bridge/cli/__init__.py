@@ -1,8 +1,10 @@
 """The ``echoloop`` command: one dispatcher, one module per sub-command, imported lazily.
 
 Each sub-command module exposes ``main(argv: list[str]) -> int`` with its own ``argparse`` parser
-(``prog="echoloop <name>"``). User errors (``ValueError``, ``OSError``, :class:`HilError`) are
-printed as one line on stderr and exit with status 1; a usage error exits 2 (argparse).
+(``prog="echoloop <name>"``). User errors (``ValueError``, ``OSError``, :class:`HilError`, and
+running out of memory) are printed as one line on stderr and exit with status 1; a usage error
+exits 2 (argparse). Readers of input files name the file in their error
+(``tests/hil_bridge/test_cli_bad_inputs.py`` feeds every command a corpus of bad files).
 ``echoloop --version`` prints the installed distribution's version.
 """
 
@@ -71,6 +73,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.main(rest))
     except (ValueError, OSError, HilError) as exc:
         print(f"echoloop {name}: error: {exc}", file=sys.stderr)
+        return 1
+    except MemoryError as exc:  # an input asked for more than the machine has
+        print(f"echoloop {name}: error: out of memory ({exc or 'MemoryError'}); an input "
+              "asks for more than this machine holds", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130

@@ -86,8 +86,9 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _warn_damage(info: BagInfo) -> None:
-    """One line on stderr when corrupt chunks or bytes were skipped (reading went on)."""
-    if info.scan is not None and (info.scan.corrupt_chunks or info.scan.resyncs or info.skipped):
+    """One line on stderr when the file was cut short or corrupt parts were skipped (reading
+    went on)."""
+    if info.scan is not None and (info.damaged or info.skipped):
         print(f"echoloop bag: warning: {info.path}: {info.scan.describe()}"
               + (f", {info.skipped} messages on channels that are not bus topics"
                  if info.skipped else ""), file=sys.stderr)
@@ -164,7 +165,7 @@ def _recover(args: argparse.Namespace) -> int:
           f"lost {report.lost}" + ("" if report.stated_messages is not None or not report.damaged
                                    else " or more"))
     if report.damaged:
-        print(f"  {report.describe()}")
+        print(f"echoloop bag: warning: {args.file}: {report.describe()}", file=sys.stderr)
         for line in report.errors:
             print(f"  {line}")
     return 0

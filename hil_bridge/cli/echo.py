@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -24,6 +25,7 @@ import numpy as np
 from hil_bridge.cli._echo_physics import add_physics_arguments, physics_meta, physics_params
 from hil_bridge.export.echo_file import WAV_FORMATS, check_echo_output, write_echo
 from hil_bridge.outputs import check_output
+from sim_core.config import load_npz
 from sim_core.sonar import FIDELITIES, Beam, EchoParams, synthesize
 
 __all__ = ["load_leaves", "main", "parse_floats"]
@@ -44,15 +46,24 @@ def parse_floats(text: str, count: int, name: str) -> tuple[float, ...]:
 
 
 def load_leaves(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``centers``, ``normals``, ``radii`` from any ``.npz`` holding those arrays."""
-    with np.load(path, allow_pickle=False) as data:
-        missing = [k for k in ("centers", "normals", "radii") if k not in data.files]
-        if missing:
-            raise ValueError(
-                f"{path}: missing array(s) {missing}; a leaves file needs centers (M,3), "
-                f"normals (M,3), radii (M,) (found {sorted(data.files)})"
-            )
-        return data["centers"], data["normals"], data["radii"]
+    """``centers`` (M, 3), ``normals`` (M, 3), ``radii`` (M,) from any ``.npz`` holding those
+    arrays; ``ValueError`` naming the file for a damaged archive, a missing array or a wrong
+    shape. Rows that are not finite are kept: the synthesiser drops and counts them."""
+    data = load_npz(path)
+    missing = [k for k in ("centers", "normals", "radii") if k not in data]
+    if missing:
+        raise ValueError(
+            f"{path}: missing array(s) {missing}; a leaves file needs centers (M,3), "
+            f"normals (M,3), radii (M,) (found {sorted(data)})"
+        )
+    centers, normals, radii = data["centers"], data["normals"], data["radii"]
+    m = centers.shape[0] if centers.ndim == 2 else -1
+    for name, arr, shape in (("centers", centers, (m, 3)), ("normals", normals, (m, 3)),
+                             ("radii", radii, (m,))):
+        if m < 0 or arr.shape != shape or arr.dtype.kind not in "iuf":
+            raise ValueError(f"{path}: {name} has shape {arr.shape} ({arr.dtype}); expected "
+                             f"numbers of shape {shape} (M = {m} leaves)")
+    return centers, normals, radii
 
 
 _VECTOR_OPTIONS = ("--position", "--boresight", "--velocity")
@@ -156,6 +167,9 @@ def main(argv: list[str]) -> int:
         "channels": int(np.atleast_2d(echo.samples).shape[0]),
         **{f"out_{k}": v for k, v in written.items()},
     }
+    if echo.dropped:
+        print(f"echoloop echo: warning: {args.leaves}: {echo.dropped} leaves dropped (rows "
+              "not finite, or a zero normal or radius)", file=sys.stderr)
     if args.json:
         print(json.dumps(summary))
     else:

@@ -58,7 +58,12 @@ def main(argv: list[str]) -> int:
             check_output(out, overwrite=args.overwrite, inputs=inputs)
     spec = get_preset(args.preset) if args.preset else load_forest_spec(args.scene)
     t0 = time.perf_counter()
-    forest = build_forest(spec, seed=args.seed)
+    try:
+        forest = build_forest(spec, seed=args.seed)
+    except ValueError as exc:  # the spec cannot be built (e.g. a huge intensity): name its file
+        if args.scene is None:
+            raise
+        raise ValueError(f"{args.scene}: {exc}") from None
     seconds = time.perf_counter() - t0
     with atomic_output(args.out, overwrite=args.overwrite, inputs=inputs) as tmp:
         forest.save_npz(tmp)

@@ -11,6 +11,7 @@ the default ``discrete`` is the seed's own step.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import sys
@@ -156,9 +157,13 @@ def _run(law: Any, args: argparse.Namespace) -> int:
 
 def _sweep(law: Any, args: argparse.Namespace) -> int:
     from hil_bridge.sweep import sweep
-    from sim_core.soaring.sweep import load_grid
+    from sim_core.soaring.sweep import expand_grid, load_grid
 
     grid = load_grid(args.grid)
+    try:  # every grid point is a valid law before the first run
+        expand_grid(law, grid)
+    except ValueError as exc:
+        raise ValueError(f"{args.grid}: {exc}") from None
     summary = sweep(
         law, grid, Path(args.out), workers=args.workers, scheduler=args.scheduler,
         batch_size=args.batch_size, progress=not args.no_progress,
@@ -174,14 +179,18 @@ def _sweep(law: Any, args: argparse.Namespace) -> int:
 def _plot(args: argparse.Namespace) -> int:
     from sim_core.soaring import plots
 
+    if args.table is not None and not args.by:
+        raise ValueError("--table needs --by PARAM (the column to split the histograms by)")
+    ids: list[int] | None = None
+    if args.agents:
+        try:
+            ids = [int(a) for a in args.agents.split(",")]
+        except ValueError:
+            raise ValueError(f"--agents: expected ids like 3,7,19, got {args.agents!r}") from None
     source = args.table if args.table is not None else args.trace
     check_output(args.out, overwrite=args.overwrite, inputs=[source])
     if args.table is not None:
-        if not args.by:
-            raise ValueError("--table needs --by PARAM (the column to split the histograms by)")
-        from hil_bridge.sweep import read_table
-
-        table = read_table(args.table)
+        table = _read_plot_table(args.table, [args.metric, args.by])
         with atomic_output(args.out, overwrite=args.overwrite, inputs=[source]) as tmp:
             plots.plot_survival_histograms(table, args.by, tmp, metric=args.metric)
     else:
@@ -189,12 +198,7 @@ def _plot(args: argparse.Namespace) -> int:
 
         trace = Trace.load_npz(args.trace)
         with atomic_output(args.out, overwrite=args.overwrite, inputs=[source]) as tmp:
-            if args.agents:
-                try:
-                    ids = [int(a) for a in args.agents.split(",")]
-                except ValueError:
-                    msg = f"--agents: expected ids like 3,7,19, got {args.agents!r}"
-                    raise ValueError(msg) from None
+            if ids is not None:
                 lo = -math.inf if args.t0 is None else args.t0
                 hi = math.inf if args.t1 is None else args.t1
                 plots.plot_agent_series(trace, ids, tmp, t_range=(lo, hi))
@@ -202,3 +206,32 @@ def _plot(args: argparse.Namespace) -> int:
                 plots.plot_paths(trace, tmp)
     print(f"wrote {args.out}")
     return 0
+
+
+def _read_plot_table(path: str, columns: list[str]) -> list[dict[str, Any]]:
+    """Rows of a sweep table with finite numbers in ``columns``; errors name the file."""
+    from hil_bridge.sweep import read_table
+    from sim_core.config import read_text
+
+    if not path.lower().endswith(".parquet"):
+        text = read_text(path)  # not UTF-8 text: one clear line, not a decode error
+        if text and not text.endswith("\n"):
+            raise ValueError(f"{path}: the last line has no line end: the file was cut short?")
+    try:
+        rows = read_table(path)
+    except (OSError, ValueError, csv.Error) as exc:
+        raise ValueError(f"{path}: not a results table ({exc})") from None
+    except Exception as exc:  # pyarrow raises its own error types for damaged files
+        raise ValueError(f"{path}: not a results table ({type(exc).__name__}: {exc})") from None
+    if not rows:
+        raise ValueError(f"{path}: no rows to plot")
+    for i, row in enumerate(rows, start=1):
+        for col in columns:
+            value = row.get(col)
+            if col not in row:
+                raise ValueError(f"{path}: no column {col!r}; columns are {sorted(row)}")
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"{path}: row {i}: {col} is {value}")
+            if value is None:
+                raise ValueError(f"{path}: row {i}: {col} is empty")
+    return rows

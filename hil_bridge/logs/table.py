@@ -7,7 +7,8 @@ Columns: ``t`` (s) and a position, either ``x, y, z`` (m, local ENU) or ``lat, l
 ENU/FLU), and for multi-vehicle traces (``echoloop swarm``, :class:`sim_core.soaring.Trace`)
 ``id`` and ``alive`` (rows with ``alive == 0`` are dropped). A swarm trace NPZ has ``t`` (T,)
 and every other column (T, N), the vehicle id being the column index. In CSV, ``#`` lines are
-comments and ``true``/``false`` read as 1/0; extra columns are ignored.
+comments and ``true``/``false`` read as 1/0; extra columns are ignored. A non-finite value in
+a column that is read, or a CSV whose last line has no line end (cut short), is refused.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil_bridge.logs.track import PoseLog
+from sim_core.config import load_npz, read_text
 
 __all__ = ["LOCAL_COLUMNS", "read_csv", "read_npz"]
 
@@ -36,11 +38,7 @@ def read_csv(path: Path, *, vehicle_id: int | None = None, topic: str | None = N
 
 def read_npz(path: Path, *, vehicle_id: int | None = None, topic: str | None = None) -> PoseLog:
     """An NPZ table (module docstring) as a :class:`PoseLog`."""
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            cols = {k: np.asarray(npz[k]) for k in npz.files}
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: cannot read NPZ ({exc})") from None
+    cols = load_npz(path)  # damaged archives, forged shapes, pickles: one line naming the file
     if ("x" in cols and cols["x"].ndim == 2) or ("lat" in cols and cols["lat"].ndim == 2):
         cols = _wide_columns(path, cols, vehicle_id)
         vehicle_id = None
@@ -79,7 +77,12 @@ def _pose_log(
         mask &= np.asarray(cols["alive"]).astype(np.float64) != 0
 
     def col(name: str) -> NDArray[np.float64]:
-        return np.asarray(cols[name], dtype=np.float64)[mask]
+        values = np.asarray(cols[name], dtype=np.float64)[mask]
+        bad = ~np.isfinite(values)
+        if bad.any():
+            raise ValueError(f"{p}: column {name!r} is not finite in row {int(np.argmax(bad))} "
+                             "(of the rows read)")
+        return values
 
     def opt(name: str) -> NDArray[np.float64] | None:
         return col(name) if name in cols else None
@@ -118,27 +121,27 @@ def _wide_columns(
 
 
 def _read_csv_columns(p: Path) -> dict[str, NDArray[Any]]:
-    try:
-        with p.open(newline="", encoding="utf-8") as fh:
-            reader = csv.reader(row for row in fh if not row.lstrip().startswith("#"))
-            header = next(reader, None)
-            if header is None:
-                raise ValueError(f"{p}: empty CSV file")
-            names = [h.strip() for h in header]
-            rows: list[list[float]] = []
-            for lineno, row in enumerate(reader, start=2):
-                if not row:
-                    continue
-                if len(row) != len(names):
-                    raise ValueError(f"{p}:{lineno}: expected {len(names)} fields, got {len(row)}")
-                try:
-                    rows.append([_csv_float(v) for v in row])
-                except ValueError:
-                    raise ValueError(f"{p}:{lineno}: non-numeric field in {row}") from None
-    except OSError as exc:
-        raise ValueError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    except UnicodeDecodeError:
-        raise ValueError(f"{p}: not a UTF-8 text CSV file") from None
+    text = read_text(p)  # unreadable or not UTF-8: one line naming the file
+    if not text.strip():
+        raise ValueError(f"{p}: empty CSV file")
+    if not text.endswith("\n"):
+        raise ValueError(f"{p}: the last line has no line end: the file was cut short? (end "
+                         "it with a newline if it is complete)")
+    reader = csv.reader(line for line in text.splitlines() if not line.lstrip().startswith("#"))
+    header = next(reader, None)
+    if header is None:
+        raise ValueError(f"{p}: empty CSV file")
+    names = [h.strip() for h in header]
+    rows: list[list[float]] = []
+    for lineno, row in enumerate(reader, start=2):
+        if not row:
+            continue
+        if len(row) != len(names):
+            raise ValueError(f"{p}:{lineno}: expected {len(names)} fields, got {len(row)}")
+        try:
+            rows.append([_csv_float(v) for v in row])
+        except ValueError:
+            raise ValueError(f"{p}:{lineno}: non-numeric field in {row}") from None
     data = np.asarray(rows, dtype=np.float64).reshape(len(rows), len(names))
     return {name: data[:, i] for i, name in enumerate(names)}
 

@@ -14,6 +14,7 @@ nodes offline::
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -22,9 +23,12 @@ from pathlib import Path
 from urllib.parse import parse_qs, unquote, urlsplit
 
 from hil_bridge.codec import Header, pack_header
+from hil_bridge.mcap_scan import check_mcap
 from hil_bridge.transport.base import Frames, Transport
 
 __all__ = ["ReplayTransport"]
+
+log = logging.getLogger(__name__)
 
 _Item = tuple[str, Header, bytes, int]
 
@@ -48,6 +52,7 @@ class ReplayTransport(Transport):
             raise ValueError(f"rate must be a number >= 0 in {url!r}")
         if not path or not Path(path).is_file():
             raise ValueError(f"replay:// needs an existing MCAP file, got {path!r} in {url!r}")
+        check_mcap(path)
         self.path = path
         self.rate = math.inf if rate == 0 else rate
         self.loop = query.get("loop", ["0"])[-1] in ("1", "true", "yes")
@@ -59,12 +64,18 @@ class ReplayTransport(Transport):
         self._counters["discarded"] = 0
 
     def _read(self) -> Iterator[_Item]:
-        from hil_bridge.bag import read_bag
+        from hil_bridge.bag import BagInfo, read_bag
 
+        warned = False
         while True:
             self._t0_log = None
-            for m in read_bag(self.path):
+            info = BagInfo(self.path)
+            for m in read_bag(self.path, info=info):
                 yield m.topic, m.header, m.payload, m.log_time
+            if info.damaged and not warned:  # once, not per loop pass
+                warned = True
+                if info.scan is not None:
+                    log.warning("%s: %s", self.path, info.scan.describe())
             if not self.loop:
                 return
 

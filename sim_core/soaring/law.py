@@ -83,6 +83,11 @@ class PinnedAgent:
 
 Pair = tuple[float, float]
 
+#: the largest swarm a law may ask for (pairwise neighbour terms grow as N²)
+MAX_AGENTS = 10_000
+#: the most thermals a law may ask for
+MAX_THERMALS = 10_000
+
 
 @dataclass(frozen=True, slots=True)
 class Law:
@@ -167,8 +172,9 @@ class Law:
             "totalTime",
             f"a whole number of steps of dt={self.dt}",
         )
-        need(self.numAgents >= 0, "numAgents", "an integer >= 0")
-        need(self.numThermals >= 0, "numThermals", "an integer >= 0")
+        need(0 <= self.numAgents <= MAX_AGENTS, "numAgents", f"an integer in 0..{MAX_AGENTS}")
+        need(0 <= self.numThermals <= MAX_THERMALS, "numThermals",
+             f"an integer in 0..{MAX_THERMALS}")
         need(self.neighborFrameSkip >= 1, "neighborFrameSkip", "an integer >= 1")
         need(self.rngSeed >= 0, "rngSeed", "an integer >= 0")
         need(self.mapSize[0] < self.mapSize[1], "mapSize", "[min, max] with min < max")

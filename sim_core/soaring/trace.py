@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from sim_core.config import load_npz
+
 __all__ = ["CSV_COLUMNS", "Trace"]
 
 CSV_COLUMNS: tuple[str, ...] = (
@@ -55,11 +57,31 @@ class Trace:
 
     @classmethod
     def load_npz(cls, path: str | Path) -> Trace:
-        with np.load(Path(path)) as data:
-            missing = sorted({f.name for f in fields(cls)} - set(data.files))
-            if missing:
-                raise ValueError(f"{path}: not a soaring trace, missing arrays {missing}")
-            return cls(**{f.name: np.array(data[f.name]) for f in fields(cls)})
+        """Read a trace written by :meth:`save_npz`; ``ConfigError``/``ValueError`` naming the
+        file for a damaged archive, a missing array, shapes that disagree or a non-finite
+        value."""
+        data = load_npz(path)
+        missing = sorted({f.name for f in fields(cls)} - set(data))
+        if missing:
+            raise ValueError(f"{path}: not a soaring trace, missing arrays {missing}")
+        t = data["t"]
+        steps = t.shape[0] if t.ndim == 1 else -1
+        agents = data["x"].shape[-1] if data["x"].ndim == 2 else -1
+        for f in fields(cls):
+            arr = data[f.name]
+            if f.name.startswith("thermal_") and f.name != "thermal_strength":
+                want: tuple[int, ...] = (data["thermal_x"].shape[0],)
+            elif f.name == "thermal_strength":
+                want = (steps, data["thermal_x"].shape[0])
+            else:
+                want = (steps,) if f.name == "t" else (steps, agents)
+            if steps < 0 or agents < 0 or arr.shape != want:
+                raise ValueError(f"{path}: array {f.name!r} has shape {arr.shape}; a trace of "
+                                 f"{steps} steps and {agents} gliders needs {want}")
+            if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+                row = int(np.argwhere(~np.isfinite(arr))[0][0])
+                raise ValueError(f"{path}: array {f.name!r} is not finite at step {row}")
+        return cls(**{f.name: data[f.name] for f in fields(cls)})
 
     def to_csv(self, path: str | Path) -> None:
         """Write the replay CSV (columns :data:`CSV_COLUMNS`)."""

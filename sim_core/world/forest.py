@@ -307,7 +307,10 @@ def load_forest_spec(path: str | Path) -> ForestSpec:
                 data = data["spec"]
     if not isinstance(data, Mapping):
         raise ValueError(f"{path}: expected a mapping with a 'species' list")
-    return ForestSpec.from_dict(data, base_dir=Path(path).resolve().parent)
+    try:
+        return ForestSpec.from_dict(data, base_dir=Path(path).resolve().parent)
+    except ValueError as exc:
+        raise type(exc)(f"{path}: {exc}") from None
 
 
 # --- forest ----------------------------------------------------------------------------------

@@ -171,12 +171,17 @@ class Leaves:
     @classmethod
     def load_npz(cls, path: str | Path) -> Leaves:
         """Read the four leaf arrays written by :meth:`save_npz` (extra arrays are ignored)."""
+        from sim_core.config import load_npz
+
         p = Path(path)
-        with np.load(p, allow_pickle=False) as data:
-            missing = [k for k in ("centers", "normals", "radii", "tree_id") if k not in data]
-            if missing:
-                raise ValueError(f"{p}: not a leaves file, missing arrays {missing}")
+        data = load_npz(p)
+        missing = [k for k in ("centers", "normals", "radii", "tree_id") if k not in data]
+        if missing:
+            raise ValueError(f"{p}: not a leaves file, missing arrays {missing}")
+        try:
             return cls(data["centers"], data["normals"], data["radii"], data["tree_id"])
+        except ValueError as exc:
+            raise ValueError(f"{p}: {exc}") from None
 
 
 def _point(value: ArrayLike, name: str) -> NDArray[np.float64]:
