@@ -339,7 +339,7 @@ class BusMonitor:
 
     def _loop(self) -> None:
         from hil_bridge.codec import decode_payload, decode_topic_header
-        from hil_bridge.errors import HilError
+        from hil_bridge.errors import CodecError, HilError
 
         while not self._stop.is_set():
             try:
@@ -352,9 +352,15 @@ class BusMonitor:
             try:
                 topic, header = decode_topic_header(frames)
                 ping_key: tuple[str, int] | None = None
-                if topic.startswith("/sonar/") and topic.endswith(("/ping", "/echo")):
+                is_state = topic.startswith("/glider/") and topic.endswith("/state")
+                if is_state or (topic.startswith("/sonar/")
+                                and topic.endswith(("/ping", "/echo"))):
+                    # decoded in full: a forged header must not pass for a state or a ping
                     msg = decode_payload(header.type, header.v, frames[2])
-                    ping_key = (topic.rsplit("/", 1)[0], int(getattr(msg, "ping_seq", -1)))
+                    if is_state and header.type != "echoloop/GliderState":
+                        raise CodecError(f"{header.type} on a state topic")
+                    ping_key = (None if is_state else
+                                (topic.rsplit("/", 1)[0], int(getattr(msg, "ping_seq", -1))))
             except (HilError, ValueError):
                 with self._lock:
                     self._bad += 1

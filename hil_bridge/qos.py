@@ -10,6 +10,12 @@
   subscription to its topic appears (transient-local durability), so late joiners get it;
   existing subscribers drop the repeat as a duplicate ``seq``.
 
+``max_age_s`` (any profile, subscriptions only) bounds how old a delivered message may be, in
+sim time against the subscribing node's clock: an older one is dropped (counted ``stale``) and
+the receive queue of its topic is reset, dropping the backlog behind it, so a flooded or stalled
+topic resumes with its newest messages. Use it where the node's clock follows the publisher's
+(``follow_bus_clock``), as the CAN adapter's states do.
+
 Publisher and subscriber need not use the same profile; ``COMMAND`` acks are sent by
 ``COMMAND`` subscribers, and ``LATCHED`` re-sends come from ``LATCHED`` publishers.
 """
@@ -31,10 +37,15 @@ class QoSProfile:
     latched: bool = False
     ack_timeout_s: float = 1.0
     retry_period_s: float = 0.05
+    #: subscriptions: drop a message whose ``stamp_ns`` is older than the node's clock by more
+    #: than this (sim seconds), and reset its receive queue (None: no limit)
+    max_age_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.depth < 1:
             raise ValueError(f"QoSProfile.depth must be >= 1, got {self.depth}")
+        if self.max_age_s is not None and not self.max_age_s > 0:
+            raise ValueError(f"QoSProfile.max_age_s must be > 0 or None, got {self.max_age_s}")
         if not self.retry_period_s > 0 or not self.ack_timeout_s > 0:
             raise ValueError(
                 "QoSProfile.retry_period_s and ack_timeout_s must be > 0, got "

@@ -68,7 +68,7 @@ from hil_bridge.errors import CodecError
 from hil_bridge.messages import Clock, GliderCmd, GliderNeighbors, GliderState
 from hil_bridge.node import Node, Publisher
 from hil_bridge.outputs import check_output
-from hil_bridge.qos import SENSOR
+from hil_bridge.qos import SENSOR, QoSProfile
 from sim_core.soaring.law import Law
 
 __all__ = [
@@ -167,6 +167,13 @@ def _has_attitude(st: GliderState) -> bool:
                                           st.pitch_rate, st.yaw_rate))
 
 
+def _percentiles(ms: np.ndarray) -> dict[str, float]:
+    if not ms.size:
+        return {"n": 0}
+    p50, p99, top = np.percentile(ms, [50, 99, 100])
+    return {"n": int(ms.size), "p50": float(p50), "p99": float(p99), "max": float(top)}
+
+
 def _positive(name: str, value: float) -> float:
     v = float(value)
     if not (v > 0 and math.isfinite(v)):
@@ -183,7 +190,9 @@ class AutopilotAdapter(Node):
     ``cmd_timeout_s`` (1.0), ``failsafe_after_s`` (3.0), ``failsafe_bank_rad`` (0),
     ``failsafe_airspeed_mps`` (best glide), ``heartbeat_timeout_s`` (1.0), ``can_options``
     (extra ``can.Bus`` kwargs), ``faults`` (:class:`CanFaultConfig` mapping),
-    ``diagnostics_period_s`` (1.0), ``overwrite`` (replace an existing ``can_log``).
+    ``diagnostics_period_s`` (1.0), ``overwrite`` (replace an existing ``can_log``),
+    ``state_max_age_s`` (0.1: a state older than this in sim time, against ``/clock``, is
+    dropped and counted ``stale`` instead of reaching the autopilot; None: no limit).
     """
 
     def __init__(
@@ -209,8 +218,11 @@ class AutopilotAdapter(Node):
         faults: Mapping[str, Any] | None = None,
         diagnostics_period_s: float = 1.0,
         overwrite: bool = False,
+        state_max_age_s: float | None = 0.1,
     ) -> None:
         self.gliders = parse_gliders(gliders)
+        self.state_max_age_s = (None if state_max_age_s is None
+                                else _positive("state_max_age_s", state_max_age_s))
         self.state_rate_hz = _positive("state_rate_hz", state_rate_hz)
         self.neighbor_rate_hz = _positive("neighbor_rate_hz", neighbor_rate_hz)
         self.heartbeat_hz = _positive("heartbeat_hz", heartbeat_hz)
@@ -252,11 +264,12 @@ class AutopilotAdapter(Node):
         self._lockstep = False
         self._lockstep_since_ns = 0
         self._cmd_pubs: dict[int, Publisher[GliderCmd]] = {}
-        self._state_ms: deque[float] = deque(maxlen=10000)
+        self._state_ms: deque[tuple[int, float]] = deque(maxlen=10000)
+        states = QoSProfile("state", depth=SENSOR.depth, max_age_s=self.state_max_age_s)
         for gid in self.gliders:
             self._cmd_pubs[gid] = self.create_publisher(GliderCmd, f"/glider/{gid}/cmd", SENSOR)
             self.create_subscription(
-                GliderState, f"/glider/{gid}/state", self._make_state_cb(gid), SENSOR,
+                GliderState, f"/glider/{gid}/state", self._make_state_cb(gid), states,
                 envelope=True, priority=True,
             )
             self.create_subscription(
@@ -295,8 +308,9 @@ class AutopilotAdapter(Node):
     def stats(self) -> dict[str, Any]:
         """Node counters plus ``can_*`` (link), adapter counters, saturation, per-glider
         ``cmd_state:<id>`` / ``ap_alive:<id>`` / ``ap_mode:<id>`` (numbers, so they reach
-        ``/diagnostics``) and ``state_latency_ms`` (bus publish -> state callback percentiles,
-        meaningful when the publisher runs on this host)."""
+        ``/diagnostics``) and ``state_latency_ms`` (bus publish -> state callback percentiles
+        over the last 10,000 states, also ``state_latency_ms_by_glider``; meaningful when the
+        publisher runs on this host)."""
         out = super().stats()
         with self._glock:
             out.update(self._c)
@@ -312,12 +326,10 @@ class AutopilotAdapter(Node):
             out["can_link"] = state
             out["links"] = {"can": self._link.report()}
         with self._glock:
-            lat = np.asarray(self._state_ms, dtype=np.float64)
-        out["state_latency_ms"] = (
-            {"n": int(lat.size), **dict(zip(("p50", "p99", "max"),
-                                            map(float, np.percentile(lat, [50, 99, 100])),
-                                            strict=True))}
-            if lat.size else {"n": 0})
+            samples = np.asarray(self._state_ms, dtype=np.float64).reshape(-1, 2)
+        out["state_latency_ms"] = _percentiles(samples[:, 1])
+        out["state_latency_ms_by_glider"] = {
+            str(gid): _percentiles(samples[samples[:, 0] == gid, 1]) for gid in self.gliders}
         sat = self.codec.saturation_counts()
         out["saturated_tx"] = sum(sat["tx"].values())
         out["saturated_rx"] = sum(sat["rx"].values())
@@ -349,7 +361,7 @@ class AutopilotAdapter(Node):
                 forward = self._lockstep and (msg.step != g.fwd_step or resent)
                 g.state, g.state_wall = msg, now_ns / 1e9
                 self._c["states_in"] += 1
-                self._state_ms.append((now_ns - env.header.pub_ns) / 1e6)
+                self._state_ms.append((gid, (now_ns - env.header.pub_ns) / 1e6))
                 if forward:
                     g.fwd_step = msg.step
             if forward:

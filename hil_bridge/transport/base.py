@@ -26,10 +26,14 @@ Contract of :class:`Transport` (every backend honours it; ``tests/hil_bridge/cor
    until closed.
 7. ``stats()`` returns counters: ``sent``, ``received``, ``filtered`` and backend ones (e.g.
    ``dropped`` for queue overflow the backend can see).
+8. ``reset(prefix)`` discards what is queued for one subscribed prefix, as far as the backend
+   can reach (over ZeroMQ the prefix's socket is re-made, so the proxy's queue and the kernel
+   buffers behind it go too); messages published from then on arrive. May be called from any
+   thread.
 
 Backends implement ``_send``, ``_recv_internal`` and, where they need them, ``_subscribe``,
-``_unsubscribe``, ``_service``, ``_wakeup`` and ``_close``; the base owns timeouts, topic
-filtering, subscription bookkeeping and shutdown.
+``_unsubscribe``, ``_reset``, ``_service``, ``_wakeup`` and ``_close``; the base owns timeouts,
+topic filtering, subscription bookkeeping and shutdown.
 """
 
 from __future__ import annotations
@@ -91,6 +95,10 @@ class Transport(ABC):
         """Stop delivering ``prefix`` (called when its last subscription goes)."""
         return
 
+    def _reset(self, prefix: bytes) -> None:
+        """Drop what is queued under ``prefix`` (its subscription stays)."""
+        return
+
     def _service(self, timeout: float) -> None:
         """Process subscription events for up to ``timeout`` s (via :meth:`_remote_subscribed`)."""
         if timeout > 0:
@@ -144,6 +152,17 @@ class Transport(ABC):
             if count == 0:
                 self._subscribe(p)
 
+    def reset(self, prefix: bytes | str) -> None:
+        """Discard the messages queued under subscribed ``prefix`` (contract 8); the
+        subscription stays and new messages keep coming."""
+        self._check_open()
+        p = _as_prefix(prefix)
+        with self._sub_lock:
+            if p not in self._prefixes:
+                raise ValueError(f"not subscribed to {p!r}")
+        self._reset(p)
+        self._counters["resets"] = self._counters.get("resets", 0) + 1
+
     def unsubscribe(self, prefix: bytes | str) -> None:
         """Undo one :meth:`subscribe` of ``prefix``; unknown prefixes raise ``ValueError``."""
         self._check_open()
@@ -161,8 +180,9 @@ class Transport(ABC):
 
     def recv(self, timeout: float | None = None) -> Frames | None:
         """Next message matching a subscription, or ``None`` (contract 3)."""
-        self._check_open()
-        deadline = None if timeout is None else time.monotonic() + timeout
+        if self._closed:
+            raise TransportClosed(f"transport {self.url!r} is closed")
+        deadline: float | None = None
         remaining = timeout
         while True:
             frames = self._recv_internal(remaining)
@@ -172,7 +192,9 @@ class Transport(ABC):
                 self._counters["received"] += 1
                 return frames
             self._counters["filtered"] += 1
-            if deadline is not None:
+            if timeout is not None:  # the deadline only matters once a message was filtered
+                if deadline is None:
+                    deadline = time.monotonic() + timeout
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     return None

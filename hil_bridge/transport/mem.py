@@ -121,6 +121,14 @@ class MemTransport(Transport):
                 self._rotation.append(prefix)
             return frames
 
+    def _reset(self, prefix: bytes) -> None:
+        with self._cond:
+            queue = self._queues.get(prefix)
+            if queue:
+                self._counters["dropped"] += len(queue)
+                queue.clear()
+                self._rotation.remove(prefix)
+
     def _unsubscribe(self, prefix: bytes) -> None:
         with self._cond:
             if self._queues.pop(prefix, None) and prefix in self._rotation:

@@ -54,6 +54,8 @@ __all__ = ["ZmqEndpoints", "ZmqTransport", "parse_zmq_url"]
 _WAKE_IDS = itertools.count()
 #: with a lane that never runs dry, the others are polled at least every this many messages
 _POLL_EVERY = 16
+#: a lane operation besides SUBSCRIBE / UNSUBSCRIBE: re-make the socket (drop its backlog)
+_RESET = -1
 _KNOWN_OPTIONS = ("curve_client", "curve_server", "hwm", "sub")
 
 
@@ -143,6 +145,7 @@ class ZmqTransport(Transport):
         self._rx_lock = threading.Lock()
         self._rx_done = threading.Condition(self._rx_lock)
         self._in_recv = False
+        self._closing = False
         self._wake_flag = False
         self._pending: list[tuple[int, bytes]] = []
         #: one SUB socket per subscribed prefix (its own queue), and the ones known to hold
@@ -214,21 +217,26 @@ class ZmqTransport(Transport):
     def _apply_pending(self) -> None:
         pending, self._pending = self._pending, []
         for op, prefix in pending:
-            if op == zmq.SUBSCRIBE:
-                sock = self._lanes[prefix] = self._open_lane(prefix)
-                self._poller.register(sock, zmq.POLLIN)
-            else:
-                sock = self._lanes.pop(prefix)
+            if op != zmq.SUBSCRIBE:  # unsubscribe, or reset: the old socket and its queue go
+                sock = self._lanes.pop(prefix, None)
+                if sock is None:
+                    continue
                 self._poller.unregister(sock)
                 if sock in self._rotation:
                     self._rotation.remove(sock)
                 sock.close(0)
+            if op != zmq.UNSUBSCRIBE:  # subscribe, or reset: a new socket, an empty queue
+                sock = self._lanes[prefix] = self._open_lane(prefix)
+                self._poller.register(sock, zmq.POLLIN)
 
     def _subscribe(self, prefix: bytes) -> None:
         self._queue_op(zmq.SUBSCRIBE, prefix)
 
     def _unsubscribe(self, prefix: bytes) -> None:
         self._queue_op(zmq.UNSUBSCRIBE, prefix)
+
+    def _reset(self, prefix: bytes) -> None:
+        self._queue_op(_RESET, prefix)
 
     def _queue_op(self, op: int, prefix: bytes) -> None:
         with self._rx_lock:
@@ -270,9 +278,14 @@ class ZmqTransport(Transport):
         while rotation:
             sock = rotation.popleft()
             try:
-                frames = sock.recv_multipart(zmq.NOBLOCK)
+                frame = sock.recv(zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 continue
+            # frame by frame without copy: cheaper than recv_multipart's option lookups
+            frames = [frame.bytes]
+            while frame.more:
+                frame = sock.recv(zmq.NOBLOCK, copy=False)
+                frames.append(frame.bytes)
             rotation.append(sock)
             self._since_poll += 1
             return frames
@@ -287,11 +300,11 @@ class ZmqTransport(Transport):
             if self._pending:
                 self._apply_pending()
         try:
+            frames = self._next_queued()
+            if frames is not None:
+                return frames
             deadline = None if timeout is None else time.monotonic() + timeout
             while True:
-                frames = self._next_queued()
-                if frames is not None:
-                    return frames
                 wait_ms = None
                 if deadline is not None:
                     wait_ms = max(0, math.ceil((deadline - time.monotonic()) * 1000))
@@ -307,15 +320,20 @@ class ZmqTransport(Transport):
                 if not ready:
                     return None
                 self._admit(ready)
+                frames = self._next_queued()
+                if frames is not None:
+                    return frames
         finally:
             with self._rx_lock:
                 self._in_recv = False
                 if self._pending:
                     self._apply_pending()
-                self._rx_done.notify_all()
+                if self._closing:
+                    self._rx_done.notify_all()
 
     def _close(self) -> None:
         with self._rx_lock:
+            self._closing = True
             if self._in_recv:
                 self._wake_flag = True
                 self._poke()

@@ -34,3 +34,32 @@ def test_monitor_counts_gaps_and_not_retransmissions() -> None:
     assert stats["duplicates"] == 1
     assert stats["seq_gaps"] == 2
     assert stats["topics"]["/glider/0/cmd"]["count"] == 5
+
+
+def test_monitor_counts_forged_states_as_bad_not_as_latency() -> None:
+    """A valid header over a garbage payload on a state topic (pub_ns = 0) is undecodable, not
+    a state whose latency is the age of the machine."""
+    from hil_bridge.codec import Header, pack_header
+    from hil_bridge.messages import GliderState
+
+    bus = "mem://launch_monitor_forged"
+    monitor = BusMonitor("monitor", bus=bus)
+    monitor.start()
+    try:
+        with open_transport(bus) as pub:
+            header = pack_header(Header("echoloop/GliderState", 1, 0, 0, 0, "", "flood"))
+            for _ in range(20):
+                pub.publish([b"/glider/0/state\0", header, b"\xc1garbage"])
+            real = GliderState(stamp_ns=1, x=0.0, y=0.0, z=0.0, heading=0.0, bank=0.0,
+                               airspeed=10.0, vz=0.0)
+            pub.publish(encode("/glider/0/state", real, seq=0, pub_ns=time.monotonic_ns(),
+                               src="server"))
+            deadline = time.monotonic() + 10.0
+            while monitor.stats()["bad"] + monitor.stats()["messages"] < 21:
+                assert time.monotonic() < deadline, monitor.stats()
+                time.sleep(0.005)
+    finally:
+        monitor.stop()
+    stats = monitor.stats()
+    assert stats["bad"] == 20 and stats["state_latency_ms"]["n"] == 1
+    assert stats["state_latency_ms"]["max"] < 10_000
