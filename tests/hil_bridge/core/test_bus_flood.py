@@ -186,3 +186,20 @@ def test_stale_messages_are_dropped_and_their_backlog_reset(deep_bus: str) -> No
         assert len(got) >= 3
     assert all(m.x >= 0 for m in got)  # nothing stale ever reached the callback
     assert node.stats()["topics"][FLOODED]["stale"] < 500  # the reset dropped the rest unread
+
+
+def test_transport_queues_per_prefix_are_served_in_turn(deep_bus: str) -> None:
+    """Transport contract 3: a backlog under one prefix does not hold back another."""
+    n = 20_000
+    with open_transport(deep_bus) as pub, open_transport(deep_bus) as sub:
+        sub.subscribe(b"/flood\0")
+        sub.subscribe(b"/clock\0")
+        assert pub.wait_for_subscriber("/flood", WAIT) and pub.wait_for_subscriber("/clock", WAIT)
+        for i in range(n):
+            pub.publish(encode("/flood", Clock(stamp_ns=i), seq=i, pub_ns=0, src="p"))
+        pub.publish(encode("/clock", Clock(stamp_ns=0), seq=0, pub_ns=0, src="p"))
+        topics = []
+        while len(topics) < n + 1 and (frames := sub.recv(timeout=WAIT)) is not None:
+            topics.append(frames[0])
+    assert len(topics) == n + 1
+    assert topics.index(b"/clock\0") < n // 2, "the clock waited behind the backlog"

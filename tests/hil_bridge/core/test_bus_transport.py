@@ -76,6 +76,31 @@ def test_unsubscribe_stops_delivery(bus_url: str) -> None:
         assert frames is not None and frames[0] == b"/b\0"
 
 
+def test_reset_drops_the_queue_and_keeps_the_subscription(bus_url: str) -> None:
+    """Contract 8."""
+    with open_transport(bus_url) as pub, open_transport(bus_url) as sub:
+        sub.subscribe(b"/a\0")
+        assert pub.wait_for_subscriber("/a", timeout=10.0)
+        for i in range(50):
+            pub.publish(_clock("/a", i))
+        first = sub.recv(timeout=10.0)  # the backlog has arrived
+        assert first is not None
+        sub.reset(b"/a\0")
+        with pytest.raises(ValueError, match="not subscribed"):
+            sub.reset(b"/b\0")
+        seqs: list[int] = []
+        for i in range(1000, 1200):  # after a reset over ZeroMQ the topic's socket rejoins
+            pub.publish(_clock("/a", i))
+            frames = sub.recv(timeout=0.02)
+            while frames is not None:
+                seqs.append(decode(frames).header.seq)
+                frames = sub.recv(timeout=0.0)
+            if seqs:
+                break
+        assert seqs and min(seqs) >= 1000  # nothing of the old backlog came back
+        assert sub.stats()["resets"] == 1
+
+
 def test_slow_subscriber_never_blocks_the_publisher(bus_url: str) -> None:
     # small queues on this subscriber; 8 KiB messages so that the proxy's queues and the
     # kernel's socket buffers (a few MiB) overflow too: n messages cannot all be held anywhere
