@@ -25,7 +25,7 @@ REPEAT = 3
 
 
 def _write(path: Path, kinds: set[str], seconds: float = 20.0) -> int:
-    from hil_bridge.bag import MessageEncoding, _BagWriter
+    from hil_bridge.bag import BagWriter, MessageEncoding
     from hil_bridge.codec import Header, encode_payload
     from hil_bridge.messages import (
         Clock,
@@ -40,7 +40,7 @@ def _write(path: Path, kinds: set[str], seconds: float = 20.0) -> int:
     rng = np.random.default_rng(0)
     count = 0
     with open(path, "wb") as f:
-        bag = _BagWriter(f, chunk_size=64 * 1024, compression="zstd",
+        bag = BagWriter(f, chunk_size=64 * 1024, compression="zstd",
                          message_encoding=MessageEncoding.MessagePack, as_json=False)
 
         def add(topic: str, msg: Any, frame: str = "") -> None:

@@ -198,6 +198,18 @@ class Publisher(Generic[M]):
             self._counters["latched_resends"] = self._counters.get("latched_resends", 0) + 1
 
 
+class _Lane:
+    """The deliveries queued for one or more subscriptions, in arrival order (a subscription's
+    own lane, or the lane shared by subscriptions made with one ``lane`` name)."""
+
+    __slots__ = ("priority", "queue", "scheduled")
+
+    def __init__(self) -> None:
+        self.queue: deque[tuple[Subscription[Any], Envelope]] = deque()
+        self.priority = False
+        self.scheduled = False
+
+
 class Subscription(Generic[M]):
     """Made by :meth:`Node.create_subscription`; ``callback(msg)`` (or ``callback(envelope)``
     with ``envelope=True``) runs on a node worker, one callback at a time."""
@@ -211,6 +223,7 @@ class Subscription(Generic[M]):
         qos: QoSProfile,
         envelope: bool,
         priority: bool = False,
+        lane: _Lane | None = None,
     ) -> None:
         self.node = node
         self.msg_type = msg_type
@@ -219,11 +232,13 @@ class Subscription(Generic[M]):
         self.qos = qos
         self.envelope = envelope
         self.priority = priority
-        self.queue: deque[Envelope] = deque()
-        #: bound of the queue: keep-last ``depth`` (reliable: a large bound, never a drop in
-        #: normal operation, but a flood cannot exhaust memory)
+        self._lane = lane if lane is not None else _Lane()
+        self._lane.priority |= priority
+        #: deliveries of this subscription waiting in its lane, at most ``limit``: keep-last
+        #: ``depth`` (reliable: a large bound, never a drop in normal operation, but a flood
+        #: cannot exhaust memory)
+        self.queued = 0
         self.limit = max(qos.depth, _RELIABLE_QUEUE_MAX) if qos.reliable else qos.depth
-        self._scheduled = False
         self.max_age_ns = None if qos.max_age_s is None else round(qos.max_age_s * 1e9)
         self._seq = SeqTracker(reliable=qos.reliable)
         self._counters = node._topic(topic)
@@ -298,8 +313,9 @@ class Node:
         self._lock = threading.RLock()
         self._exec_cond = threading.Condition()
         #: subscriptions with queued messages, served round-robin; priority ones first
-        self._ready: deque[Subscription[Any]] = deque()
-        self._ready_hi: deque[Subscription[Any]] = deque()
+        self._ready: deque[_Lane] = deque()
+        self._ready_hi: deque[_Lane] = deque()
+        self._lanes: dict[str, _Lane] = {}
         self._decode_log: dict[str, list[Any]] = {}
         self._next_reset: dict[bytes, float] = {}
         self._leading = False
@@ -353,10 +369,18 @@ class Node:
         *,
         envelope: bool = False,
         priority: bool = False,
+        lane: str | None = None,
     ) -> Subscription[M]:
         """Call ``callback(msg)`` for each ``msg_type`` message on ``topic`` (``envelope=True``:
         ``callback(Envelope)`` with topic, header and raw payload). ``priority=True`` puts the
-        subscription on the control path: its callbacks run before any other queued ones."""
+        subscription on the control path: its callbacks run before any other queued ones.
+
+        Every subscription has its own receive queue (its *lane*), served in turn with the
+        others, so a flood on one topic cannot hold back another; messages of different lanes
+        may be delivered out of their publishing order. Subscriptions made with the same
+        ``lane`` name share one queue and are delivered in arrival order (use it for topics
+        whose order matters to the callbacks, e.g. a state and the neighbour list of its
+        step)."""
         self._check_type(msg_type)
         validate_topic(topic)
         profile = qos_profile(qos)
@@ -364,7 +388,8 @@ class Node:
             with self._lock:
                 if topic not in self._ack_pubs:
                     self._ack_pubs[topic] = self.create_publisher(CmdAck, f"{topic}/ack")
-        return self._add_subscription(msg_type, topic, callback, profile, envelope, priority)
+        return self._add_subscription(msg_type, topic, callback, profile, envelope, priority,
+                                      lane)
 
     def _add_subscription(
         self,
@@ -374,12 +399,15 @@ class Node:
         qos: QoSProfile,
         envelope: bool,
         priority: bool = False,
+        lane: str | None = None,
     ) -> Subscription[M]:
-        sub = Subscription(self, msg_type, topic, callback, qos, envelope, priority)
+        with self._lock:
+            shared = None if lane is None else self._lanes.setdefault(lane, _Lane())
+        sub = Subscription(self, msg_type, topic, callback, qos, envelope, priority, shared)
         frame = topic.encode() + b"\0"
         with self._lock:
             self._subs[frame] = [*self._subs.get(frame, []), sub]
-        self.transport.subscribe(frame)
+        self.transport.subscribe(frame, lane=None if lane is None else f"lane:{lane}")
         return sub
 
     def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
@@ -569,26 +597,35 @@ class Node:
                 self._release_exec()
 
     def _pop_ready(self) -> tuple[Subscription[Any], Envelope]:
-        """Next queued delivery (``_exec_cond`` held): priority subscriptions first, one
-        message per subscription in turn, so a flooded topic cannot starve another."""
+        """Next queued delivery (``_exec_cond`` held): priority lanes first, one delivery per
+        lane in turn (so a flooded topic cannot starve another), in arrival order within a
+        lane."""
         ready = self._ready_hi if self._ready_hi else self._ready
-        sub = ready.popleft()
-        envelope = sub.queue.popleft()
-        if sub.queue:
-            ready.append(sub)
+        lane = ready.popleft()
+        sub, envelope = lane.queue.popleft()
+        sub.queued -= 1
+        if lane.queue:
+            ready.append(lane)
         else:
-            sub._scheduled = False
+            lane.scheduled = False
         return sub, envelope
 
     def _enqueue(self, sub: Subscription[Any], envelope: Envelope) -> None:
-        """Queue a delivery (``_exec_cond`` held); beyond the bound the oldest is dropped."""
-        if len(sub.queue) >= sub.limit:
-            sub.queue.popleft()
+        """Queue a delivery (``_exec_cond`` held); beyond the subscription's bound its oldest
+        queued delivery is dropped."""
+        lane = sub._lane
+        if sub.queued >= sub.limit:
+            for i, (owner, _) in enumerate(lane.queue):
+                if owner is sub:
+                    del lane.queue[i]
+                    break
+            sub.queued -= 1
             sub._counters["dropped"] += 1
-        sub.queue.append(envelope)
-        if not sub._scheduled:
-            sub._scheduled = True
-            (self._ready_hi if sub.priority else self._ready).append(sub)
+        lane.queue.append((sub, envelope))
+        sub.queued += 1
+        if not lane.scheduled:
+            lane.scheduled = True
+            (self._ready_hi if lane.priority else self._ready).append(lane)
 
     def _release_exec(self) -> None:
         with self._exec_cond:

@@ -268,12 +268,15 @@ class AutopilotAdapter(Node):
         states = QoSProfile("state", depth=SENSOR.depth, max_age_s=self.state_max_age_s)
         for gid in self.gliders:
             self._cmd_pubs[gid] = self.create_publisher(GliderCmd, f"/glider/{gid}/cmd", SENSOR)
+            # a glider's states and neighbour lists share one ordered lane: a lockstep sample
+            # takes the neighbour list of its step, which the server publishes before the state
             self.create_subscription(
                 GliderState, f"/glider/{gid}/state", self._make_state_cb(gid), states,
-                envelope=True, priority=True,
+                envelope=True, priority=True, lane=f"glider{gid}",
             )
             self.create_subscription(
-                GliderNeighbors, f"/glider/{gid}/neighbors", self._make_nb_cb(gid), SENSOR
+                GliderNeighbors, f"/glider/{gid}/neighbors", self._make_nb_cb(gid), SENSOR,
+                priority=True, lane=f"glider{gid}",
             )
         self.follow_bus_clock()
         self.create_subscription(Clock, "/clock", self._on_clock, SENSOR, priority=True)

@@ -6,15 +6,16 @@ Contract of :class:`Transport` (every backend honours it; ``tests/hil_bridge/cor
    endpoint subscribed to a prefix of its topic frame, this endpoint included. It never blocks
    on a slow or absent subscriber: past the queue bound, messages are dropped (and counted
    where the backend can see it).
-2. ``subscribe(prefix)`` / ``unsubscribe(prefix)`` select which topic frames ``recv`` returns
-   (byte-prefix match on frame 1; subscribe to ``topic + b"\\0"`` for one exact topic, ``b""``
-   for all). They may be called from any thread.
+2. ``subscribe(prefix, lane=None)`` / ``unsubscribe(prefix)`` select which topic frames
+   ``recv`` returns (byte-prefix match on frame 1; subscribe to ``topic + b"\\0"`` for one exact
+   topic, ``b""`` for all). Prefixes subscribed with the same ``lane`` key share one queue (in
+   arrival order); by default every prefix is its own lane. They may be called from any thread.
 3. ``recv(timeout)`` returns the next matching message as a list of 3 ``bytes`` frames, or
    ``None`` when ``timeout`` seconds pass (``None`` waits forever) or :meth:`wakeup` is called.
-   One thread at a time may call ``recv``. Messages are queued per subscribed prefix and the
-   queues are served in turn, so a flood under one prefix cannot hold back another; order is
-   kept within a prefix, not across prefixes. (A foreign publisher may send other frame
-   counts; receivers check.)
+   One thread at a time may call ``recv``. Messages are queued per lane and the lanes are
+   served in turn, so a flood under one prefix cannot hold back another lane; order is kept
+   within a lane, not across lanes. (A foreign publisher may send other frame counts;
+   receivers check.)
 4. ``wait_for_subscriber(topic, timeout)`` returns ``True`` once some endpoint's subscription
    covering ``topic`` is known to reach this endpoint's publications (the slow-joiner guard:
    messages published after it returns ``True`` are delivered to that subscriber).
@@ -26,10 +27,10 @@ Contract of :class:`Transport` (every backend honours it; ``tests/hil_bridge/cor
    until closed.
 7. ``stats()`` returns counters: ``sent``, ``received``, ``filtered`` and backend ones (e.g.
    ``dropped`` for queue overflow the backend can see).
-8. ``reset(prefix)`` discards what is queued for one subscribed prefix, as far as the backend
-   can reach (over ZeroMQ the prefix's socket is re-made, so the proxy's queue and the kernel
-   buffers behind it go too); messages published from then on arrive. May be called from any
-   thread.
+8. ``reset(prefix)`` discards what is queued in the lane of a subscribed prefix, as far as the
+   backend can reach (over ZeroMQ the lane's socket is re-made, so the proxy's queue and the
+   kernel buffers behind it go too); messages published from then on arrive. May be called
+   from any thread.
 
 Backends implement ``_send``, ``_recv_internal`` and, where they need them, ``_subscribe``,
 ``_unsubscribe``, ``_reset``, ``_service``, ``_wakeup`` and ``_close``; the base owns timeouts,
@@ -73,6 +74,8 @@ class Transport(ABC):
         self._close_lock = threading.Lock()
         self._sub_lock = threading.Lock()
         self._prefixes: dict[bytes, int] = {}
+        #: the lane key of each subscribed prefix (itself unless ``subscribe(lane=...)``)
+        self._lane_of: dict[bytes, bytes] = {}
         self._prefix_tuple: tuple[bytes, ...] = ()
         self._remote: set[bytes] = set()
         self._remote_cond = threading.Condition()
@@ -88,7 +91,8 @@ class Transport(ABC):
         """Next message (unfiltered is fine) or ``None`` after ``timeout`` s or a wakeup."""
 
     def _subscribe(self, prefix: bytes) -> None:
-        """Start delivering ``prefix`` to this endpoint (called once per distinct prefix)."""
+        """Start delivering ``prefix`` to this endpoint, queued in lane ``self._lane_of[prefix]``
+        (called once per distinct prefix)."""
         return
 
     def _unsubscribe(self, prefix: bytes) -> None:
@@ -96,7 +100,7 @@ class Transport(ABC):
         return
 
     def _reset(self, prefix: bytes) -> None:
-        """Drop what is queued under ``prefix`` (its subscription stays)."""
+        """Drop what is queued in the lane of ``prefix`` (its subscriptions stay)."""
         return
 
     def _service(self, timeout: float) -> None:
@@ -141,8 +145,9 @@ class Transport(ABC):
         self._send(frames)
         self._counters["sent"] += 1
 
-    def subscribe(self, prefix: bytes | str) -> None:
-        """Receive topic frames starting with ``prefix`` (contract 2; counted per call)."""
+    def subscribe(self, prefix: bytes | str, *, lane: bytes | str | None = None) -> None:
+        """Receive topic frames starting with ``prefix``, queued in ``lane`` (default: a lane of
+        its own; the first subscription of a prefix decides) (contract 2; counted per call)."""
         self._check_open()
         p = _as_prefix(prefix)
         with self._sub_lock:
@@ -150,6 +155,7 @@ class Transport(ABC):
             self._prefixes[p] = count + 1
             self._prefix_tuple = tuple(self._prefixes)
             if count == 0:
+                self._lane_of[p] = p if lane is None else _as_prefix(lane)
                 self._subscribe(p)
 
     def reset(self, prefix: bytes | str) -> None:
@@ -175,6 +181,7 @@ class Transport(ABC):
                 del self._prefixes[p]
                 self._prefix_tuple = tuple(self._prefixes)
                 self._unsubscribe(p)
+                del self._lane_of[p]
             else:
                 self._prefixes[p] = count - 1
 

@@ -2,8 +2,9 @@
 
 Every endpoint opened on the same ``name`` in one process joins one channel; a message published
 on any endpoint is delivered to every endpoint (itself included) with a matching subscription.
-Each endpoint keeps one bounded keep-last queue per subscribed prefix (``?depth=N``, default
-1000; a message goes to the first of its prefixes that matches): when a slow reader lets one
+Each endpoint keeps one bounded keep-last queue per lane (a subscribed prefix, or the prefixes
+subscribed with one ``lane`` key; ``?depth=N``, default 1000; a message goes to the lane of the
+first of its prefixes that matches): when a slow reader lets one
 fill, its oldest message is discarded and counted as ``dropped``, and the publisher never
 waits. ``recv`` serves the queues in turn, so a flood under one prefix cannot hold back another
 (as over ZeroMQ: order is kept within a prefix, not across prefixes). Subscriptions take
@@ -83,12 +84,13 @@ class MemTransport(Transport):
                 break
         else:
             return
+        lane = self._lane_of.get(prefix, prefix)
         with self._cond:
-            queue = self._queues.get(prefix)
+            queue = self._queues.get(lane)
             if queue is None:
-                queue = self._queues[prefix] = deque()
+                queue = self._queues[lane] = deque()
             if not queue:
-                self._rotation.append(prefix)
+                self._rotation.append(lane)
             elif len(queue) >= self.depth:
                 queue.popleft()
                 self._counters["dropped"] += 1
@@ -122,17 +124,21 @@ class MemTransport(Transport):
             return frames
 
     def _reset(self, prefix: bytes) -> None:
+        lane = self._lane_of[prefix]
         with self._cond:
-            queue = self._queues.get(prefix)
+            queue = self._queues.get(lane)
             if queue:
                 self._counters["dropped"] += len(queue)
                 queue.clear()
-                self._rotation.remove(prefix)
+                self._rotation.remove(lane)
 
     def _unsubscribe(self, prefix: bytes) -> None:
+        lane = self._lane_of[prefix]
+        if any(k == lane for p, k in self._lane_of.items() if p != prefix):
+            return  # the lane still serves another prefix
         with self._cond:
-            if self._queues.pop(prefix, None) and prefix in self._rotation:
-                self._rotation.remove(prefix)
+            if self._queues.pop(lane, None) and lane in self._rotation:
+                self._rotation.remove(lane)
 
     def _subscribe(self, prefix: bytes) -> None:
         for endpoint in self._channel.endpoints:

@@ -17,10 +17,11 @@ subscriptions the proxy forwards (the proxy's XPUB is verbose): that gives
 A full queue drops (ZeroMQ HWM semantics) and never blocks the publisher; the receiving node
 counts the loss from publisher ``seq`` gaps.
 
-Receiving: every subscribed prefix has its own SUB socket, i.e. its own queue (bounded by
-``hwm``) and connection to the proxy; ``recv`` serves the lanes in turn, one message each, so a
-flood under one prefix waits its turn instead of holding back the clock or another topic.
-Order is kept within a prefix, not across prefixes.
+Receiving: every lane (a subscribed prefix, or the prefixes subscribed with one ``lane`` key)
+has its own SUB socket, i.e. its own queue (bounded by ``hwm``) and connection to the proxy;
+``recv`` serves the lanes in turn, one message each, so a flood under one prefix waits its turn
+instead of holding back the clock or another topic. Order is kept within a lane, not across
+lanes.
 
 Threading: ``publish`` is safe from any thread (a lock guards the publish socket);
 ``subscribe`` is safe from any thread (applied by the receiving thread, which it wakes);
@@ -147,10 +148,11 @@ class ZmqTransport(Transport):
         self._in_recv = False
         self._closing = False
         self._wake_flag = False
-        self._pending: list[tuple[int, bytes]] = []
-        #: one SUB socket per subscribed prefix (its own queue), and the ones known to hold
-        #: messages, served in turn
+        self._pending: list[tuple[int, bytes, bytes]] = []
+        #: one SUB socket per lane (its own queue) with the prefixes it subscribes, and the
+        #: sockets known to hold messages, served in turn
         self._lanes: dict[bytes, zmq.Socket[bytes]] = {}
+        self._lane_prefixes: dict[bytes, list[bytes]] = {}
         self._rotation: deque[zmq.Socket[bytes]] = deque()
         self._since_poll = 0
         pub = self._ctx.socket(zmq.XPUB)
@@ -201,32 +203,49 @@ class ZmqTransport(Transport):
                 self._remote_cond.wait(min(timeout, 0.01) - 0.002)
 
     # -- receiving --------------------------------------------------------------------------
-    def _open_lane(self, prefix: bytes) -> zmq.Socket[bytes]:
+    def _open_lane(self, prefixes: list[bytes]) -> zmq.Socket[bytes]:
         sock = self._ctx.socket(zmq.SUB)
         try:
             sock.linger = 0
             sock.rcvhwm = self.endpoints.hwm
             _apply_curve(sock, self._curve)
             sock.connect(self.endpoints.sub)
-            sock.setsockopt(zmq.SUBSCRIBE, prefix)
+            for prefix in prefixes:
+                sock.setsockopt(zmq.SUBSCRIBE, prefix)
         except zmq.ZMQError as exc:
             sock.close(0)
             raise ValueError(f"cannot connect to {self.endpoints.sub!r}: {exc.strerror}") from None
         return sock
 
+    def _close_lane(self, lane: bytes) -> None:
+        sock = self._lanes.pop(lane)
+        self._poller.unregister(sock)
+        if sock in self._rotation:
+            self._rotation.remove(sock)
+        sock.close(0)
+
     def _apply_pending(self) -> None:
         pending, self._pending = self._pending, []
-        for op, prefix in pending:
-            if op != zmq.SUBSCRIBE:  # unsubscribe, or reset: the old socket and its queue go
-                sock = self._lanes.pop(prefix, None)
-                if sock is None:
+        for op, prefix, lane in pending:
+            prefixes = self._lane_prefixes.setdefault(lane, [])
+            if op == zmq.SUBSCRIBE:
+                prefixes.append(prefix)
+                sock = self._lanes.get(lane)
+                if sock is not None:
+                    sock.setsockopt(zmq.SUBSCRIBE, prefix)
                     continue
-                self._poller.unregister(sock)
-                if sock in self._rotation:
-                    self._rotation.remove(sock)
-                sock.close(0)
-            if op != zmq.UNSUBSCRIBE:  # subscribe, or reset: a new socket, an empty queue
-                sock = self._lanes[prefix] = self._open_lane(prefix)
+            elif op == zmq.UNSUBSCRIBE:
+                prefixes.remove(prefix)
+                if prefixes:
+                    self._lanes[lane].setsockopt(zmq.UNSUBSCRIBE, prefix)
+                    continue
+                del self._lane_prefixes[lane]
+                self._close_lane(lane)
+                continue
+            elif lane in self._lanes:  # reset: the old socket and every queue behind it go
+                self._close_lane(lane)
+            if prefixes:
+                sock = self._lanes[lane] = self._open_lane(prefixes)
                 self._poller.register(sock, zmq.POLLIN)
 
     def _subscribe(self, prefix: bytes) -> None:
@@ -240,7 +259,7 @@ class ZmqTransport(Transport):
 
     def _queue_op(self, op: int, prefix: bytes) -> None:
         with self._rx_lock:
-            self._pending.append((op, prefix))
+            self._pending.append((op, prefix, self._lane_of[prefix]))
             if self._in_recv:
                 self._poke()
             else:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hil_bridge.bag import MessageEncoding, _BagWriter
+from hil_bridge.bag import BagWriter, MessageEncoding
 from hil_bridge.codec import Header, encode_payload
 from hil_bridge.messages import (
     Clock,
@@ -25,7 +25,7 @@ def write_bag(path: Path, messages: Iterable[tuple[str, Message, str]]) -> Path:
     """``(topic, message, frame_id)`` in order; log time = stamp + 1 ms, seq per topic."""
     seqs: dict[str, int] = {}
     with open(path, "wb") as f:
-        bag = _BagWriter(f, chunk_size=64 * 1024, compression="zstd",
+        bag = BagWriter(f, chunk_size=64 * 1024, compression="zstd",
                          message_encoding=MessageEncoding.MessagePack, as_json=False)
         for topic, msg, frame in messages:
             seq = seqs.get(topic, 0)

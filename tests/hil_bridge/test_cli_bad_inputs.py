@@ -116,6 +116,41 @@ def _mcap(tmp: Path) -> bytes:
     return data
 
 
+def _mcap_chunk_middle(data: bytes) -> int:
+    """The middle of the recording's middle chunk (a flip there corrupts data, not an index)."""
+    from mcap.reader import make_reader
+
+    summary = make_reader(io.BytesIO(data)).get_summary()
+    assert summary is not None
+    chunk = summary.chunk_indexes[len(summary.chunk_indexes) // 2]
+    return chunk.chunk_start_offset + chunk.chunk_length // 2
+
+
+def _flight_log(suffix: str) -> Callable[[Path], bytes]:
+    """A valid flight log written by issue 12's log makers (PX4 ULog, ArduPilot DataFlash,
+    MAVLink tlog), as bytes."""
+    def make(d: Path) -> bytes:
+        from tests.hil_bridge.logs.logmakers import (
+            truth,
+            write_dataflash,
+            write_tlog,
+            write_ulog,
+        )
+
+        t = np.arange(0.0, 20.0, 0.25)
+        path = d / f"flight{suffix}"
+        if suffix == ".ulg":
+            write_ulog(path, truth(t), truth(t), local=True, glob=False)
+        elif suffix == ".bin":
+            write_dataflash(path, truth(t), truth(t))
+        else:
+            write_tlog(path, truth(t), truth(t))
+        data = path.read_bytes()
+        path.unlink()
+        return data
+    return make
+
+
 def _yaml(data: object) -> bytes:
     return yaml.safe_dump(data).encode()
 
@@ -135,6 +170,9 @@ class Kind:
     nan: Callable[[Path], bytes] | None = None
     #: where to flip a bit (default: the middle); must make the file invalid, not merely other
     flip_at: Callable[[bytes], int] | None = None
+    #: where to cut it (default: the middle, inside a line); a file cut at a line end is a
+    #: shorter valid file for formats that list optional keys (a law file)
+    cut_at: Callable[[bytes], int] | None = None
 
 
 def _first(token: bytes) -> Callable[[bytes], int]:
@@ -159,7 +197,8 @@ KINDS: dict[str, Kind] = {
                       _first(b"numAgents")),
     "law-yaml": Kind(".yaml", lambda d: (DATA / "seed002" / "law_40survivors.yaml").read_bytes(),
                      lambda d: b"numAgents: 1000000000000\n", lambda d: b"dt: .nan\n",
-                     _first(b"totalTime")),
+                     _first(b"totalTime"),
+                     lambda data: data.index(b"\n", len(data) // 2) + 5),  # inside a key
     "grid-yaml": Kind(".yaml", lambda d: b"numAgents: [2, 3]\n",
                       lambda d: b"numAgents: [1000000000000]\n", lambda d: b"cohesion: [.nan]\n",
                       _first(b"numAgents")),
@@ -179,7 +218,10 @@ KINDS: dict[str, Kind] = {
                             {"name": "maple", "tree": "maple", "positions": [[0, float("nan")]]}]}),
                         _first(b"species")),
     "mcap": Kind(".mcap", _mcap, lambda d: _mcap(d)[:8] + struct.pack("<BQ", 6, 1 << 60),
-                 None),
+                 None, _mcap_chunk_middle),
+    "ulog": Kind(".ulg", _flight_log(".ulg")),
+    "dataflash": Kind(".bin", _flight_log(".bin")),
+    "tlog": Kind(".tlog", _flight_log(".tlog")),
     "curve-key": Kind(".key_secret", lambda d: (_keys(d) / "server.key_secret").read_bytes(),
                       None, None, _first(b"curve")),
 }
@@ -208,6 +250,9 @@ class Reader:
     survives: frozenset[str] = frozenset()
     #: where the bad file must go (default: ``scratch/input<suffix>``)
     place: Callable[[Path], Path] | None = None
+    #: a survived corruption is reported on stdout (a read report naming the file) instead of
+    #: by warnings on stderr
+    reports_on_stdout: bool = False
 
 
 _MCAP_SURVIVES = frozenset({"truncated", "flipped-bit", "huge-shape"})
@@ -238,6 +283,13 @@ READERS: tuple[Reader, ...] = (
     Reader("replay-scene", "scene-yaml", lambda f, d: [
         "replay", str(d / "ok.csv"), "--scene", str(f), "--fast", "--bus", "mem://corpus_rs",
         "--duration", "0.3", "--sonar", "0"]),
+    # flight logs (issue 12): a log cut mid-record is read up to the cut, and its report says
+    # what was read; ULog and DataFlash carry no checksum (a flipped bit is another value) and
+    # MAVLink drops a message failing its CRC, so a flipped bit is read past, not refused
+    *(Reader(f"replay-{kind}", kind, lambda f, d: [
+        "replay", str(f), "--fast", "--bus", "mem://corpus_log", "--duration", "0.3",
+        "--sonar", "0"], frozenset({"truncated", "flipped-bit"}), reports_on_stdout=True)
+      for kind in ("ulog", "dataflash", "tlog")),
     Reader("bag-info", "mcap", lambda f, d: ["bag", "info", str(f)], _MCAP_SURVIVES),
     Reader("bag-play", "mcap", lambda f, d: [
         "bag", "play", str(f), "--bus", "mem://corpus_play", "--rate", "0"], _MCAP_SURVIVES),
@@ -268,8 +320,11 @@ def _bad_bytes(kind: Kind, corruption: str, scratch: Path) -> bytes | None:
         other = "mcap" if kind.suffix != ".mcap" else "leaves-npz"
         return KINDS[other].good(scratch)
     good = kind.good(scratch)
-    if corruption == "truncated":
-        return good[: len(good) // 2]
+    if corruption == "truncated":  # cut inside a line: a text file cut at a line end is
+        cut = len(good) // 2        # indistinguishable from a shorter valid file
+        if kind.cut_at is not None:
+            cut = kind.cut_at(good)
+        return good[: cut - 1 if good[cut - 1:cut] == b"\n" else cut]
     at = kind.flip_at(good) if kind.flip_at else len(good) // 2
     flipped = bytearray(good)
     flipped[at] ^= 0x80
@@ -293,12 +348,17 @@ def test_every_reader_reports_a_bad_file_in_one_line(
         path.chmod(0o600)
     caplog.set_level(logging.WARNING)
     code = echoloop(reader.argv(path, tmp_path))
-    err = capsys.readouterr().err
-    # log records reach stderr as one line each in a real run (logging's last-resort handler)
-    lines = err.strip().splitlines() + [r.getMessage() for r in caplog.records]
+    captured = capsys.readouterr()
+    err = captured.err
+    # log records reach stderr as one line each in a real run (logging's last-resort handler);
+    # a run's announcement ("echoloop replay: running ...") is not about the file
+    lines = [line for line in err.strip().splitlines() if ": running " not in line]
+    lines += [r.getMessage() for r in caplog.records]
     assert "Traceback" not in err, err
     if code == 0:
         assert corruption in reader.survives, f"accepted a bad file silently: {err!r}"
+        if reader.reports_on_stdout:
+            lines = [line for line in captured.out.splitlines() if str(path) in line]
         assert lines and all(str(path) in line for line in lines), err
     else:
         assert code == 1, (code, err)

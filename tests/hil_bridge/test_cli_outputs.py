@@ -49,8 +49,9 @@ def _bag(d: Path) -> Path:
 
 def _launch(d: Path) -> Path:
     path = d / "l.yaml"
+    scene = {"swarm": {"overrides": {"numAgents": 2, "dt": 0.1}}, "state_rate_hz": 20}
     path.write_text(yaml.safe_dump({"bus": f"mem://outputs_launch{id(d)}", "nodes": [
-        {"name": "server", "entry": "hil_bridge.server:SimServer", "params": {"scene": {}}}]}),
+        {"name": "server", "entry": "hil_bridge.server:SimServer", "params": {"scene": scene}}]}),
         encoding="utf-8")
     return path
 
@@ -82,7 +83,7 @@ WRITERS: tuple[Writer, ...] = (
     Writer("launch-record", "r.mcap", lambda o, d: [
         "launch", str(_launch(d)), "--duration", "0.2", "--record", str(o)]),
     Writer("launch-plot", "r.png", lambda o, d: [
-        "launch", str(_launch(d)), "--duration", "0.2", "--record", str(d / "x.mcap"),
+        "launch", str(_launch(d)), "--duration", "0.5", "--record", str(d / "x.mcap"),
         "--plot", str(o)]),
     Writer("bag-record", "b.mcap", lambda o, d: [
         "bag", "record", str(o), "--bus", "mem://outputs_rec", "--duration", "0.2"]),

@@ -19,7 +19,7 @@ from hil_bridge.flood import flood, malformed_messages
 from hil_bridge.messages import Clock, GliderState
 from hil_bridge.node import Node
 from hil_bridge.proxy import Proxy
-from hil_bridge.qos import SENSOR
+from hil_bridge.qos import SENSOR, QoSProfile
 from hil_bridge.transport import open_transport
 from tests.hil_bridge.core.bus_test_util import WAIT, poll_until
 
@@ -203,3 +203,37 @@ def test_transport_queues_per_prefix_are_served_in_turn(deep_bus: str) -> None:
             topics.append(frames[0])
     assert len(topics) == n + 1
     assert topics.index(b"/clock\0") < n // 2, "the clock waited behind the backlog"
+
+
+def test_subscriptions_sharing_a_lane_keep_their_order(deep_bus: str) -> None:
+    """Topics whose order matters (a state and the neighbour list of its step) share a lane:
+    their callbacks run in publishing order, even from a backlog."""
+    order: list[tuple[str, int]] = []
+    release = threading.Event()
+
+    def on(kind: str) -> Any:
+        def callback(msg: Any) -> None:
+            order.append((kind, msg.stamp_ns))
+            if not release.is_set():
+                release.wait(WAIT)
+        return callback
+
+    with Node("adapter", bus=deep_bus, diagnostics_period_s=0) as node, \
+            Node("server", bus=deep_bus, diagnostics_period_s=0) as srv:
+        node.start()
+        srv.start()
+        deep = QoSProfile("deep", depth=100)
+        node.create_subscription(Clock, "/glider/0/neighbors_like", on("nb"), deep,
+                                 lane="glider0")
+        node.create_subscription(Clock, "/glider/0/state_like", on("state"), deep,
+                                 priority=True, lane="glider0")
+        nbs = srv.create_publisher(Clock, "/glider/0/neighbors_like")
+        states = srv.create_publisher(Clock, "/glider/0/state_like")
+        assert nbs.wait_for_subscribers(WAIT) and states.wait_for_subscribers(WAIT)
+        for step in range(20):  # the first callback holds the executor: the rest queue up
+            nbs.publish(Clock(stamp_ns=step))
+            states.publish(Clock(stamp_ns=step))
+        assert poll_until(lambda: node.stats()["received"] == 40)
+        release.set()
+        assert poll_until(lambda: len(order) == 40)
+    assert order == [(kind, step) for step in range(20) for kind in ("nb", "state")]

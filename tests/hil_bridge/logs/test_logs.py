@@ -184,13 +184,13 @@ def test_unknown_content_names_the_file(tmp_path: Path) -> None:
 
 
 def test_echoloop_recording_replays_the_chosen_glider(tmp_path: Path) -> None:
-    from hil_bridge.bag import MessageEncoding, _BagWriter
+    from hil_bridge.bag import BagWriter, MessageEncoding
     from hil_bridge.codec import Header, encode_payload
     from hil_bridge.messages import GliderState
 
     path = tmp_path / "run.mcap"
     with open(path, "wb") as f:
-        bag = _BagWriter(f, chunk_size=4096, compression="zstd",
+        bag = BagWriter(f, chunk_size=4096, compression="zstd",
                          message_encoding=MessageEncoding.MessagePack, as_json=False)
         for k in range(20):
             for gid in (3, 4):
