@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(PY) -m hil_bridge.cli launch launch/demo.yaml --domain auto --duration 20 \
-		--record out/demo.mcap --plot out/demo.png
+		--record out/demo.mcap --plot out/demo.png --overwrite
 
 test: $(STAMP)
 	$(PY) -m pytest -q

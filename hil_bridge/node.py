@@ -28,6 +28,7 @@ The *launchable* contract (``Cls(name, *, bus, **params)``, ``start()``, ``stop(
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import os
@@ -437,7 +438,10 @@ class Node:
             if msg.stamp_ns > self.clock.now_ns():
                 self.clock.set_ns(msg.stamp_ns)
 
-        return self.create_subscription(Clock, topic, on_clock, LATCHED, priority=True)
+        # depth of SENSOR, not 1: a receive batch after a stall (another thread holding the
+        # GIL) can hold several ticks; on_clock keeps the newest anyway, so none is "dropped"
+        qos = dataclasses.replace(LATCHED, depth=SENSOR.depth)
+        return self.create_subscription(Clock, topic, on_clock, qos, priority=True)
 
     # -- lifecycle ---------------------------------------------------------------------------
     def start(self) -> Node:
