@@ -130,7 +130,7 @@ def _flood_section() -> str:
             f"{head['echo_timeouts']} + {head['pings_in_flight']}",
             f"{s.monitor['state_latency_ms']['p50']:.2f} / "
             f"{s.monitor['state_latency_ms']['p99']:.2f}",
-            f"{s.exit_code}",
+            f"{s.exit_status}",
         ])
     return (
         f"Demo graph on loopback `tcp://`, {WARMUP_S:.0f} s warm-up, then {FLOOD_S:.0f} s quiet "
@@ -143,7 +143,8 @@ def _flood_section() -> str:
         "(0.1 s of sim time against `/clock`), dropped before the autopilot sees them, each "
         "dropping the queue behind it (at most one reset per 0.1 s). Dropped = malformed "
         "messages the adapter counted as decode errors on the flooded topic per second of "
-        "flood. Hold / failsafe: the adapter's command supervision entries and failsafe "
+        "flood (the rest were dropped unread with the queue resets). Hold / failsafe: the "
+        "adapter's command supervision entries and failsafe "
         "commands published (goal: 0). Monitor: the launch run summary's bus monitor (one "
         "subscription to every topic, whole run).\n\n"
         + table(["run", "injected msg/s", "other 8 vehicles: worst p50 / p99 ms",
