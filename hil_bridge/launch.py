@@ -304,7 +304,17 @@ class BusMonitor:
     ``time.monotonic_ns``) and ping -> echo latency (echo arrival minus ping arrival, matched
     by sonar and ``ping_seq``).
     Undecodable messages are counted in ``bad``, never raised.
+
+    An observer, not the control path: it shares the process (and its GIL) with the nodes, so
+    it uses at most :attr:`CPU_SHARE` of a core, and :attr:`FLOOD_CPU_SHARE` while undecodable
+    messages outnumber good ones (more than :attr:`FLOOD_BAD_PER_S`): a flood of garbage must
+    not take the adapters' time. Beyond its share it sleeps, its socket drops what it cannot
+    take, and ``throttled_s`` says for how long its counts are partial.
     """
+
+    CPU_SHARE = 0.5
+    FLOOD_CPU_SHARE = 0.05
+    FLOOD_BAD_PER_S = 1000
 
     def __init__(self, name: str, *, bus: str) -> None:
         self.name = name
@@ -318,6 +328,7 @@ class BusMonitor:
         self._state_ms: deque[float] = deque(maxlen=50000)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._pings: dict[tuple[str, int], int] = {}
+        self._throttled_s = 0.0
 
     def start(self) -> None:
         from hil_bridge.transport import open_transport
@@ -341,6 +352,7 @@ class BusMonitor:
         from hil_bridge.codec import decode_payload, decode_topic_header
         from hil_bridge.errors import CodecError, HilError
 
+        window_wall, window_cpu, window_bad, n = time.monotonic(), time.thread_time(), 0, 0
         while not self._stop.is_set():
             try:
                 frames = self._transport.recv(timeout=0.1)
@@ -348,6 +360,21 @@ class BusMonitor:
                 return
             if frames is None:
                 continue
+            n += 1
+            if n % 128 == 0:  # keep to its share of a core, measured per window of ~1 s
+                wall, cpu = time.monotonic() - window_wall, time.thread_time() - window_cpu
+                bad = self._bad - window_bad
+                flood = bad > max(self.FLOOD_BAD_PER_S * wall, n - bad)
+                behind = cpu / (self.FLOOD_CPU_SHARE if flood else self.CPU_SHARE) - wall
+                if behind > 0.001:
+                    pause = min(behind, 0.5)
+                    self._stop.wait(pause)
+                    with self._lock:
+                        self._throttled_s += pause
+                if wall > 1.0:
+                    window_wall, window_cpu, window_bad = (
+                        time.monotonic(), time.thread_time(), self._bad)
+                    n = 0
             now = time.monotonic_ns()
             try:
                 topic, header = decode_topic_header(frames)
@@ -396,6 +423,7 @@ class BusMonitor:
                 "duplicates": sum(ts.duplicates for ts in self._topics.values()),
                 "seq_gaps": sum(ts.lost for ts in self._topics.values()),
                 "bad": self._bad,
+                "throttled_s": round(self._throttled_s, 3),
                 "state_latency_ms": percentiles(list(self._state_ms)),
                 "ping_echo_ms": percentiles(list(self._ping_echo_ms)),
             }

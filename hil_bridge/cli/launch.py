@@ -138,6 +138,8 @@ def format_summary(summary: RunSummary, *, verbose: bool = False) -> str:
         lines.append(
             f"bus: {mon.get('messages', 0)} messages seen, {mon.get('seq_gaps', 0)} lost "
             f"(sequence gaps), {mon.get('bad', 0)} undecodable; nodes dropped {dropped}"
+            + (f"; the monitor was throttled {mon['throttled_s']:.1f} s (its own counts are "
+               "partial)" if mon.get("throttled_s") else "")
         )
     lines.extend(format_link(key, link) for key, link in summary.links.items())
     for key, label in (("ping_echo_ms", "ping -> echo"), ("state_latency_ms", "state pub -> recv")):

@@ -63,3 +63,25 @@ def test_monitor_counts_forged_states_as_bad_not_as_latency() -> None:
     stats = monitor.stats()
     assert stats["bad"] == 20 and stats["state_latency_ms"]["n"] == 1
     assert stats["state_latency_ms"]["max"] < 10_000
+
+
+def test_monitor_throttles_itself_under_a_flood_of_garbage() -> None:
+    """Undecodable messages outnumbering good ones: the monitor keeps to its flood share of a
+    core (it sleeps, says for how long) and still counts what it receives."""
+    bus = "mem://launch_monitor_flood?depth=100000"
+    monitor = BusMonitor("monitor", bus=bus)
+    monitor.start()
+    n = 3000
+    try:
+        with open_transport(bus) as pub:
+            for _ in range(n):
+                pub.publish([b"/glider/0/state\0", b"\xc1", b""])
+            deadline = time.monotonic() + 60.0
+            while monitor.stats()["bad"] < n:
+                assert time.monotonic() < deadline, monitor.stats()
+                time.sleep(0.01)
+    finally:
+        monitor.stop()
+    stats = monitor.stats()
+    assert stats["bad"] == n and stats["messages"] == 0
+    assert stats["throttled_s"] > 0
