@@ -129,7 +129,7 @@ def _flood_section() -> str:
             f"{head['pings_sent']} = {head['echoes_complete']} + {head['echoes_incomplete']} + "
             f"{head['echo_timeouts']} + {head['pings_in_flight']}",
             f"{s.monitor['state_latency_ms']['p50']:.2f} / "
-            f"{s.monitor['state_latency_ms']['p99']:.2f}",
+            f"{s.monitor['state_latency_ms']['p99']:.2f} ({s.monitor.get('throttled_s', 0):.1f})",
             f"{s.exit_status}",
         ])
     return (
@@ -152,7 +152,7 @@ def _flood_section() -> str:
                  "flooded glider 0: n: p50 / p99 ms", "glider 0 stale / queue resets",
                  "adapter dropped msg/s", "hold / failsafe entries / failsafe cmds",
                  "pings = complete + incomplete + timeouts + in flight",
-                 "monitor p50 / p99 ms", "exit"], rows)
+                 "monitor p50 / p99 ms (throttled s)", "exit"], rows)
     )
 
 
@@ -221,7 +221,8 @@ def _recover_section() -> str:
         "A recorder (64 KiB zstd chunks, flushed every second) in a child process records "
         "32 KiB noise echoes and states (10 per echo) for 8 s and is killed with SIGKILL; "
         "`recover` writes a finished copy of its `.part` file. Received = the recorder's own "
-        "count at its last report before the kill (reports every 50 echoes).\n\n"
+        "count at its last report before the kill (reports every 50 echoes, so the kept "
+        "fraction can exceed 1 by what it received after that report).\n\n"
         + table(["input MB", "recover s (median of 3)", "MB/s", "received before kill",
                  "kept", "kept fraction", "standard reader's count"],
                 [[f"{size / 1e6:.1f}", f"{t:.2f}", f"{size / 1e6 / t:.0f}", received, kept,
