@@ -5,8 +5,8 @@ from __future__ import annotations
 import time
 
 from hil_bridge.codec import encode
-from hil_bridge.launch import BusMonitor
 from hil_bridge.messages import GliderCmd
+from hil_bridge.monitor import BusMonitor
 from hil_bridge.transport import open_transport
 
 
