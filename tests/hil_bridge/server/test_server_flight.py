@@ -141,7 +141,9 @@ def test_server_reports_command_effect_latency_in_ticks() -> None:
         ap.stop()
     lat = srv.stats()["cmd_effect_ticks"]
     assert lat["n"] >= 5  # commands closer together than a tick count once
-    assert lat["p50"] == 1 and lat["max"] <= 2
+    # flown at the next tick due, or the one after when it arrived while that tick was being
+    # computed (how often is wall-clock timing: measured in make bench, not asserted here)
+    assert lat["p50"] >= 1 and lat["max"] <= 2
 
 
 def test_law_dt_must_be_whole_ticks() -> None:
