@@ -3,12 +3,15 @@
 `launch/demo.yaml` with `server.scene.clock.mode=lockstep`: the mock autopilots answer each
 state step over CAN, the mock sonar head pings on sim time over the pty, the server waits for
 both. Two runs of different (wall) lengths must agree wherever both have data: every glider
-state at every common stamp, every sim-time ping and every echo, bit for bit.
+state at every common stamp, every sim-time ping and every echo, bit for bit. Each run ends at
+a sim time (a watcher on the bus stops it), so a loaded machine shortens nothing: the sonar
+vehicle first has leaves in its beam from the ping at 5.2 s.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -16,16 +19,32 @@ import numpy as np
 
 from hil_bridge.bag import read_bag
 from hil_bridge.codec import decode_payload
+from hil_bridge.domain import current
 from hil_bridge.launch import RunSummary, load, parse_param_overrides, run
+from hil_bridge.messages import Clock
+from hil_bridge.node import Node
+from hil_bridge.qos import SENSOR
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _run(tmp_path: Path, name: str, duration: float) -> tuple[RunSummary, dict[str, Any]]:
+def _run(tmp_path: Path, name: str, sim_s: float) -> tuple[RunSummary, dict[str, Any]]:
+    """The lockstep demo until ``/clock`` reaches ``sim_s``, recorded; its summary and what
+    the recording holds."""
     spec = load(ROOT / "launch" / "demo.yaml",
                 params_overrides=parse_param_overrides(["server.scene.clock.mode=lockstep"]))
     mcap = tmp_path / f"{name}.mcap"
-    summary = run(spec, duration=duration, record=mcap, handle_signals=False)
+    reached = threading.Event()
+    watcher = Node("sim_time_watcher", bus=current().bus_url)
+    watcher.create_subscription(
+        Clock, "/clock", lambda c: reached.set() if c.stamp_ns >= sim_s * 1e9 else None, SENSOR)
+    watcher.start()
+    try:
+        summary = run(spec, duration=120.0, record=mcap, handle_signals=False,
+                      stop_event=reached)
+    finally:
+        watcher.stop()
+    assert reached.is_set(), f"the run ended before sim time {sim_s} s"
     states: dict[tuple[str, int], Any] = {}
     pings: dict[int, Any] = {}
     echoes: dict[int, Any] = {}
@@ -50,8 +69,8 @@ def _echo_content(msg: Any) -> dict[str, Any]:
 
 
 def test_lockstep_demo_twice_gives_identical_states_pings_and_echoes(tmp_path: Path) -> None:
-    first, a = _run(tmp_path, "a", 6.0)
-    second, b = _run(tmp_path, "b", 4.0)
+    first, a = _run(tmp_path, "a", 8.4)
+    second, b = _run(tmp_path, "b", 7.0)
     for summary in (first, second):
         server = summary.nodes["server"]
         assert server["clock_mode"] == "lockstep" and server["tick_error"] == ""

@@ -6,6 +6,7 @@ its domain's virtual CAN channel; neither sees the other's messages.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import random
@@ -14,16 +15,17 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hil_bridge.domain import DOMAIN_ENV, MAX_DOMAIN, Domain, first_free
+from hil_bridge.domain import DOMAIN_ENV, MAX_DOMAIN, Domain, claim_first_free
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _two_free_domains() -> tuple[Domain, Domain]:
-    """Two free domains from a random start, so concurrent test runs rarely pick the same."""
-    first, _ = first_free(Domain(random.randint(50, MAX_DOMAIN - 20)))
+def _two_free_domains(stack: contextlib.ExitStack) -> tuple[Domain, Domain]:
+    """Two free domains from a random start, claimed for the test (another run on the machine,
+    such as a second test suite, cannot pick them until the test ends)."""
+    first, _ = stack.enter_context(claim_first_free(Domain(random.randint(50, MAX_DOMAIN - 20))))
     assert first.number is not None
-    second, _ = first_free(Domain(first.number + 1))
+    second, _ = stack.enter_context(claim_first_free(Domain(first.number + 1)))
     return first, second
 
 
@@ -38,19 +40,20 @@ def _launch(domain: Domain) -> subprocess.Popen[str]:
 
 
 def test_two_demo_launches_in_two_domains_run_at_once_without_interfering() -> None:
-    domains = _two_free_domains()
-    procs = [_launch(d) for d in domains]
     results: list[dict[str, Any]] = []
-    try:
-        for proc in procs:
-            out, err = proc.communicate(timeout=150)
-            assert proc.returncode == 0, err
-            results.append(json.loads(out))
-    finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+    with contextlib.ExitStack() as stack:
+        domains = _two_free_domains(stack)
+        procs = [_launch(d) for d in domains]
+        try:
+            for proc in procs:
+                out, err = proc.communicate(timeout=150)
+                assert proc.returncode == 0, err
+                results.append(json.loads(out))
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
     for domain, summary in zip(domains, results, strict=True):
         assert summary["domain"] == str(domain)
         assert summary["bus"] == domain.bus_url
