@@ -105,8 +105,14 @@ def test_two_runs_at_once_in_one_process_share_nothing(echoloop_launch: Any) -> 
     assert a.links["sonar_head.serial"]["target"] != b.links["sonar_head.serial"]["target"]
     for summary in (a, b):
         server, adapter = summary.nodes["server"], summary.nodes["sonar_head"]
+        head = summary.nodes["sonar_head_mock"]
         assert adapter["pings_in"] - 1 <= server["pings_received"] <= adapter["pings_in"]
-        assert summary.nodes["sonar_head_mock"]["echoes_complete"] >= 3
+        # every echo the head took answered one of its own pings and came from its own server
+        # (how many fit in 3 wall seconds depends on the machine's load, so it is not asserted)
+        assert head.get("echoes_unsolicited", 0) == 0
+        assert head["echoes_complete"] + head["echoes_incomplete"] <= server["echoes_published"]
+        assert head["pings_sent"] == (head["echoes_complete"] + head["echoes_incomplete"]
+                                      + head["echo_timeouts"] + head["pings_in_flight"])
 
 
 def test_run_failed_carries_the_summary(echoloop_launch: Any) -> None:
