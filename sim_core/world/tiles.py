@@ -6,13 +6,17 @@ tiles. ``leaves_near(point, r)`` therefore visits every tile within ``r`` plus t
 reach of ``point``. Tile content is a pure function of (spec, seed, tile) — candidates are drawn
 per cell from their own streams and the minimum-distance merge is resolved locally and exactly —
 so building a region tile by tile gives the same trees and leaves as a one-shot build of it.
-Built tiles sit in an LRU cache bounded in bytes (leaf arrays + their k-d trees).
+Built tiles sit in an LRU cache bounded in bytes (leaf arrays + their k-d trees). A tile missing
+from the cache comes from ``source`` (default :meth:`TiledForest.build`): a runner may put a store
+shared between processes in front of the build (``hil_bridge.shared_tiles``); ``sim_core`` itself
+never does I/O. Tiles outside a bounded forest's domain own no trees and are never visited.
 """
 
 from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,18 +26,32 @@ from sim_core.world.forest import Forest, ForestEngine, ForestSpec
 from sim_core.world.ipp import Box
 from sim_core.world.leaves import Leaves
 
-__all__ = ["TiledForest"]
+__all__ = ["Tile", "TileKey", "TileSource", "TiledForest"]
 
 #: bytes charged per cached tile on top of its arrays (Python objects, tree rows)
 TILE_OVERHEAD_BYTES = 1024
 
 
+TileKey = tuple[int, int]
+
+
 @dataclass(frozen=True, eq=False)
-class _Tile:
+class Tile:
+    """The trees a tile owns: their ``leaves`` (tree ids local to the tile, in tree order) and
+    one row per tree: ``tree_xy`` (T, 2) m, ``tree_species`` (T,) names, ``tree_height`` (T,) m."""
+
     leaves: Leaves
     tree_xy: NDArray[np.float64]
     tree_species: NDArray[np.str_]
     tree_height: NDArray[np.float64]
+
+    @property
+    def n_trees(self) -> int:
+        return int(self.tree_xy.shape[0])
+
+
+#: where a tile missing from the cache comes from: ``source(tile) -> Tile``
+TileSource = Callable[[TileKey], Tile]
 
 
 class TiledForest:
@@ -45,6 +63,8 @@ class TiledForest:
         tile_size_m: tile side, metres.
         max_cache_bytes: LRU bound on the bytes of cached tiles (a single query may still touch
             more; the tiles it needs are built, used and then evicted oldest-first).
+        source: gives a tile missing from the cache (default :meth:`build`); it must return
+            exactly what :meth:`build` would.
     """
 
     def __init__(
@@ -54,6 +74,7 @@ class TiledForest:
         seed: int,
         tile_size_m: float = 50.0,
         max_cache_bytes: int = 256 * 1024 * 1024,
+        source: TileSource | None = None,
     ) -> None:
         if not (math.isfinite(tile_size_m) and tile_size_m > 0):
             raise ValueError(f"tile_size_m must be > 0, got {tile_size_m}")
@@ -63,8 +84,13 @@ class TiledForest:
         self.tile_size_m = float(tile_size_m)
         self.max_cache_bytes = int(max_cache_bytes)
         self.reach_m = self.engine.crown_bound()
-        self._cache: OrderedDict[tuple[int, int], _Tile] = OrderedDict()
-        self._bytes: dict[tuple[int, int], int] = {}
+        self.source: TileSource = self.build if source is None else source
+        dom = spec.domain
+        self._range = None if dom is None else (*self.tile_of(dom[0], dom[1]),
+                                                *self.tile_of(dom[2], dom[3]))
+        self._cache: OrderedDict[TileKey, Tile] = OrderedDict()
+        self._bytes: dict[TileKey, int] = {}
+        self._total = 0
         self.tiles_built = 0
         self.cache_hits = 0
         self.evictions = 0
@@ -79,7 +105,8 @@ class TiledForest:
         i, j = tile
         return (i * s, j * s, (i + 1) * s, (j + 1) * s)
 
-    def _build(self, tile: tuple[int, int]) -> _Tile:
+    def build(self, tile: TileKey) -> Tile:
+        """Tile ``tile`` built afresh (not cached): a pure function of (spec, seed, tile)."""
         cands = self.engine.kept_in(self.tile_box(tile))
         forest = self.engine.assemble(cands)
         for k in range(forest.n_trees):
@@ -95,42 +122,63 @@ class TiledForest:
                     "raise forest.max_crown_radius_m"
                 )
         self.tiles_built += 1
-        return _Tile(forest.leaves, forest.tree_xy, forest.tree_species, forest.tree_height)
+        return Tile(forest.leaves, forest.tree_xy, forest.tree_species, forest.tree_height)
 
-    def tile(self, tile: tuple[int, int]) -> Leaves:
+    def tile(self, tile: TileKey) -> Leaves:
         """Leaves of the trees owned by ``tile`` (tree ids local to the tile), cached."""
         return self._get(tile).leaves
 
-    def _get(self, tile: tuple[int, int]) -> _Tile:
+    def ensure(self, tile: TileKey) -> Tile:
+        """Tile ``tile`` cached with its k-d tree built (so a later query pays neither)."""
+        got = self._get(tile)
+        if len(got.leaves):
+            _ = got.leaves.kdtree  # built on first access
+        self._account(tile, got)
+        self._evict()
+        return got
+
+    def forget(self, tile: TileKey) -> None:
+        """Drop ``tile`` from the cache (it is fetched from ``source`` again when needed)."""
+        if self._cache.pop(tile, None) is not None:
+            self._total -= self._bytes.pop(tile)
+
+    def _get(self, tile: TileKey) -> Tile:
         hit = self._cache.get(tile)
         if hit is not None:
             self._cache.move_to_end(tile)
             self.cache_hits += 1
             return hit
-        built = self._build(tile)
-        self._cache[tile] = built
-        self._bytes[tile] = built.leaves.nbytes + TILE_OVERHEAD_BYTES
+        got = self.source(tile)
+        self._cache[tile] = got
+        self._account(tile, got)
         self._evict()
-        return built
+        return got
+
+    def _account(self, tile: TileKey, got: Tile) -> None:
+        if tile in self._cache:
+            new = got.leaves.nbytes + TILE_OVERHEAD_BYTES
+            self._total += new - self._bytes.get(tile, 0)
+            self._bytes[tile] = new
 
     def _evict(self) -> None:
-        while self._cache and self.cache_bytes > self.max_cache_bytes:
+        while self._cache and self._total > self.max_cache_bytes:
             old, _ = self._cache.popitem(last=False)
-            del self._bytes[old]
+            self._total -= self._bytes.pop(old)
             self.evictions += 1
 
     @property
     def cache_bytes(self) -> int:
         """Bytes held by the cached tiles (leaf arrays, built k-d trees, a fixed overhead)."""
-        return sum(self._bytes.values())
+        return self._total
 
     @property
-    def cached_tiles(self) -> list[tuple[int, int]]:
+    def cached_tiles(self) -> list[TileKey]:
         return list(self._cache)
 
     # --- queries ------------------------------------------------------------------------------
-    def tiles_near(self, point: ArrayLike, radius_m: float) -> list[tuple[int, int]]:
-        """Tiles that may hold leaves within ``radius_m`` of ``point`` (crown reach included)."""
+    def tiles_near(self, point: ArrayLike, radius_m: float) -> list[TileKey]:
+        """Tiles that may hold leaves within ``radius_m`` of ``point`` (crown reach included;
+        tiles outside a bounded domain own no tree and are left out)."""
         p = np.asarray(point, dtype=np.float64)
         if p.shape != (3,) or not np.all(np.isfinite(p)):
             raise ValueError(f"point must be a finite (3,) array, got {p.tolist()}")
@@ -139,6 +187,9 @@ class TiledForest:
         reach = radius_m + self.reach_m
         i0, j0 = self.tile_of(p[0] - reach, p[1] - reach)
         i1, j1 = self.tile_of(p[0] + reach, p[1] + reach)
+        if self._range is not None:
+            i0, j0 = max(i0, self._range[0]), max(j0, self._range[1])
+            i1, j1 = min(i1, self._range[2]), min(j1, self._range[3])
         out = []
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
@@ -160,8 +211,7 @@ class TiledForest:
         for t in self.tiles_near(p, radius_m):
             tile = self._get(t)
             idx = tile.leaves.query_ball(p, radius_m)
-            if t in self._cache:  # the k-d tree now exists; a tile evicted on arrival stays out
-                self._bytes[t] = tile.leaves.nbytes + TILE_OVERHEAD_BYTES
+            self._account(t, tile)  # the k-d tree now exists; a tile evicted on arrival stays out
             if idx.size:
                 sub = tile.leaves.select(idx)
                 parts.append(Leaves(sub.centers, sub.normals, sub.radii, sub.tree_id + offset))
@@ -169,7 +219,7 @@ class TiledForest:
         self._evict()
         return Leaves.concat(parts)
 
-    def trees_in_tiles(self, tiles: list[tuple[int, int]]) -> Forest:
+    def trees_in_tiles(self, tiles: list[TileKey]) -> Forest:
         """The trees owned by ``tiles`` assembled tile by tile (through the cache)."""
         xy, sp, hs, parts = [], [], [], []
         offset = 0

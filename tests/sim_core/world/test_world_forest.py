@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -235,6 +236,27 @@ def test_tiled_cache_is_bounded_and_unbounded_worlds_work() -> None:
     assert world.tile((3, -4)) == again.tile((3, -4))
     with pytest.raises(ValueError, match="only be built by tiles"):
         build_forest(spec, seed=1)
+
+
+def test_a_bounded_forest_visits_only_its_own_tiles_and_a_source_stands_in_for_build() -> None:
+    built: list[tuple[int, int]] = []
+    world = TiledForest(SMALL, seed=6, tile_size_m=20.0, max_cache_bytes=1 << 30)
+
+    def source(tile: tuple[int, int]) -> Any:
+        built.append(tile)
+        return world.build(tile)
+
+    world.source = source
+    # a 5 km query around the domain (60 x 60 m, tiles 0..3 with the upper edge) touches 16 tiles
+    near = world.leaves_near(np.array([30.0, 30.0, 2.0]), 5000.0)
+    assert sorted(built) == [(i, j) for i in range(4) for j in range(4)]
+    assert len(near) == len(build_forest(SMALL, seed=6).leaves)
+    assert world.cache_bytes == sum(world.tile(t).nbytes + 1024 for t in world.cached_tiles)
+    world.forget((1, 1))
+    assert (1, 1) not in world.cached_tiles
+    assert world.cache_bytes == sum(world.tile(t).nbytes + 1024 for t in world.cached_tiles)
+    tile = world.ensure((1, 1))  # fetched again, its k-d tree built with it
+    assert built.count((1, 1)) == 2 and tile.leaves.nbytes > 60 * len(tile.leaves)
 
 
 def test_tiled_reach_check_fails_clearly() -> None:
