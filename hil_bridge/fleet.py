@@ -16,7 +16,8 @@ server passes those held when the tick starts, so a command received before tick
 in the state of tick k). :meth:`Fleet.states` gives the state and attitude of every vehicle
 and records the poses of the vehicles listed in ``history_ids`` (those carrying a sonar) in a
 short history that :meth:`Fleet.pose_at` interpolates, for pings emitted between ticks.
-Only :meth:`pose_at` may be called from another thread than the one stepping the fleet.
+Only :meth:`pose_at` and :meth:`latest` may be called from another thread than the one stepping
+the fleet.
 """
 
 from __future__ import annotations
@@ -33,7 +34,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim_core.config import ConfigError
-from sim_core.flight import BANK, HEADING, SPEED, FlightModel, FlightOutputs, X, Y, Z, path_state
+from sim_core.flight import (
+    BANK,
+    HEADING,
+    SPEED,
+    FlightModel,
+    FlightOutputs,
+    X,
+    Y,
+    Z,
+    path_state,
+    path_states,
+)
 from sim_core.pose import pose_interpolate
 from sim_core.scene import Scene
 
@@ -218,21 +230,31 @@ class Fleet:
             y = self._vy
             out = self._vmodel.outputs(y, self._vcmd, self._updraft(y[X : Y + 1]))
             flown = self._flown_part(y, out, ~self._vgrounded, self.tick)
-        for vid in self.vehicle_ids:
-            i = self._cindex.get(vid)
-            if i is not None and self._vflown[i]:
-                parts.append({k: v[i : i + 1] for k, v in flown.items()})
-                continue
-            ps = path_state(self._traj[vid], self.t_ns / 1e9)
+        on_path = [vid for vid in self.vehicle_ids
+                   if vid not in self._cindex or not self._vflown[self._cindex[vid]]]
+        blocks: list[tuple[list[int], dict[str, Any]]] = []
+        if on_path:
+            ps = path_states([self._traj[vid] for vid in on_path], self.t_ns / 1e9)
             o = ps.outputs
-            parts.append({
-                "position": ps.position[None], "velocity": ps.velocity[None],
-                "heading": np.array([ps.heading]), "bank": np.array([ps.bank]),
-                "airspeed": np.array([ps.airspeed]), "vz": np.array([float(o.vz)]),
-                "roll": np.array([float(o.roll)]), "pitch": np.array([float(o.pitch)]),
-                "yaw": np.array([float(o.yaw)]), "quat": o.quat[None], "rates": o.rates[None],
-                "alive": np.array([True]), "step": np.array([self.tick], dtype=np.int64),
-            })
+            blocks.append((on_path, {
+                "position": ps.position, "velocity": ps.velocity, "heading": ps.heading,
+                "bank": ps.bank, "airspeed": ps.airspeed, "vz": o.vz, "roll": o.roll,
+                "pitch": o.pitch, "yaw": o.yaw, "quat": o.quat, "rates": o.rates,
+                "alive": np.ones(len(on_path), dtype=bool),
+                "step": np.full(len(on_path), self.tick, dtype=np.int64),
+            }))
+        taken = [vid for vid in self.vehicle_ids if vid not in set(on_path)]
+        if taken:
+            rows = [self._cindex[vid] for vid in taken]
+            blocks.append((taken, {k: v[rows] for k, v in flown.items()}))
+        if blocks:  # the vehicles in id order
+            at = {vid: k for k, vid in enumerate(self.vehicle_ids)}
+            block: dict[str, Any] = {}
+            for key, first in blocks[0][1].items():
+                block[key] = np.empty((len(at), *first.shape[1:]), dtype=first.dtype)
+                for vids, arrays in blocks:
+                    block[key][[at[v] for v in vids]] = arrays[key]
+            parts.append(block)
         merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
         st = FleetStates(t_ns=self.t_ns, ids=self.ids, **merged) if parts else _empty(self.t_ns)
         self._record(st)
@@ -263,6 +285,16 @@ class Fleet:
                     hist.pop()  # the same tick again: the newer computation replaces it
                 hist.append((st.t_ns, st.position[k].copy(), st.velocity[k].copy(),
                              st.quat[k].copy()))
+
+    def latest(self, vid: int) -> tuple[int, F8, F8] | None:
+        """Vehicle ``vid``'s newest recorded ``(t_ns, position (3,), velocity (3,))`` (one of
+        ``history_ids``), or None before its first state."""
+        with self._hlock:
+            hist = self._history[vid]
+            if not hist:
+                return None
+            t, p, v, _ = hist[-1]
+        return t, p, v
 
     def pose_at(self, vid: int, t_ns: int) -> VehiclePose:
         """Vehicle ``vid``'s pose at ``t_ns`` (one of ``history_ids``): interpolated between

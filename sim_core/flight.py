@@ -66,10 +66,14 @@ __all__ = [
     "FlightModel",
     "FlightOutputs",
     "FlightParams",
+    "PathState",
+    "PathStates",
     "Updraft",
     "X",
     "Y",
     "Z",
+    "path_state",
+    "path_states",
 ]
 
 F8 = NDArray[np.float64]
@@ -335,32 +339,60 @@ class PathState:
     outputs: FlightOutputs
 
 
-def path_state(traj: Trajectory, t: float, dt: float = 1e-3) -> PathState:
-    """The state of a vehicle flying ``traj`` at time ``t`` s. Its attitude is the
+@dataclass(frozen=True, slots=True)
+class PathStates:
+    """V vehicles on their kinematic paths at one instant: ``position``, ``velocity`` (V, 3)
+    m, m/s, ``heading``, ``bank``, ``airspeed`` (V,) and the implied :class:`FlightOutputs`
+    (arrays (V,), ``quat`` (V, 4), ``rates`` (V, 3))."""
+
+    position: F8
+    velocity: F8
+    heading: F8
+    bank: F8
+    airspeed: F8
+    outputs: FlightOutputs
+
+
+def path_states(trajs: Sequence[Trajectory], t: float, dt: float = 1e-3) -> PathStates:
+    """The states of vehicles flying ``trajs`` at time ``t`` s. A vehicle's attitude is its
     trajectory's own when it carries one (a logged attitude, :meth:`Trajectory.attitude`),
-    otherwise the one the path implies: yaw = its heading, roll = −bank (the trajectory's bank;
-    for a timed geometric path the coordinated-turn bank), pitch = −asin(vz / speed) (the climb
-    of the path; 0 when level). Velocity, turn rate and body rates are central differences over
-    ``dt`` s."""
+    otherwise the one its path implies: yaw = its heading, roll = −bank (the trajectory's
+    bank; for a timed geometric path the coordinated-turn bank), pitch = −asin(vz / speed)
+    (the climb of the path; 0 when level). Velocity, turn rate and body rates are central
+    differences over ``dt`` s."""
+    from sim_core.scene import sample_paths
+
     times = np.array([t - dt / 2, t, t + dt / 2])
-    s = traj.sample(times)
-    xyz = np.stack([s["x"], s["y"], s["z"]], axis=-1)
+    s = sample_paths(trajs, np.broadcast_to(times, (len(trajs), 3)))
+    xyz = np.stack([s["x"], s["y"], s["z"]], axis=-1)  # (V, 3 times, 3)
     speed, vz = s["airspeed"], s["vz"]
-    logged = traj.attitude(times)
-    if logged is None:
-        pitch = -np.arctan2(vz, np.sqrt(np.maximum(speed * speed - vz * vz, 0.0)))
-        roll, yaw = -s["bank"], s["heading"]
-        quat = quat_from_euler(roll, pitch, yaw)
-    else:
-        quat = logged
-        roll, pitch, yaw = euler_from_quat(quat)
-    rates = body_rates_from_quats(quat[0], quat[2], dt)
-    omega = float(_wrap(np.asarray(s["heading"][2] - s["heading"][0]))) / dt
+    pitch = -np.arctan2(vz, np.sqrt(np.maximum(speed * speed - vz * vz, 0.0)))
+    roll, yaw = -s["bank"], s["heading"].copy()
+    quat = quat_from_euler(roll, pitch, yaw)
+    for v, traj in enumerate(trajs):
+        logged = traj.attitude(times)
+        if logged is not None:
+            quat[v] = logged
+            roll[v], pitch[v], yaw[v] = euler_from_quat(logged)
+    rates = body_rates_from_quats(quat[:, 0], quat[:, 2], dt)
+    omega = _wrap(s["heading"][:, 2] - s["heading"][:, 0]) / dt
     out = FlightOutputs(
-        vz=np.asarray(vz[1]), omega=np.asarray(omega), roll=np.asarray(roll[1]),
-        pitch=np.asarray(pitch[1]), yaw=np.asarray(yaw[1]), quat=quat[1], rates=rates,
+        vz=vz[:, 1], omega=omega, roll=roll[:, 1], pitch=pitch[:, 1], yaw=yaw[:, 1],
+        quat=quat[:, 1], rates=rates,
     )
+    return PathStates(
+        position=xyz[:, 1], velocity=(xyz[:, 2] - xyz[:, 0]) / dt, heading=s["heading"][:, 1],
+        bank=s["bank"][:, 1], airspeed=speed[:, 1], outputs=out,
+    )
+
+
+def path_state(traj: Trajectory, t: float, dt: float = 1e-3) -> PathState:
+    """The state of one vehicle flying ``traj`` at time ``t`` s (:func:`path_states`)."""
+    ps = path_states((traj,), t, dt)
+    o = ps.outputs
     return PathState(
-        position=xyz[1], velocity=(xyz[2] - xyz[0]) / dt, heading=float(s["heading"][1]),
-        bank=float(s["bank"][1]), airspeed=float(speed[1]), outputs=out,
+        position=ps.position[0], velocity=ps.velocity[0], heading=float(ps.heading[0]),
+        bank=float(ps.bank[0]), airspeed=float(ps.airspeed[0]),
+        outputs=FlightOutputs(vz=o.vz[0], omega=o.omega[0], roll=o.roll[0], pitch=o.pitch[0],
+                              yaw=o.yaw[0], quat=o.quat[0], rates=o.rates[0]),
     )

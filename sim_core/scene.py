@@ -49,14 +49,14 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from sim_core.config import ConfigError, from_dict, load_yaml
 from sim_core.flight import FlightParams
@@ -75,6 +75,7 @@ __all__ = [
     "TrajectoryReader",
     "VehicleSpec",
     "load_scene",
+    "sample_paths",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -120,7 +121,7 @@ class Trajectory:
     airspeed: FloatArray
     loop: bool = False
     quat: FloatArray | None = None
-    _heading_unwrapped: FloatArray = field(init=False, repr=False)
+    _table: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=np.float64)
@@ -145,7 +146,8 @@ class Trajectory:
         if not np.all(np.diff(t) > 0):
             bad = int(np.argmin(np.diff(t) > 0)) + 1
             raise ValueError(f"t: expected strictly increasing times, t[{bad}] = {t[bad]}")
-        object.__setattr__(self, "_heading_unwrapped", np.unwrap(arrays["heading"]))
+        object.__setattr__(self, "_table", np.column_stack([
+            arrays["xyz"], np.unwrap(arrays["heading"]), arrays["bank"], arrays["airspeed"]]))
 
     @property
     def duration(self) -> float:
@@ -161,22 +163,8 @@ class Trajectory:
         ``bank, airspeed`` and ``vz`` (m/s, the slope of z over the containing segment).
         """
         tq = np.asarray(t, dtype=np.float64)
-        if self.loop:
-            tq = self.t[0] + np.mod(tq - self.t[0], self.duration)
-        else:
-            tq = np.clip(tq, self.t[0], self.t[-1])
-        out = {
-            "x": np.interp(tq, self.t, self.xyz[:, 0]),
-            "y": np.interp(tq, self.t, self.xyz[:, 1]),
-            "z": np.interp(tq, self.t, self.xyz[:, 2]),
-            "heading": _wrap_pi(np.interp(tq, self.t, self._heading_unwrapped)),
-            "bank": np.interp(tq, self.t, self.bank),
-            "airspeed": np.interp(tq, self.t, self.airspeed),
-        }
-        seg = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self) - 2)
-        dz = self.xyz[seg + 1, 2] - self.xyz[seg, 2]
-        out["vz"] = np.asarray(dz / (self.t[seg + 1] - self.t[seg]), dtype=np.float64)
-        return out
+        out = sample_paths((self,), tq.reshape(1, -1))
+        return {k: v.reshape(tq.shape) for k, v in out.items()}
 
     def attitude(self, t: float | FloatArray) -> FloatArray | None:
         """Logged attitude at time(s) ``t``: shape ``t.shape + (4,)``, spherical interpolation
@@ -226,6 +214,35 @@ class Trajectory:
         rate = np.gradient(np.unwrap(hdg), t)
         bank = np.arctan(speed_mps * rate / 9.81)
         return cls(t, p, hdg, bank, np.full(t.shape, float(speed_mps)), loop=loop)
+
+
+def sample_paths(trajs: Sequence[Trajectory], t: ArrayLike) -> dict[str, FloatArray]:
+    """Trajectory ``trajs[v]`` at its own times ``t[v]`` (shape (V, Q), s), all at once: the
+    interpolation of :meth:`Trajectory.sample` (``np.interp``'s, value for value), arrays
+    (V, Q) ``x, y, z, heading, bank, airspeed, vz``."""
+    tq = np.asarray(t, dtype=np.float64)
+    if tq.ndim != 2 or tq.shape[0] != len(trajs):
+        raise ValueError(f"t: expected shape ({len(trajs)}, Q), got {tq.shape}")
+    lo, hi, t0, t1, tv = [], [], [], [], []
+    for traj, times in zip(trajs, tq, strict=True):
+        if traj.loop:
+            times = traj.t[0] + np.mod(times - traj.t[0], traj.duration)
+        else:
+            times = np.clip(times, traj.t[0], traj.t[-1])
+        j = np.clip(np.searchsorted(traj.t, times, side="right") - 1, 0, len(traj) - 2)
+        lo.append(traj._table[j])
+        hi.append(traj._table[j + 1])
+        t0.append(traj.t[j])
+        t1.append(traj.t[j + 1])
+        tv.append(times)
+    a, b = np.stack(lo), np.stack(hi)  # (V, Q, 6)
+    ta, tb, x = np.stack(t0), np.stack(t1), np.stack(tv)
+    slope = (b - a) / (tb - ta)[..., None]
+    val = np.where((x == tb)[..., None], b, slope * (x - ta)[..., None] + a)
+    return {
+        "x": val[..., 0], "y": val[..., 1], "z": val[..., 2], "heading": _wrap_pi(val[..., 3]),
+        "bank": val[..., 4], "airspeed": val[..., 5], "vz": slope[..., 2],
+    }
 
 
 def _densify(points: FloatArray, max_step_m: float) -> FloatArray:

@@ -204,3 +204,28 @@ def test_a_path_flies_the_attitude_it_implies_or_the_one_it_logged() -> None:
     assert float(lp.outputs.roll) == pytest.approx(0.2, abs=1e-9)
     assert float(lp.outputs.pitch) == pytest.approx(-0.1, abs=1e-9)
     assert lp.position.tolist() == ps.position.tolist()
+
+
+def test_vehicles_on_paths_at_once_are_each_vehicle_alone() -> None:
+    from sim_core.flight import path_state, path_states
+    from sim_core.scene import Trajectory
+
+    a = np.linspace(0.0, 2 * np.pi, 181)
+    circle = Trajectory.from_path(np.stack([5 * np.cos(a), 5 * np.sin(a), 2 + 0.1 * a], axis=1),
+                                  None, speed_mps=3.0)
+    line = Trajectory(np.array([0.0, 4.0]), np.array([[0.0, 0, 1], [8.0, 0, 3]]),
+                      np.zeros(2), np.zeros(2), np.full(2, 2.0), loop=False)
+    logged = Trajectory(circle.t, circle.xyz, circle.heading, circle.bank, circle.airspeed,
+                        quat=quat_from_euler(0.2, -0.1, np.linspace(0.0, 1.0, len(circle))))
+    trajs = [circle, line, logged]
+    for t in (0.0, 1.37, 3.999, 50.0):
+        many = path_states(trajs, t)
+        for v, traj in enumerate(trajs):
+            one = path_state(traj, t)
+            np.testing.assert_array_equal(many.position[v], one.position)
+            np.testing.assert_array_equal(many.velocity[v], one.velocity)
+            assert (many.heading[v], many.bank[v], many.airspeed[v]) == (
+                one.heading, one.bank, one.airspeed)
+            for field in ("vz", "omega", "roll", "pitch", "yaw", "quat", "rates"):
+                np.testing.assert_array_equal(getattr(many.outputs, field)[v],
+                                              getattr(one.outputs, field))

@@ -177,3 +177,30 @@ def test_a_scene_reads_logged_paths_only_through_its_reader(tmp_path: Path) -> N
         load_scene(spec)
     scene = load_scene(spec, trajectory_reader=load_trajectory)
     assert float(scene.trajectories[3].sample(1.0)["x"]) == pytest.approx(10.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(2, 40), st.booleans(), st.integers(0, 2**31 - 1))
+def test_sampling_many_paths_at_once_is_np_interp_value_for_value(
+    k: int, loop: bool, seed: int
+) -> None:
+    from sim_core.scene import sample_paths
+
+    rng = np.random.default_rng(seed)
+    trajs = []
+    for _ in range(3):
+        t = np.cumsum(rng.uniform(0.01, 3.0, k)) + rng.uniform(-5.0, 5.0)
+        trajs.append(Trajectory(t, rng.normal(size=(k, 3)) * 1e3, rng.uniform(-3, 3, k),
+                                rng.normal(size=k), rng.uniform(1.0, 20.0, k), loop=loop))
+    times = np.stack([np.concatenate([rng.uniform(tr.t[0] - 9, tr.t[-1] + 9, 20), tr.t])
+                      for tr in trajs])
+    got = sample_paths(trajs, times)
+    for v, tr in enumerate(trajs):
+        tq = (tr.t[0] + np.mod(times[v] - tr.t[0], tr.duration) if loop
+              else np.clip(times[v], tr.t[0], tr.t[-1]))
+        for key, col in (("x", tr.xyz[:, 0]), ("y", tr.xyz[:, 1]), ("z", tr.xyz[:, 2]),
+                         ("bank", tr.bank), ("airspeed", tr.airspeed)):
+            np.testing.assert_array_equal(got[key][v], np.interp(tq, tr.t, col))
+        single = tr.sample(times[v])
+        for key, value in single.items():
+            np.testing.assert_array_equal(got[key][v], value)
