@@ -35,6 +35,7 @@ __all__ = [
     "Scene",
     "assemble",
     "leaf_weights",
+    "precull_half_angle",
     "prepare",
     "window_at",
 ]
@@ -313,6 +314,13 @@ class LeafBudget:
     def synthesised(self, examined: int, found: int, tested: int) -> int:
         """Leaves that can be synthesised after testing ``tested`` of ``found`` candidates."""
         return max(0, int(self._left(examined, found, tested) / self.per_leaf_s))
+
+
+def precull_half_angle(beam: Beam, params: EchoParams) -> float:
+    """Half-angle (rad) of the cone outside which the pre-cull rejects every leaf of ``beam``
+    (no kept leaf is further off axis); pi when the pre-cull has no cone."""
+    sel = _Selection.of(beam, params)
+    return math.acos(min(1.0, sel.cos_reach + 1e-12)) if sel.cone else math.pi
 
 
 @dataclass(frozen=True, slots=True)
