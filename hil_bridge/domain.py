@@ -8,6 +8,7 @@ Domain ``N`` (0 <= N <= :data:`MAX_DOMAIN`) owns:
 bus (publish / subscribe)      ``tcp://127.0.0.1:{7400 + 10 N}`` / port ``7401 + 10 N``
 live view (Foxglove)           ``ws://127.0.0.1:{8765 + 10 N}``
 pty links, temporary files     ``{runtime}/{N}/`` (e.g. ``{runtime}/{N}/sonar0``)
+files shared in memory         ``{shared}/d{N}/{tag}-{pid}-{random}/`` (:meth:`Domain.shared_dir`)
 python-can virtual channels    ``{name}.d{N}`` (e.g. ``glider.d0``)
 =============================  ==========================================================
 
@@ -15,7 +16,8 @@ so domain 0 keeps the defaults of ``docs/spec/protocols.md`` (7400/7401) and Fox
 and the sets of two domains are disjoint (bus ports stay below 8765 for every domain).
 ``{runtime}`` is private to the user: ``$XDG_RUNTIME_DIR/echoloop`` when that directory is
 usable, else ``{tempdir}/echoloop-{uid}``, created with mode 0700 and refused when another
-user owns it.
+user owns it; ``{shared}`` is ``/dev/shm/echoloop-{uid}`` (RAM) where there is one, else
+``{runtime}/shm``, and a private domain's files go under its token there.
 
 A *private* domain (:meth:`Domain.private`, used by the ``echoloop_launch`` pytest fixture) has
 no number: an in-process ``mem://`` bus, channel names and a directory of its own, and an
@@ -69,6 +71,7 @@ __all__ = [
     "parse_domain",
     "resolve",
     "runtime_root",
+    "shared_root",
     "use",
 ]
 
@@ -101,6 +104,17 @@ def runtime_root() -> Path:
         root = Path(tempfile.gettempdir()) / f"echoloop-{uid}"
     _private_dir(root)
     return root
+
+
+def shared_root() -> Path:
+    """This user's directory for files the processes of a run share in memory (created, mode
+    0700, checked as :func:`runtime_root`): ``/dev/shm/echoloop-{uid}`` where ``/dev/shm`` is a
+    writable directory (a RAM file system on Linux), else ``{runtime_root()}/shm``."""
+    shm = Path("/dev/shm")
+    if shm.is_dir() and os.access(shm, os.W_OK | os.X_OK):
+        uid = os.getuid() if hasattr(os, "getuid") else 0
+        return _private_dir(shm / f"echoloop-{uid}")
+    return _private_dir(runtime_root() / "shm")
 
 
 def _private_dir(path: Path) -> Path:
@@ -193,6 +207,21 @@ class Domain:
         if not name or "/" in name or name in (".", ".."):
             raise ValueError(f"name: expected a plain file name, got {name!r}")
         return self.dir() / name
+
+    def shared_dir(self, tag: str) -> Path:
+        """A fresh directory for files this process shares in memory with its children (e.g.
+        the echo workers' forest tiles): ``{shared_root()}/{token}/{tag}-{pid}-{random}``,
+        mode 0700. The caller removes it (``hil_bridge.shared_tiles``)."""
+        if not tag or "/" in tag or "-" in tag:
+            raise ValueError(f"tag: expected a plain name without '-', got {tag!r}")
+        name = f"{tag}-{os.getpid()}-{secrets.token_hex(4)}"
+        try:
+            where = _private_dir(shared_root() / self.token) / name
+            where.mkdir(mode=0o700)
+        except FileNotFoundError:  # another run just removed the emptied domain directory
+            where = _private_dir(shared_root() / self.token) / name
+            where.mkdir(mode=0o700)
+        return where
 
     def can_channel(self, name: str = "glider") -> str:
         """The python-can ``virtual`` channel called ``name`` in this domain."""
