@@ -1,5 +1,5 @@
 """The echo service of the simulation server: a ping and its sonar's pose at emission in, an echo
-out.
+out, on a thread or a pool of processes, within the ping's deadline.
 
 :func:`compute_echo` is the whole computation (a pure function of the scene): the ping's beam at
 the sonar's world pose (:func:`sim_core.sonar.mount.ping_beam`: az/el in the sonar frame, so
@@ -8,15 +8,35 @@ around the sonar and :func:`sim_core.sonar.synthesize`.
 
 :class:`EchoService` runs it off the server's tick loop. :meth:`EchoService.submit` takes an
 :class:`EchoRequest` (the ping, the sonar's :class:`SonarPose` at the ping's emission, its
-arrival time) into a bounded queue (``queue_size``; when full the oldest waiting request is
-dropped, counted and handed to ``on_drop(request)``) and returns at once; one worker answers
-requests in order and hands each result to ``on_echo(request, result)`` (``on_error(request,
-message)`` when the scene refuses it). The worker is a thread of the server process
-(``worker="thread"``: the synthesis and k-d tree queries release the GIL in their heavy
-numpy/finufft calls) or a spawned process with its own copy of the scene and tile cache
-(``"process"``, for scenes whose tile building or fidelity holds the GIL for long; the launching
-script must then be import-safe). Requests and results are plain data, so another scheduler (a
-pool, deadlines) can replace the worker behind the same ``submit`` / ``on_echo`` interface.
+arrival time and its *deadline*) and returns at once; a scheduler thread hands each request to
+an idle worker, earliest deadline first, and gives the result to ``on_echo(request, result)``
+(``on_error(request, message)`` when the scene refuses it). Workers (``worker=``):
+
+- ``"thread"``: the scheduler thread computes in the server process (the synthesis and k-d
+  tree queries release the GIL in their heavy numpy/finufft calls; tile building does not);
+- ``"pool"``: ``workers`` spawned processes (default: one per usable core), each with its own
+  copy of the scene, sharing the forest's tiles through shared memory
+  (:mod:`hil_bridge.shared_tiles`), at a lower CPU priority than the server's tick loop
+  (:mod:`hil_bridge.echo_pool`); ``"process"`` is a pool of one. The launching script must be
+  import-safe.
+
+**Deadlines.** A request's deadline (``time.monotonic()``) is when its sonar's next ping is due:
+given by the server for heads that ping on sim time, otherwise estimated here from the median
+interval of the sonar's last pings (none for its first ones); ``deadlines=False`` (lockstep,
+fast) gives none. A ping whose echo cannot be ready by then is not queued: a newer ping of the
+same sonar replaces a waiting one, a request whose time is up is dropped before it starts, and
+the worker, once it knows the leaves in range, predicts the scene fidelity's time with the cost
+model (:data:`sim_core.sonar.cost.COST`, scaled by its measured ratio): if it does not fit, the
+echo is *degraded* to ``realtime`` with the time left as its budget (its ``error_bound`` says
+what that cost), or dropped when not even that fits. Every case is counted (:meth:`stats`).
+Without a deadline requests wait in arrival order, at most ``queue_size`` per sonar (its
+oldest dropped).
+
+**Ahead of the pings.** Every :data:`LOOKAHEAD_S` the scheduler asks ``lookahead()`` for the
+regions the sonars will reach (the server's prediction along each vehicle's motion) and has
+idle workers build those tiles, so a ping seldom waits for a tile. ``points=(regions, limit)``
+asks for the leaf points of :func:`compute_points` once, handed to ``on_points(centres,
+radii)``; both run at a lower priority than echoes.
 """
 
 from __future__ import annotations
@@ -24,14 +44,11 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import multiprocessing
-import os
-import queue
-import signal
+import statistics
 import threading
 import time
-from collections import deque
-from collections.abc import Callable
+from collections import OrderedDict, deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -41,12 +58,17 @@ from numpy.typing import NDArray
 from hil_bridge.errors import HilError
 from hil_bridge.messages import SonarPing
 from sim_core.scene import Scene
+from sim_core.sonar.cost import COST, EchoCost
 
 __all__ = [
+    "LOOKAHEAD_S",
+    "EchoJob",
     "EchoRequest",
     "EchoResult",
     "EchoService",
+    "Region",
     "SonarPose",
+    "answer_echo",
     "compute_echo",
     "compute_points",
 ]
@@ -54,6 +76,16 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 F8 = NDArray[np.float64]
+#: a ball of the world: (centre (x, y, z) m, radius m)
+Region = tuple[tuple[float, float, float], float]
+#: how often (wall s) the scheduler asks where the sonars are going
+LOOKAHEAD_S = 0.25
+#: tiles built for ``/forest/points`` at most (the route from its start)
+MAX_POINT_TILES = 64
+#: time kept free after an echo for publishing it (s)
+PUBLISH_MARGIN_S = 1e-3
+#: pings whose interval is remembered per sonar (for the deadline of the next one)
+PERIOD_WINDOW = 5
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,19 +100,38 @@ class SonarPose:
 
 @dataclass(frozen=True, slots=True)
 class EchoRequest:
-    """One ping to answer: its sonar, the ping, the sonar's pose at emission and the
-    ``time.monotonic()`` of its arrival (for the ping → echo latency)."""
+    """One ping to answer: its sonar, the ping, the sonar's pose at emission, the
+    ``time.monotonic()`` of its arrival (for the ping → echo latency) and the deadline by
+    which its echo is useful (``time.monotonic()``; None: estimated, or none)."""
 
     sonar_id: int
     ping: SonarPing
     pose: SonarPose
     received: float
+    deadline: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class EchoJob:
+    """What a worker computes (plain data): the echo of ``sonar_id`` pinging ``az``, ``el``,
+    ``beamwidth`` (rad, sonar frame) from ``position`` (3,) with ``orientation`` (4,), by
+    ``deadline`` (``time.monotonic()``, None: at the scene's fidelity whatever it takes)."""
+
+    sonar_id: int
+    position: F8
+    orientation: F8
+    az: float
+    el: float
+    beamwidth: float
+    deadline: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class EchoResult:
     """An echo: ``samples`` float32 (n,) or (channels, n) at ``fs`` Hz, what the synthesiser
-    reports, the beam's world ``boresight`` (3,) and the compute time, ns."""
+    reports, the beam's world ``boresight`` (3,), the compute time, ns, and the leaves that were
+    in range. ``degraded``: computed with ``realtime`` under a deadline's budget instead of the
+    scene's fidelity."""
 
     samples: NDArray[np.float32]
     fs: float
@@ -90,6 +141,8 @@ class EchoResult:
     error_bound: float
     boresight: F8
     compute_ns: int
+    in_range: int = 0
+    degraded: bool = False
 
 
 def compute_echo(
@@ -97,42 +150,126 @@ def compute_echo(
     beamwidth: float,
 ) -> EchoResult:
     """The echo of sonar ``sonar_id`` pinging at ``az``, ``el`` (rad, sonar frame) with
-    ``beamwidth`` (rad) from ``position`` (3,) m and world-from-sonar ``orientation`` (4,)."""
+    ``beamwidth`` (rad) from ``position`` (3,) m and world-from-sonar ``orientation`` (4,),
+    at the sonar's fidelity."""
+    result = answer_echo(scene, EchoJob(sonar_id, position, orientation, az, el, beamwidth))
+    if result is None:  # pragma: no cover - no deadline, never dropped
+        raise HilError("an echo without a deadline was dropped")
+    return result
+
+
+class DeadlinePlanner:
+    """Decides, for an echo with a deadline, between the scene's fidelity, ``realtime`` within
+    the time left, or nothing. Its prediction is the cost model (``fast``; a ``realtime``
+    sonar's own budget) times the ratio of measured to predicted times of this worker's last
+    32 echoes of that fidelity (machine speed and load, this scene's leaves; 1 until known)."""
+
+    def __init__(self, cost: EchoCost = COST) -> None:
+        self.cost = cost
+        self._ratios: dict[str, deque[float]] = {}
+
+    def scale(self, fidelity: str) -> float:
+        ratios = self._ratios.get(fidelity)
+        return float(statistics.median(ratios)) if ratios else 1.0
+
+    def budget_scale(self) -> float:
+        """Measured / planned time of ``realtime`` echoes (else of ``fast``: the same model)."""
+        for name in ("realtime", "fast"):
+            if self._ratios.get(name):
+                return self.scale(name)
+        return 1.0
+
+    def observe(self, fidelity: str, predicted_s: float, measured_s: float) -> None:
+        if predicted_s > 0 and measured_s > 0:
+            self._ratios.setdefault(fidelity, deque(maxlen=32)).append(measured_s / predicted_s)
+
+
+def answer_echo(
+    scene: Scene, job: EchoJob, planner: DeadlinePlanner | None = None
+) -> EchoResult | None:
+    """The echo of ``job`` (see :func:`compute_echo`), within its deadline: at the sonar's
+    fidelity if the predicted time fits, else degraded to ``realtime`` with the time left as
+    its budget, else None (the time is up). ValueError when the scene refuses the ping."""
     from sim_core.sonar import synthesize
+    from sim_core.sonar.model import precull_half_angle
     from sim_core.sonar.mount import ears_for_ping, ping_beam
 
     t0 = time.monotonic()
-    p = np.asarray(position, dtype=np.float64)
-    q = np.asarray(orientation, dtype=np.float64)
-    beam = ping_beam(p, q, az, el, beamwidth)
-    params = scene.echo_params(sonar_id)
-    sonar = scene.sonar(sonar_id)
+    if job.deadline is not None and t0 >= job.deadline - PUBLISH_MARGIN_S:
+        return None
+    p = np.asarray(job.position, dtype=np.float64)
+    q = np.asarray(job.orientation, dtype=np.float64)
+    beam = ping_beam(p, q, job.az, job.el, job.beamwidth)
+    params = scene.echo_params(job.sonar_id)
+    sonar = scene.sonar(job.sonar_id)
     if sonar.ears:
         ears = ears_for_ping(beam, q, [e.position_m for e in sonar.ears],
                              [e.axis for e in sonar.ears], [e.beamwidth_rad for e in sonar.ears])
         params = dataclasses.replace(params, ears=ears)
-    leaves = scene.leaves_near(p, scene.query_radius_m(sonar_id))
-    echo = synthesize(leaves, beam, params, fidelity=sonar.fidelity)
+    leaves = scene.leaves_near(p, scene.query_radius_m(job.sonar_id))
+    fidelity: str = sonar.fidelity
+    predicted = 0.0
+    if planner is not None:
+        predicted = (params.budget_s if fidelity == "realtime" else
+                     planner.cost.estimate(len(leaves), precull_half_angle(beam, params)))
+    if job.deadline is not None and planner is not None:
+        left = job.deadline - PUBLISH_MARGIN_S - time.monotonic()
+        if predicted * planner.scale(fidelity) > left:
+            scale = planner.budget_scale()
+            budget = left / scale
+            if budget <= planner.cost.overhead_s * params.channels:
+                return None
+            fidelity, predicted = "realtime", budget
+            params = dataclasses.replace(params, budget_s=budget)
+    t1 = time.monotonic()
+    echo = synthesize(leaves, beam, params, fidelity=fidelity)
+    t2 = time.monotonic()
+    degraded = fidelity != sonar.fidelity or params.budget_s != scene.echo_params(
+        job.sonar_id).budget_s
+    if planner is not None and predicted > 0:
+        planner.observe(fidelity, predicted, t2 - t1)
     bound = echo.error_bound
     return EchoResult(
         samples=np.asarray(echo.samples, dtype=np.float32), fs=float(echo.fs),
         leaves_in_beam=int(echo.leaves_in_beam), fidelity=str(echo.fidelity),
         dropped=int(echo.dropped), error_bound=math.nan if bound is None else float(bound),
         boresight=np.asarray(beam.boresight, dtype=np.float64),
-        compute_ns=int((time.monotonic() - t0) * 1e9),
+        compute_ns=int((t2 - t0) * 1e9), in_range=len(leaves), degraded=degraded,
     )
 
 
-def compute_points(
-    scene: Scene, regions: tuple[tuple[tuple[float, float, float], float], ...], limit: int
-) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Leaf centres (N, 3) and radii (N,) within the (centre, radius m) ``regions``, evenly
-    decimated to at most ``limit`` (what the server publishes on ``/forest/points``)."""
-    centers, radii = [], []
+def point_tiles(scene: Scene, regions: Sequence[Region]) -> list[tuple[int, int]]:
+    """Tiles of a tiled forest near ``regions``, in order, at most :data:`MAX_POINT_TILES`."""
+    forest = scene.forest_source
+    out: dict[tuple[int, int], None] = {}
     for center, r in regions:
-        leaves = scene.leaves_near(np.asarray(center, dtype=np.float64), r)
-        centers.append(np.asarray(leaves.centers, dtype=np.float32))
-        radii.append(np.asarray(leaves.radii, dtype=np.float32))
+        for t in forest.tiles_near(np.asarray(center, dtype=np.float64), r):
+            out.setdefault(t)
+            if len(out) >= MAX_POINT_TILES:
+                return list(out)
+    return list(out)
+
+
+def compute_points(
+    scene: Scene, regions: Sequence[Region], limit: int
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Leaf centres (N, 3) and radii (N,) around the (centre, radius m) ``regions`` (for a
+    tiled forest: every leaf of the tiles near them, at most :data:`MAX_POINT_TILES` tiles
+    taken in the order of the regions), evenly decimated to at most ``limit`` (what the server
+    publishes on ``/forest/points``)."""
+    centers, radii = [], []
+    if scene.spec.forest is not None and scene.spec.forest.tiled:
+        forest = scene.forest_source
+        for t in point_tiles(scene, regions):
+            leaves = forest.tile(t)
+            centers.append(np.asarray(leaves.centers, dtype=np.float32))
+            radii.append(np.asarray(leaves.radii, dtype=np.float32))
+    else:
+        src = scene.forest_source
+        idx = [src.query_ball(np.asarray(center, dtype=np.float64), r) for center, r in regions]
+        keep = np.unique(np.concatenate(idx)) if idx else np.zeros(0, dtype=np.intp)
+        centers.append(np.asarray(src.centers[keep], dtype=np.float32))
+        radii.append(np.asarray(src.radii[keep], dtype=np.float32))
     c = np.concatenate(centers) if centers else np.zeros((0, 3), np.float32)
     rr = np.concatenate(radii) if radii else np.zeros(0, np.float32)
     if len(c) > limit:
@@ -141,115 +278,76 @@ def compute_points(
     return c, rr
 
 
-_JOBS: dict[str, Callable[..., Any]] = {"echo": compute_echo, "points": compute_points}
+Points = tuple[tuple[Region, ...], int]
 
 
-def _process_main(spec: Any, requests: Any, responses: Any) -> None:
-    """Body of the worker process: its own Scene (and forest tile cache), one job at a time;
-    exits on ``None`` or when its parent is gone."""
-    from hil_bridge.logs import load_trajectory
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    parent = os.getppid()
-    scene = Scene(spec, trajectory_reader=load_trajectory)
-    while True:
-        try:
-            job = requests.get(timeout=1.0)
-        except queue.Empty:
-            if os.getppid() != parent:
-                return
-            continue
-        if job is None:
-            return
-        key, kind, args = job
-        try:
-            responses.put((key, _JOBS[kind](scene, *args), ""))
-        except ValueError as exc:
-            responses.put((key, None, str(exc)))
-
-
-class _WorkerProcess:
-    """A spawned process running jobs; ``call`` blocks until its result (None when closing,
-    ``HilError`` if the process died, ``ValueError`` for a job the scene refused)."""
-
-    def __init__(self, spec: Any, stop: threading.Event) -> None:
-        ctx = multiprocessing.get_context("spawn")
-        self._requests: Any = ctx.Queue()
-        self._responses: Any = ctx.Queue()
-        self._proc = ctx.Process(
-            target=_process_main, args=(spec, self._requests, self._responses),
-            name="echoloop-echo", daemon=True,
-        )
-        self._proc.start()
-        self._key = 0
-        self._closing = stop
-
-    def call(self, kind: str, args: tuple[Any, ...]) -> Any:
-        self._key += 1
-        self._requests.put((self._key, kind, args))
-        while not self._closing.is_set():
-            try:
-                key, result, error = self._responses.get(timeout=0.1)
-            except queue.Empty:
-                if not self._proc.is_alive():
-                    raise HilError(f"echo worker exited (code {self._proc.exitcode})") from None
-                continue
-            if key != self._key:
-                continue
-            if error:
-                raise ValueError(error)
-            return result
-        return None
-
-    def close(self) -> None:
-        if self._proc.is_alive():
-            self._requests.put(None)
-            self._proc.join(timeout=5.0)
-            if self._proc.is_alive():
-                self._proc.terminate()
-                self._proc.join()
-        self._requests.close()
-        self._responses.close()
-        self._requests.join_thread()
-        self._responses.join_thread()
-
-
-Points = tuple[tuple[tuple[tuple[float, float, float], float], ...], int]
+@dataclass(slots=True)
+class _Waiting:
+    request: EchoRequest
+    deadline: float | None
 
 
 class EchoService:
-    """Answers pings at given sonar poses on one worker (see the module docstring).
+    """Answers pings at given sonar poses on a thread or a process pool (module docstring).
 
-    ``EchoService(scene, *, worker="thread", queue_size=4, on_echo, on_error, on_drop=None,
-    points=None, on_points=None)``: ``points`` = (regions, limit) asks the worker, before the
-    first ping, for the leaf points of :func:`compute_points`, handed to ``on_points(centres,
-    radii)``. ``start()`` starts the worker; ``close()`` (idempotent) stops it.
+    ``EchoService(scene, *, worker="thread", workers=None, queue_size=4, deadlines=True,
+    on_echo, on_error, on_drop=None, points=None, on_points=None, lookahead=None,
+    domain=None, cost=COST)``: ``on_drop(request)`` for every ping dropped unanswered (full
+    queue or deadline); ``lookahead() -> regions`` the sonars will reach; ``domain`` names the
+    pool's shared memory (default: the current one); ``cost`` the cost model the deadlines
+    are planned with. ``start()`` starts the workers; ``close()``
+    (idempotent) stops them and removes their shared memory.
     """
 
     def __init__(
         self,
         scene: Scene,
         *,
-        worker: Literal["thread", "process"] = "thread",
+        worker: Literal["thread", "process", "pool"] = "thread",
+        workers: int | None = None,
         queue_size: int = 4,
+        deadlines: bool = True,
         on_echo: Callable[[EchoRequest, EchoResult], None],
         on_error: Callable[[EchoRequest, str], None],
         on_drop: Callable[[EchoRequest], None] | None = None,
         points: Points | None = None,
         on_points: Callable[[NDArray[np.float32], NDArray[np.float32]], None] | None = None,
+        lookahead: Callable[[], Sequence[Region]] | None = None,
+        domain: Any = None,
+        cost: EchoCost = COST,
     ) -> None:
+        from hil_bridge.echo_pool import usable_cores
+
         if queue_size < 1:
             raise ValueError(f"queue_size: expected >= 1, got {queue_size}")
+        if worker not in ("thread", "process", "pool"):
+            raise ValueError(f"worker: expected 'thread', 'process' or 'pool', got {worker!r}")
+        if workers is not None and workers < 1:
+            raise ValueError(f"workers: expected >= 1 or None (one per core), got {workers}")
         self.scene = scene
         self.worker = worker
-        self._queue: queue.Queue[EchoRequest] = queue.Queue(maxsize=queue_size)
+        self.n_workers = 0 if worker == "thread" else (
+            1 if worker == "process" else (workers or usable_cores()))
+        self.queue_size = queue_size
+        self.deadlines = deadlines
         self._on_echo, self._on_error, self._on_drop = on_echo, on_error, on_drop
         self._points, self._on_points = points, on_points
+        self._lookahead = lookahead
+        self._domain = domain
+        self.cost = cost
         self._stop = threading.Event()
+        self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
-        self._c = {"requests": 0, "dropped": 0, "answered": 0, "errors": 0}
+        self._waiting: list[_Waiting] = []
+        self._arrivals: dict[int, deque[float]] = {}
+        self._c = {"requests": 0, "dropped": 0, "answered": 0, "errors": 0, "expired": 0,
+                   "degraded": 0, "late": 0, "tiles_prefetched": 0}
         self._compute_ms: deque[float] = deque(maxlen=10000)
+        self._pool: Any = None
+        self._wanted: OrderedDict[tuple[int, int], None] = OrderedDict()
+
+    # ------------------------------------------------------------------ public
 
     def start(self) -> None:
         if self._thread is None:
@@ -258,86 +356,198 @@ class EchoService:
 
     def close(self) -> None:
         self._stop.set()
+        self._notify()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
 
     def submit(self, request: EchoRequest) -> bool:
-        """Queue ``request``; False when the queue was full and its oldest request was dropped
-        to make room (counted)."""
-        dropped = False
+        """Queue ``request``; False when a waiting request of its sonar was dropped for it (the
+        previous ping, whose deadline this one is, or the oldest of the sonar's full queue;
+        counted and handed to ``on_drop``)."""
+        deadline = request.deadline if self.deadlines else None
+        dropped: list[tuple[EchoRequest, str]] = []
         with self._lock:
             self._c["requests"] += 1
-        while True:
-            try:
-                self._queue.put_nowait(request)
-                return not dropped
-            except queue.Full:
-                try:
-                    oldest = self._queue.get_nowait()
-                except queue.Empty:
-                    continue
-                dropped = True
-                with self._lock:
-                    self._c["dropped"] += 1
-                if self._on_drop is not None:
-                    self._on_drop(oldest)
+            if self.deadlines and deadline is None:
+                deadline = self._estimate_deadline(request.sonar_id, request.received)
+            same = [w for w in self._waiting if w.request.sonar_id == request.sonar_id]
+            if self.deadlines:
+                for w in same:
+                    self._waiting.remove(w)
+                    dropped.append((w.request, "expired"))
+            elif len(same) >= self.queue_size:
+                self._waiting.remove(same[0])
+                dropped.append((same[0].request, "dropped"))
+            self._waiting.append(_Waiting(request, deadline))
+            for _, why in dropped:
+                self._c[why] += 1
+        for req, _ in dropped:
+            if self._on_drop is not None:
+                self._on_drop(req)
+        self._notify()
+        return not dropped
 
     def stats(self) -> dict[str, Any]:
-        """``requests``, ``dropped``, ``answered``, ``errors`` and the compute times (ms)."""
+        """``requests``, ``answered``, ``dropped`` (full queue), ``expired`` (deadline),
+        ``degraded``, ``late`` (published after their deadline), ``errors``, the compute
+        times (ms), and the pool's ``workers``, ``worker_restarts``, ``tiles_built``,
+        ``tiles_prefetched``, ``tile_bytes``."""
         with self._lock:
             out: dict[str, Any] = dict(self._c)
             out["compute_ms"] = list(self._compute_ms)
+        pool = self._pool
+        out["workers"] = self.n_workers
+        out.update(pool.stats() if pool is not None else
+                   {"worker_restarts": 0, "tiles_built": 0, "tile_bytes": 0})
         return out
 
-    def _run(self) -> None:
-        worker: _WorkerProcess | None = None
-        try:
-            if self.worker == "process":
-                worker = _WorkerProcess(self.scene.spec, self._stop)
-                call = worker.call
-            else:
-                scene = self.scene
+    # ------------------------------------------------------------------ scheduling
 
-                def call(kind: str, args: tuple[Any, ...]) -> Any:
-                    return _JOBS[kind](scene, *args)
+    def _notify(self) -> None:
+        self._wake.set()
+        pool = self._pool
+        if pool is not None:
+            pool.wake()
 
-            self._send_points(call)
-            while not self._stop.is_set():
-                try:
-                    request = self._queue.get(timeout=0.05)
-                except queue.Empty:
-                    continue
-                self._answer(call, request)
-        finally:
-            if worker is not None:
-                worker.close()
+    def _estimate_deadline(self, sonar_id: int, received: float) -> float | None:
+        """The sonar's next ping is due one median interval after this one (None until two
+        pings have been seen)."""
+        arrivals = self._arrivals.setdefault(sonar_id, deque(maxlen=PERIOD_WINDOW + 1))
+        arrivals.append(received)
+        if len(arrivals) < 2:
+            return None
+        gaps = [b - a for a, b in zip(arrivals, list(arrivals)[1:], strict=False)]
+        return received + float(statistics.median(gaps))
 
-    def _send_points(self, call: Callable[[str, tuple[Any, ...]], Any]) -> None:
-        if self._points is None or self._on_points is None:
-            return
-        try:
-            out = call("points", self._points)
-        except (ValueError, HilError) as exc:
-            log.warning("no forest points: %s", exc)
-            return
-        if out is not None:
-            self._on_points(*out)
+    def _next_request(self, now: float) -> EchoRequest | None:
+        """Earliest deadline first (then arrival); requests whose time is up are dropped."""
+        expired: list[EchoRequest] = []
+        chosen = None
+        with self._lock:
+            for w in list(self._waiting):
+                if w.deadline is not None and now >= w.deadline - PUBLISH_MARGIN_S:
+                    self._waiting.remove(w)
+                    self._c["expired"] += 1
+                    expired.append(w.request)
+            if self._waiting:
+                best = min(self._waiting, key=lambda w: (
+                    math.inf if w.deadline is None else w.deadline, w.request.received))
+                self._waiting.remove(best)
+                chosen = dataclasses.replace(best.request, deadline=best.deadline)
+        for req in expired:
+            if self._on_drop is not None:
+                self._on_drop(req)
+        return chosen
 
-    def _answer(self, call: Callable[[str, tuple[Any, ...]], Any], req: EchoRequest) -> None:
+    def _job(self, req: EchoRequest) -> EchoJob:
         ping = req.ping
-        args = (req.sonar_id, req.pose.position, req.pose.orientation, float(ping.az),
-                float(ping.el), float(ping.beamwidth))
+        return EchoJob(req.sonar_id, req.pose.position, req.pose.orientation, float(ping.az),
+                       float(ping.el), float(ping.beamwidth), req.deadline)
+
+    def _refresh_wanted(self) -> None:
+        """Tiles of the regions the sonars will reach, nearest in time first."""
+        if self._lookahead is None or self.scene.spec.forest is None:
+            return
+        if not self.scene.spec.forest.tiled:
+            return
         try:
-            result = call("echo", args)
-        except (ValueError, HilError) as exc:
+            regions = self._lookahead()
+        except (ValueError, KeyError) as exc:
+            log.warning("echo lookahead failed: %s", exc)
+            return
+        geometry = self._pool.geometry if self._pool is not None else self.scene.forest_source
+        wanted: OrderedDict[tuple[int, int], None] = OrderedDict()
+        for center, r in regions:
+            for t in geometry.tiles_near(np.asarray(center, dtype=np.float64), r):
+                wanted.setdefault(t)
+        self._wanted = wanted
+
+    def _finish(self, req: EchoRequest, result: EchoResult | None, error: str) -> None:
+        """Account for one request's outcome and hand it on."""
+        if error:
             with self._lock:
                 self._c["errors"] += 1
-            self._on_error(req, str(exc))
+            self._on_error(req, error)
             return
-        if result is None:  # closing
+        if result is None:
+            with self._lock:
+                self._c["expired"] += 1
+            if self._on_drop is not None:
+                self._on_drop(req)
             return
+        late = req.deadline is not None and time.monotonic() > req.deadline
         with self._lock:
             self._c["answered"] += 1
+            self._c["degraded"] += int(result.degraded)
+            self._c["late"] += int(late)
             self._compute_ms.append(result.compute_ns / 1e6)
         self._on_echo(req, result)
+
+    def _run(self) -> None:
+        from hil_bridge.echo_pool import ProcessPool, ThreadWorker
+
+        try:
+            if self.worker == "thread":
+                self._serve(ThreadWorker(self.scene, self.cost))
+            else:
+                self._pool = ProcessPool(self.scene, self.n_workers, self._stop,
+                                         domain=self._domain, cost=self.cost)
+                try:
+                    self._serve(self._pool)
+                finally:
+                    self._pool.close()
+        except Exception:  # a scheduler bug must not vanish with its thread
+            log.exception("echo service failed")
+            with self._lock:
+                self._c["errors"] += 1
+
+    def _serve(self, workers: Any) -> None:
+        """The scheduler: replies in, then idle workers get the most urgent echo, else the
+        points, else a tile ahead of the sonars."""
+        next_look = time.monotonic()
+        points_due = self._points is not None and self._on_points is not None
+        while not self._stop.is_set():
+            replies = workers.poll(0.05, self._wake)
+            self._wake.clear()
+            for reply in replies:
+                self._reply(reply)
+            now = time.monotonic()
+            if now >= next_look:
+                self._refresh_wanted()
+                next_look = now + LOOKAHEAD_S
+            while not self._stop.is_set() and workers.idle():
+                req = self._next_request(time.monotonic())
+                if req is not None:
+                    workers.echo(req, self._job(req))
+                elif points_due and self._points is not None:
+                    workers.points(*self._points)
+                    points_due = False
+                elif not self._prefetch_one(workers):
+                    break
+
+    def _prefetch_one(self, workers: Any) -> bool:
+        """Give one wanted tile to an idle worker (keeping one worker free for pings)."""
+        while self._wanted:
+            tile, _ = self._wanted.popitem(last=False)
+            if workers.has_tile(tile):
+                continue
+            if not workers.may_prefetch():
+                self._wanted[tile] = None
+                self._wanted.move_to_end(tile, last=False)
+                return False
+            workers.build(tile)
+            with self._lock:
+                self._c["tiles_prefetched"] += 1
+            return True
+        return False
+
+    def _reply(self, reply: tuple[str, Any, Any, str]) -> None:
+        kind, req, out, error = reply
+        if kind == "echo":
+            self._finish(req, out, error)
+        elif kind == "points":
+            if error:
+                log.warning("no forest points: %s", error)
+            elif self._on_points is not None:
+                self._on_points(*out)

@@ -37,10 +37,17 @@ being computed).
 ping's *emission*: the ping's ``stamp_ns`` when the sender gives one (> 0), else its arrival
 (the latest tick), the vehicle's pose interpolated between ticks from a ``pose_history_s``
 history, composed with the sonar's mount. Stamps after the latest tick or before the history
-use its newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``). Pings wait in a
-bounded queue (``echo_queue``; when full the oldest is dropped, ``pings_dropped``) served off
-the tick loop by one worker: a thread (default), or ``echo_worker: process``, a spawned process
-with its own copy of the scene (the launching script must be import-safe).
+use its newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``). Echoes are computed
+off the tick loop by :class:`hil_bridge.echo_service.EchoService`: on a thread (default), or
+``echo_worker: pool``, ``echo_workers`` processes (default one per core) sharing the forest's
+tiles in shared memory at a lower CPU priority than the tick loop (``process``: a pool of one;
+the launching script must be import-safe). In ``realtime`` mode a ping's echo is due before
+its sonar's next ping (``echo_deadlines``): one that cannot be ready by then is degraded to the
+``realtime`` fidelity within the time left (``echoes_degraded``) or dropped
+(``pings_dropped_deadline``) instead of queuing. Without deadlines pings wait in a bounded
+queue per sonar (``echo_queue``; when full its oldest is dropped, ``pings_dropped``). The
+tiles each sonar will reach along its vehicle's motion (the next :data:`LOOKAHEAD_HORIZON_S` s
+of wall time) are built ahead of its pings.
 
 **Time.** The server ticks at ``state_rate_hz`` of sim time. Clock modes: ``realtime`` (ticks
 paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (after each tick,
@@ -67,7 +74,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from hil_bridge.echo_service import EchoRequest, EchoResult, EchoService, SonarPose
+from hil_bridge.domain import current as current_domain
+from hil_bridge.echo_service import EchoRequest, EchoResult, EchoService, Region, SonarPose
 from hil_bridge.fleet import Fleet, FleetStates
 from hil_bridge.lockstep import LockstepGate
 from hil_bridge.logs import load_trajectory
@@ -86,9 +94,14 @@ from sim_core.config import ConfigError, from_dict
 from sim_core.pose import pose_compose, quat_from_euler
 from sim_core.scene import ClockSpec, Scene, load_scene
 
-__all__ = ["ServerParams", "SimServer", "percentiles"]
+__all__ = ["LOOKAHEAD_HORIZON_S", "ServerParams", "SimServer", "percentiles"]
 
 log = logging.getLogger(__name__)
+
+#: how far ahead (wall s) the tiles a sonar will reach are built
+LOOKAHEAD_HORIZON_S = 2.0
+#: points per second of that horizon at which the path ahead is sampled
+LOOKAHEAD_STEPS = 2
 
 
 def percentiles(values: Sequence[float]) -> dict[str, float]:
@@ -116,7 +129,9 @@ class ServerParams:
     stop_after_s: float | None = None
     publish_thermals: bool = True
     forest_points: int = 20000
-    echo_worker: Literal["thread", "process"] = "thread"
+    echo_worker: Literal["thread", "process", "pool"] = "thread"
+    echo_workers: int | None = None
+    echo_deadlines: bool = True
     pose_history_s: float = 2.0
 
     def __post_init__(self) -> None:
@@ -134,6 +149,9 @@ class ServerParams:
             raise ValueError(f"state_rate_hz: expected 0 < rate <= 2000, got {self.state_rate_hz}")
         if not self.pose_history_s > 0:
             raise ValueError(f"pose_history_s: expected > 0, got {self.pose_history_s}")
+        if self.echo_workers is not None and self.echo_workers < 1:
+            raise ValueError(f"echo_workers: expected >= 1 or null (one per core), got "
+                             f"{self.echo_workers}")
 
 
 _REJECT_BANK = math.pi / 2
@@ -144,6 +162,14 @@ _COUNTERS = (
     "cmd_ignored", "pings_received", "ping_stamp_future", "ping_stamp_old",
     "echoes_published", "late_ticks", "diagnostics_published", "external_steps",
 )
+#: EchoService stats -> server counters
+_ECHO_COUNTERS = {
+    "dropped": "pings_dropped", "expired": "pings_dropped_deadline",
+    "degraded": "echoes_degraded", "late": "echoes_late", "errors": "echo_errors",
+    "workers": "echo_workers", "worker_restarts": "echo_worker_restarts",
+    "tiles_built": "echo_tiles_built", "tiles_prefetched": "echo_tiles_prefetched",
+    "tile_bytes": "echo_tile_bytes",
+}
 
 
 class SimServer:
@@ -151,12 +177,14 @@ class SimServer:
 
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
-    publish_thermals=True, forest_points=20000, echo_worker="thread", pose_history_s=2.0)``.
+    publish_thermals=True, forest_points=20000, echo_worker="thread", echo_workers=None,
+    echo_deadlines=True, pose_history_s=2.0)``.
     ``scene`` is a scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and
     ``state_rate_hz`` override the scene's. ``stop_after_s``: stop ticking at that sim time
     (the node keeps answering pings). ``forest_points``: at most this many leaf centres around
-    each sonar's route are published once (latched) on ``/forest/points`` for viewers and plots
+    the sonars' routes are published once (latched) on ``/forest/points`` for viewers and plots
     (0: none). ``pose_history_s``: how far back a ping's emission stamp may reach.
+    ``echo_worker``, ``echo_workers``, ``echo_deadlines``: see the module docstring.
     """
 
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
@@ -216,6 +244,7 @@ class SimServer:
             history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
         )
         self._echo: EchoService | None = None
+        self._domain = current_domain()  # the run's: active while the launcher builds nodes
         self._node: Any = None
         self._proxy: Any = None
         self._pubs: dict[str, Any] = {}
@@ -276,11 +305,13 @@ class SimServer:
         first = self.fleet.states()
         if self.scene.spec.sonars:
             self._echo = EchoService(
-                self.scene, worker=self.params.echo_worker, queue_size=self.params.echo_queue,
+                self.scene, worker=self.params.echo_worker, workers=self.params.echo_workers,
+                queue_size=self.params.echo_queue,
+                deadlines=self.params.echo_deadlines and self.clock_spec.mode == "realtime",
                 on_echo=self._publish_echo, on_error=self._echo_failed,
                 on_drop=lambda req: self._gate.echo_done(req.sonar_id),
                 points=self._points_request(first) if "/forest/points" in self._pubs else None,
-                on_points=self._publish_points,
+                on_points=self._publish_points, lookahead=self._lookahead, domain=self._domain,
             )
         node.start()
         self._threads = [
@@ -321,8 +352,8 @@ class SimServer:
             ping_echo = list(self._ping_echo_ms)
             effect = list(self._cmd_effect_ticks)
         out.update(self._gate.stats())
-        out["pings_dropped"] = int(echo.get("dropped", 0))
-        out["echo_errors"] = int(echo.get("errors", 0))
+        for key, name in _ECHO_COUNTERS.items():
+            out[name] = int(echo.get(key, 0))
         out["clock_mode"] = self.clock_spec.mode
         out["built"] = sorted(self.scene.built)
         out["ping_echo_ms"] = percentiles(ping_echo)
@@ -419,8 +450,12 @@ class SimServer:
                 self._c["ping_stamp_future" if pose.clamped > 0 else "ping_stamp_old"] += 1
         position, orientation = pose_compose(pose.position, pose.orientation, offset, rotation)
         if self._echo is not None:
-            self._echo.submit(EchoRequest(sonar_id, msg, SonarPose(pose.t_ns, position,
-                                                                   orientation), t_recv))
+            deadline = None
+            if msg.next_ns > msg.stamp_ns > 0 and self.clock_spec.mode == "realtime":
+                # a head on sim time says when its next ping is due
+                deadline = t_recv + (msg.next_ns - msg.stamp_ns) / 1e9 / self.clock_spec.rate
+            self._echo.submit(EchoRequest(
+                sonar_id, msg, SonarPose(pose.t_ns, position, orientation), t_recv, deadline))
         else:
             self._gate.echo_done(sonar_id)
 
@@ -445,24 +480,49 @@ class SimServer:
             self._last_echo_error = f"ping {req.ping.ping_seq} of sonar {req.sonar_id}: {error}"
         log.warning("%s: %s", self.name, self._last_echo_error)
 
-    def _points_request(
-        self, first: FleetStates
-    ) -> tuple[tuple[tuple[tuple[float, float, float], float], ...], int]:
-        """Regions around each sonar's mount (its path's extent, or its start) for the
-        latched ``/forest/points``."""
-        regions: list[tuple[tuple[float, float, float], float]] = []
+    def _points_request(self, first: FleetStates) -> tuple[tuple[Region, ...], int]:
+        """Balls along each sonar's route (a path vehicle's whole path, sampled every half
+        query radius; any other vehicle's start), the routes interleaved, for the latched
+        ``/forest/points``."""
         index = {vid: k for k, vid in enumerate(first.ids)}
+        routes: list[list[Region]] = []
         for sonar in self.scene.spec.sonars:
             r = self.scene.query_radius_m(sonar.id)
             traj = self.scene.trajectories.get(sonar.mount) if self._vehicle_specs else None
             if traj is not None:
-                lo, hi = traj.xyz.min(axis=0), traj.xyz.max(axis=0)
-                c = (lo + hi) / 2.0
-                r += float(np.linalg.norm(hi - lo)) / 2.0
+                xyz = traj.xyz
+                arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xyz, axis=0),
+                                                                      axis=1))])
+                keep = np.searchsorted(arc, np.arange(0.0, arc[-1] + 1e-9, r / 2.0))
+                pts = xyz[np.unique(np.minimum(keep, len(xyz) - 1))]
             else:
-                c = first.position[index[sonar.mount]]
-            regions.append(((float(c[0]), float(c[1]), float(c[2])), r))
+                pts = first.position[index[sonar.mount]][None]
+            routes.append([((float(p[0]), float(p[1]), float(p[2])), r) for p in pts])
+        regions = [route[k] for k in range(max(map(len, routes), default=0))
+                   for route in routes if k < len(route)]
         return tuple(regions), self.params.forest_points
+
+    def _lookahead(self) -> list[Region]:
+        """Where each sonar will be over the next LOOKAHEAD_HORIZON_S s of wall time (its
+        path, for a vehicle on one; else straight on at its velocity), soonest first."""
+        rate = self.clock_spec.rate if self.clock_spec.mode == "realtime" else 1.0
+        steps = round(LOOKAHEAD_HORIZON_S * LOOKAHEAD_STEPS)
+        taus = np.linspace(0.0, LOOKAHEAD_HORIZON_S * rate, steps + 1)
+        per_sonar: list[list[Region]] = []
+        for sonar in self.scene.spec.sonars:
+            latest = self.fleet.latest(sonar.mount)
+            if latest is None:
+                continue
+            t_ns, p, v = latest
+            vehicle = self._vehicle_specs.get(sonar.mount)
+            if vehicle is not None and not vehicle.commanded:
+                s = self.scene.trajectories[sonar.mount].sample(t_ns / 1e9 + taus)
+                xyz = np.column_stack([s["x"], s["y"], s["z"]])
+            else:
+                xyz = p[None, :] + taus[:, None] * v[None, :]
+            r = self.scene.query_radius_m(sonar.id)
+            per_sonar.append([((float(a), float(b), float(c)), r) for a, b, c in xyz])
+        return [regions[k] for k in range(steps + 1) for regions in per_sonar]
 
     def _publish_points(self, points: Any, radii: Any) -> None:
         """Leaf centres as one latched PointCloud (intensity = leaf radius, m), stamped 0 like

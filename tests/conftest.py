@@ -1,8 +1,10 @@
-"""Suite-wide fixtures: where the test data live, a private domain, and a thread-leak guard."""
+"""Suite-wide fixtures: where the test data live, a private domain, and guards against leaked
+threads, echo worker processes and shared memory."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import threading
 import time
 from collections.abc import Iterator
@@ -66,3 +68,29 @@ def _no_thread_leaks() -> Iterator[None]:
         time.sleep(0.01)
     if leaked:
         pytest.fail(f"test leaked running threads: {[t.name for t in leaked]}")
+
+
+@pytest.fixture(autouse=True)
+def _no_worker_or_shared_memory_leaks() -> Iterator[None]:
+    """Fail a test that leaves an echo worker process (``hil_bridge.echo_pool``) running or a
+    shared tile store (``hil_bridge.shared_tiles``) of this process behind."""
+    import multiprocessing
+
+    from hil_bridge.echo_pool import WORKER_NAME
+    from hil_bridge.shared_tiles import stores_of
+
+    yield
+    deadline = time.monotonic() + 5.0
+    while True:
+        workers = [p for p in multiprocessing.active_children() if p.name == WORKER_NAME]
+        stores = stores_of(os.getpid())
+        if not (workers or stores) or time.monotonic() > deadline:
+            break
+        time.sleep(0.02)
+    if workers or stores:
+        for p in workers:
+            p.kill()
+        for store in stores:
+            shutil.rmtree(store, ignore_errors=True)
+        pytest.fail(f"test leaked echo workers {[p.pid for p in workers]} and/or shared tile "
+                    f"stores {[str(s) for s in stores]}")

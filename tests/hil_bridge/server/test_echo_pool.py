@@ -1,0 +1,344 @@
+"""The echo service's process pool: the same echoes as one worker, tiles shared in memory,
+deadlines that degrade or drop (and count it), nothing left behind."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import queue
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil_bridge.domain import Domain, shared_root
+from hil_bridge.echo_pool import WORKER_NAME
+from hil_bridge.echo_service import (
+    EchoRequest,
+    EchoResult,
+    EchoService,
+    SonarPose,
+    compute_echo,
+)
+from hil_bridge.messages import SonarPing
+from hil_bridge.shared_tiles import SharedTiles, stores_of
+from sim_core.pose import quat_from_euler
+from sim_core.scene import Scene, load_scene
+from sim_core.sonar.cost import EchoCost
+
+ROOT = Path(__file__).resolve().parents[3]
+
+SCENE: dict[str, Any] = {
+    "forest": {"preset": "seed000-fig5d", "tile_size_m": 10.0, "query_radius_m": 4.0},
+    "sonars": [
+        {"id": 0, "mount": 1, "fidelity": "fast", "echo": {"samples": 8000}},
+        {"id": 1, "mount": 1, "fidelity": "reference", "echo": {"samples": 8000}},
+    ],
+    "vehicles": [{"id": 1, "path": {"kind": "points", "points": [[2, 5, 2], [18, 5, 2]]}}],
+}
+
+
+def _requests(n: int, sonar: int, *, deadline: float | None = None) -> list[EchoRequest]:
+    """Pings from poses spread over the Fig 5(d) forest, looking in many directions."""
+    rng = np.random.default_rng(sonar)
+    out = []
+    for k in range(n):
+        p = np.array([rng.uniform(2, 18), rng.uniform(2, 18), rng.uniform(1.5, 4.0)])
+        q = quat_from_euler(rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.3), rng.uniform(-3, 3))
+        ping = SonarPing(stamp_ns=0, ping_seq=k, az=float(rng.uniform(-0.5, 0.5)),
+                         el=float(rng.uniform(-0.3, 0.3)), beamwidth=float(rng.uniform(0.5, 1.1)),
+                         sonar_id=sonar)
+        out.append(EchoRequest(sonar, ping, SonarPose(0, p, q), time.monotonic(), deadline))
+    return out
+
+
+class _Sink:
+    """Collects what an EchoService hands back."""
+
+    def __init__(self) -> None:
+        self.echoes: queue.Queue[tuple[EchoRequest, EchoResult]] = queue.Queue()
+        self.errors: list[str] = []
+        self.dropped: list[EchoRequest] = []
+
+    def service(self, scene: Scene, **kw: Any) -> EchoService:
+        return EchoService(scene, on_echo=lambda r, e: self.echoes.put((r, e)),
+                           on_error=lambda r, m: self.errors.append(m),
+                           on_drop=self.dropped.append, **kw)
+
+    def take(self, n: int, timeout: float = 120.0) -> dict[tuple[int, int], EchoResult]:
+        got = {}
+        for _ in range(n):
+            req, res = self.echoes.get(timeout=timeout)
+            got[(req.sonar_id, req.ping.ping_seq)] = res
+        return got
+
+
+def _run(scene: Scene, requests: list[EchoRequest], **kw: Any) -> dict[tuple[int, int], Any]:
+    sink = _Sink()
+    svc = sink.service(scene, deadlines=False, queue_size=len(requests), **kw)
+    svc.start()
+    try:
+        for req in requests:
+            svc.submit(req)
+        got = sink.take(len(requests))
+    finally:
+        svc.close()
+    assert sink.errors == [] and sink.dropped == []
+    return got
+
+
+def test_the_pool_gives_the_echoes_of_one_worker_bit_for_bit() -> None:
+    scene = load_scene(SCENE)
+    requests = _requests(10, 0) + _requests(3, 1)
+    pool = _run(scene, requests, worker="pool", workers=2)
+    thread = _run(scene, requests, worker="thread")
+    for req in requests:
+        ping = req.ping
+        direct = compute_echo(load_scene(SCENE), req.sonar_id, req.pose.position,
+                              req.pose.orientation, ping.az, ping.el, ping.beamwidth)
+        for got in (pool[(req.sonar_id, ping.ping_seq)], thread[(req.sonar_id, ping.ping_seq)]):
+            np.testing.assert_array_equal(got.samples, direct.samples)
+            np.testing.assert_array_equal(got.boresight, direct.boresight)
+            assert (got.fidelity, got.leaves_in_beam, got.in_range, got.dropped) == (
+                direct.fidelity, direct.leaves_in_beam, direct.in_range, direct.dropped)
+            assert not got.degraded
+    fidelities = {r.fidelity for r in pool.values()}
+    assert fidelities == {"fast", "reference"}
+    assert sum(r.leaves_in_beam > 0 for r in pool.values()) >= 5
+
+
+def test_tiles_are_published_once_and_mapped_read_only(tmp_path: Path) -> None:
+    scene = load_scene(SCENE)
+    forest = scene.forest_source
+    store = SharedTiles.create(Domain.private(tmp_path), forest.engine.names)
+    try:
+        built: list[tuple[tuple[int, int], int]] = []
+        fetch = store.source(forest.build, built)
+        first = fetch((0, 0))
+        again = fetch((0, 0))
+        assert [t for t, _ in built] == [(0, 0)] and store.published == 1
+        direct = forest.build((0, 0))
+        assert first.leaves == direct.leaves == again.leaves
+        np.testing.assert_array_equal(first.tree_xy, direct.tree_xy)
+        np.testing.assert_array_equal(first.tree_species, direct.tree_species)
+        assert not first.leaves.centers.flags.writeable
+        assert store.directory.parent == shared_root() / store.directory.parent.name
+    finally:
+        store.remove_all()
+    assert not store.directory.exists()
+
+
+def _deadline_service(sink: _Sink, cost: EchoCost) -> EchoService:
+    return sink.service(load_scene(SCENE), worker="thread", deadlines=True, cost=cost)
+
+
+def test_a_ping_superseded_by_its_sonars_next_ping_is_dropped_and_counted() -> None:
+    sink = _Sink()
+    svc = _deadline_service(sink, EchoCost())
+    a, b = _requests(2, 0, deadline=time.monotonic() + 60.0)
+    assert svc.submit(a) is True
+    assert svc.submit(b) is False  # a's time was up when b (its sonar's next ping) came
+    svc.start()
+    try:
+        got = sink.take(1)
+    finally:
+        svc.close()
+    assert list(got) == [(0, 1)] and sink.dropped == [a]
+    st = svc.stats()
+    assert (st["requests"], st["expired"], st["answered"], st["dropped"]) == (2, 1, 1, 0)
+
+
+def test_an_echo_that_cannot_be_ready_in_time_is_degraded_or_dropped_and_counted() -> None:
+    sink = _Sink()
+    # a cost model that predicts seconds per leaf: 'fast' never fits the time left
+    svc = _deadline_service(sink, EchoCost(per_examined_s=1.0))
+    now = time.monotonic()
+    late = _requests(1, 0, deadline=now - 1.0)[0]  # its time is already up
+    tight = dataclasses.replace(_requests(2, 0)[1], deadline=now + 30.0)
+    svc.start()
+    try:
+        svc.submit(late)
+        time.sleep(0.2)
+        svc.submit(tight)
+        got = sink.take(1)
+    finally:
+        svc.close()
+    echo = got[(0, 1)]
+    assert echo.degraded and echo.fidelity == "realtime" and np.isfinite(echo.error_bound)
+    assert sink.dropped == [late]
+    st = svc.stats()
+    assert (st["expired"], st["degraded"], st["answered"]) == (1, 1, 1)
+
+
+def test_without_deadlines_each_sonar_keeps_its_own_bounded_queue() -> None:
+    sink = _Sink()
+    svc = sink.service(load_scene(SCENE), worker="thread", deadlines=False, queue_size=2)
+    reqs = _requests(3, 0) + _requests(1, 1)
+    results = [svc.submit(r) for r in reqs]
+    assert results == [True, True, False, True]  # sonar 0's oldest made room for its third
+    assert sink.dropped == [reqs[0]]
+    svc.close()
+
+
+def test_a_realtime_server_degrades_what_its_deadlines_cannot_hold_and_accounts_for_every_ping(
+) -> None:
+    from hil_bridge.node import Node
+    from hil_bridge.server import SimServer
+
+    # a 'reference' sonar at 10 Hz: its echo (hundreds of ms) can never be ready before the
+    # next ping, so after the first (late) one the worker learns it and degrades to realtime
+    scene = {**SCENE, "sonars": [{"id": 0, "mount": 1, "fidelity": "reference",
+                                  "echo": {"samples": 24000}}],
+             "forest": {**SCENE["forest"], "query_radius_m": 10.0}, "state_rate_hz": 50}
+    bus = "mem://echo_deadlines"
+    srv = SimServer("server", bus=bus, scene=scene, stop_after_s=600.0)
+    head = Node("head", bus=bus)
+    pub = head.create_publisher(SonarPing, "/sonar/0/ping")
+    head.start()
+    srv.start()
+    try:
+        for k in range(25):
+            pub.publish(SonarPing(stamp_ns=0, ping_seq=k, az=0.0, el=-0.2, beamwidth=1.0))
+            time.sleep(0.1)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and srv.stats()["echoes_degraded"] == 0:
+            time.sleep(0.05)
+        time.sleep(0.5)
+        st = srv.stats()
+    finally:
+        srv.stop()
+        head.stop()
+    assert st["pings_received"] == 25
+    assert st["echoes_degraded"] >= 1
+    answered = st["echoes_published"] + st["pings_dropped_deadline"] + st["pings_dropped"]
+    assert 24 <= answered + st["echo_errors"] <= 25  # at most the last ping still computing
+    assert st["echo_workers"] == 0
+
+
+def _leaks() -> tuple[list[Any], list[Path]]:
+    import multiprocessing
+
+    return ([p for p in multiprocessing.active_children() if p.name == WORKER_NAME],
+            stores_of(os.getpid()))
+
+
+def test_a_server_with_a_pool_leaves_no_worker_or_shared_memory_behind() -> None:
+    from hil_bridge.server import SimServer
+
+    srv = SimServer("server", bus="mem://pool_leaks", scene={**SCENE, "clock": {"mode": "fast"}},
+                    echo_worker="pool", echo_workers=2, stop_after_s=0.5)
+    srv.start()
+    try:
+        deadline = time.monotonic() + 60.0
+        workers, stores = _leaks()
+        while time.monotonic() < deadline and (len(workers), len(stores)) != (2, 1):
+            time.sleep(0.05)
+            workers, stores = _leaks()
+        assert len(workers) == 2 and len(stores) == 1
+    finally:
+        srv.stop()
+    assert _leaks() == ([], [])
+
+
+CRASH = textwrap.dedent("""
+    import multiprocessing, os, sys, time
+    from hil_bridge.domain import Domain, use
+    from hil_bridge.server import SimServer
+    from hil_bridge.shared_tiles import stores_of
+    if __name__ == "__main__":
+        with use(Domain.private(sys.argv[1])) as domain:
+            srv = SimServer("server", bus="mem://crash", scene={scene!r}, echo_worker="pool",
+                            echo_workers=2)
+            srv.start()
+            while len(multiprocessing.active_children()) < 2 or not stores_of(os.getpid()):
+                time.sleep(0.05)
+            print(domain.token, *[p.pid for p in multiprocessing.active_children()], flush=True)
+            time.sleep(600)
+""")
+
+
+def test_workers_of_a_killed_server_exit_and_its_tiles_are_swept_by_the_next_run(
+    tmp_path: Path,
+) -> None:
+    script = tmp_path / "crash.py"
+    script.write_text(CRASH.format(scene={**SCENE, "clock": {"mode": "fast"}}))
+    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path / "d")],
+                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        line = proc.stdout.readline().split() if proc.stdout else []
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        if proc.stdout:
+            proc.stdout.close()
+    token, workers = line[0], [int(p) for p in line[1:]]
+    assert len(workers) == 2
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and any(_alive(p) for p in workers):
+        time.sleep(0.05)
+    assert not any(_alive(p) for p in workers), "a worker outlived its killed server"
+    stale = list((shared_root() / token).iterdir())
+    assert len(stale) == 1  # the killed server could not remove its tiles ...
+    store = SharedTiles.create(Domain(None, token, tmp_path / "d"), ["maple"])
+    store.remove_all()
+    assert not stale[0].exists()  # ... the next run in its domain did
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie (exited, not yet reaped by init) is gone too
+        return Path(f"/proc/{pid}/status").read_text().find("State:\tZ") < 0
+    except OSError:
+        return False
+
+
+def test_a_dead_worker_is_replaced_and_its_echo_reported() -> None:
+    sink = _Sink()
+    svc = sink.service(load_scene(SCENE), worker="pool", workers=1, deadlines=False)
+    svc.start()
+    try:
+        first = _requests(1, 0)[0]
+        svc.submit(first)
+        sink.take(1)
+        pool = svc._pool
+        victim = pool._slots[0].proc
+        os.kill(victim.pid, signal.SIGKILL)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and svc.stats()["worker_restarts"] == 0:
+            time.sleep(0.02)
+        svc.submit(dataclasses.replace(first, ping=dataclasses.replace(first.ping, ping_seq=5)))
+        got = sink.take(1)
+    finally:
+        svc.close()
+    assert list(got) == [(0, 5)]
+    assert svc.stats()["worker_restarts"] == 1
+
+
+def test_points_and_ahead_of_time_tiles_come_from_the_pool() -> None:
+    got: queue.Queue[tuple[Any, Any]] = queue.Queue()
+    # one worker: the points first (tiles 0..1 around (5, 5)), then the tiles the lookahead
+    # wants that the points did not build (10 m tiles of the 20 x 20 m forest: 0..2)
+    svc = EchoService(load_scene(SCENE), worker="pool", workers=1,
+                      on_echo=lambda r, e: None, on_error=lambda r, m: None,
+                      points=((((5.0, 5.0, 2.0), 4.0),), 500),
+                      on_points=lambda c, r: got.put((c, r)),
+                      lookahead=lambda: [((19.0, 19.0, 2.0), 0.1)])
+    svc.start()
+    try:
+        centres, radii = got.get(timeout=60)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and svc.stats()["tiles_built"] < 9:
+            time.sleep(0.05)
+        st = svc.stats()
+    finally:
+        svc.close()
+    assert centres.shape == (500, 3) and radii.shape == (500,)
+    assert (st["tiles_built"], st["tiles_prefetched"]) == (9, 5)
