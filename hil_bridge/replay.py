@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from sim_core.config import ConfigError, from_dict, load_yaml
-from sim_core.rng import make_rng
+from sim_core.rng import derive_rng, make_rng
 from sim_core.scene import SceneSpec
 
 __all__ = ["DEFAULT_REPLAY_SCENE", "Pinger", "build_replay_launch"]
@@ -43,10 +43,13 @@ class Pinger:
     """Launchable node that pings ``/sonar/<sonar_id>/ping`` at ``rate_hz`` (wall clock).
 
     ``Pinger(name, *, bus, sonar_id=0, rate_hz=10.0, az=0.0, el=0.0, beamwidth=0.7,
-    beamwidth_range=None, seed=0, max_pings=None)``. With ``beamwidth_range = [lo, hi]`` each
-    ping's beamwidth is drawn from U(lo, hi) (seed 000 used [30°, 65°]). Pings are stamped with
-    the bus's sim time (``/clock``) when sent, their emission. It subscribes to the echoes and
-    reports how many came back, with ping -> echo latency percentiles (ms).
+    beamwidth_range=None, seed=0, max_pings=None, sonar_ids=None)``. With ``beamwidth_range =
+    [lo, hi]`` each ping's beamwidth is drawn from U(lo, hi) (seed 000 used [30°, 65°]). Pings
+    are stamped with the bus's sim time (``/clock``) when sent, their emission. It subscribes
+    to the echoes and reports how many came back, with ping -> echo latency percentiles (ms).
+    ``sonar_ids``: ping several sonars from one node (one clock subscription for all), each
+    at ``rate_hz`` from its own phase, drawn uniformly over a period (``seed``); ``max_pings``
+    then counts per sonar.
     """
 
     def __init__(
@@ -62,6 +65,7 @@ class Pinger:
         beamwidth_range: tuple[float, float] | list[float] | None = None,
         seed: int = 0,
         max_pings: int | None = None,
+        sonar_ids: list[int] | tuple[int, ...] | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate_hz: expected > 0, got {rate_hz}")
@@ -73,20 +77,25 @@ class Pinger:
                 raise ValueError(f"beamwidth_range: expected 0 < lo <= hi < pi, got {[lo, hi]}")
         if max_pings is not None and max_pings < 1:
             raise ValueError(f"max_pings: expected >= 1, got {max_pings}")
+        ids = [int(sonar_id)] if sonar_ids is None else [int(i) for i in sonar_ids]
+        if not ids or len(set(ids)) != len(ids) or min(ids) < 0:
+            raise ValueError(f"sonar_ids: expected distinct ids >= 0, got {sonar_ids}")
         self.name = name
         self.bus = bus
-        self.sonar_id = int(sonar_id)
+        self.sonar_ids = tuple(ids)
+        self.sonar_id = ids[0]
         self.period_s = 1.0 / float(rate_hz)
         self.az, self.el, self.beamwidth = float(az), float(el), float(beamwidth)
         self.beamwidth_range = None if beamwidth_range is None else (lo, hi)
         self.max_pings = max_pings
         self._rng = make_rng(seed)
+        self._seed = seed
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._node: Any = None
-        self._pub: Any = None
-        self._sent: dict[int, int] = {}
+        self._pubs: dict[int, Any] = {}
+        self._sent: dict[tuple[int, int], int] = {}
         self._c = {"pings_sent": 0, "echoes_received": 0, "echoes_unmatched": 0,
                    "echo_samples": 0}
         self._latency_ms: deque[float] = deque(maxlen=10000)
@@ -100,12 +109,13 @@ class Pinger:
 
         self._node = Node(self.name, bus=self.bus, clock=SimClock("lockstep"))
         self._node.follow_bus_clock()
-        self._pub = self._node.create_publisher(
-            SonarPing, f"/sonar/{self.sonar_id}/ping", qos=SENSOR
-        )
-        self._node.create_subscription(
-            SonarEcho, f"/sonar/{self.sonar_id}/echo", self._on_echo, qos=SENSOR
-        )
+        self._pubs = {
+            i: self._node.create_publisher(SonarPing, f"/sonar/{i}/ping", qos=SENSOR)
+            for i in self.sonar_ids
+        }
+        for i in self.sonar_ids:
+            self._node.create_subscription(SonarEcho, f"/sonar/{i}/echo", self._on_echo,
+                                           qos=SENSOR)
         self._node.start()
         self._thread = threading.Thread(target=self._loop, name=f"{self.name}-ping", daemon=True)
         self._thread.start()
@@ -136,31 +146,41 @@ class Pinger:
     def _loop(self) -> None:
         from hil_bridge.messages import SonarPing
 
-        seq = 0
-        next_t = time.monotonic()
+        n = len(self.sonar_ids)
+        phases = [0.0] if n == 1 else (
+            derive_rng(self._seed, "phase").uniform(0.0, self.period_s, n).tolist())
+        start = time.monotonic()
+        due = [start + ph for ph in phases]
+        seqs = [0] * n
         while not self._stop.is_set():
-            if self.max_pings is not None and seq >= self.max_pings:
+            k = min(range(n), key=due.__getitem__)
+            if self.max_pings is not None and seqs[k] >= self.max_pings:
+                due[k] = math.inf
+                if all(math.isinf(d) for d in due):
+                    break
+                continue
+            if self._stop.wait(max(0.0, due[k] - time.monotonic())):
                 break
+            sonar, seq = self.sonar_ids[k], seqs[k]
             bw = self.beamwidth
             if self.beamwidth_range is not None:
                 bw = float(self._rng.uniform(*self.beamwidth_range))
             with self._lock:
-                self._sent[seq] = time.monotonic_ns()
+                self._sent[(sonar, seq)] = time.monotonic_ns()
                 if len(self._sent) > 4096:
                     self._sent.pop(next(iter(self._sent)))
                 self._c["pings_sent"] += 1
-            self._pub.publish(SonarPing(
+            self._pubs[sonar].publish(SonarPing(
                 stamp_ns=self._node.now_ns(), ping_seq=seq, az=self.az, el=self.el,
-                beamwidth=bw, encoding=2, sonar_id=self.sonar_id,
+                beamwidth=bw, encoding=2, sonar_id=sonar,
             ))
-            seq = (seq + 1) % 65536
-            next_t += self.period_s
-            self._stop.wait(max(0.0, next_t - time.monotonic()))
+            seqs[k] = (seq + 1) % 65536
+            due[k] += self.period_s
 
     def _on_echo(self, msg: Any) -> None:
         now = time.monotonic_ns()
         with self._lock:
-            t_ping = self._sent.pop(int(msg.ping_seq), None)
+            t_ping = self._sent.pop((int(msg.sonar_id), int(msg.ping_seq)), None)
             if t_ping is None:
                 self._c["echoes_unmatched"] += 1
             else:
