@@ -1,9 +1,10 @@
 """The workers behind :class:`hil_bridge.echo_service.EchoService`: one thread, or a process pool.
 
 Both offer the scheduler the same small surface: ``idle()``, ``echo(request, job)``,
-``points(regions, limit)``, ``build(tile)`` (a tile ahead of the sonars), ``has_tile(tile)``,
-``may_prefetch()``, ``poll(timeout) -> replies`` and ``close()``; a reply is ``(kind, request,
-result, error)`` with kind ``"echo"`` or ``"points"``.
+``points(regions, limit)``, ``build(tile)`` (a tile ahead of the sonars or of the points),
+``has_tile(tile)`` (built or being built), ``building(tile)``, ``may_prefetch()``,
+``poll(timeout) -> replies`` and ``close()``; a reply is ``(kind, request, result, error)``
+with kind ``"echo"`` or ``"points"``.
 
 :class:`ProcessPool` runs ``n`` spawned processes, each with its own copy of the scene, one job
 at a time (so an idle worker is known and no job waits behind another), over one pipe each:
@@ -81,7 +82,6 @@ class ThreadWorker:
 
     def __init__(self, scene: Scene, cost: EchoCost = COST) -> None:
         self.scene = scene
-        self.geometry = None
         self.planner = DeadlinePlanner(cost)
         self._replies: list[Reply] = []
         self._wake = threading.Event()
@@ -94,6 +94,10 @@ class ThreadWorker:
 
     def has_tile(self, tile: Tile) -> bool:
         return tile in self.scene.forest_source.cached_tiles
+
+    def building(self, tile: Tile) -> bool:
+        """Never: a tile is built within :meth:`build`."""
+        return False
 
     def echo(self, request: EchoRequest, job: EchoJob) -> None:
         try:
@@ -293,7 +297,11 @@ class ProcessPool:
         return building < max(1, len(self._slots) - 1)
 
     def has_tile(self, tile: Tile) -> bool:
+        """Published or being built."""
         return tile in self._tiles or tile in self._building
+
+    def building(self, tile: Tile) -> bool:
+        return tile in self._building
 
     def _send(self, kind: str, what: Any, args: Any) -> None:
         slot = next(s for s in self._slots if s.ready and s.job is None)

@@ -36,7 +36,9 @@ oldest dropped).
 regions the sonars will reach (the server's prediction along each vehicle's motion) and has
 idle workers build those tiles, so a ping seldom waits for a tile. ``points=(regions, limit)``
 asks for the leaf points of :func:`compute_points` once, handed to ``on_points(centres,
-radii)``; both run at a lower priority than echoes.
+radii)``: its tiles are built first, one job each, then the points are gathered from them.
+Both run at a lower priority than echoes, and with a process worker neither holds the
+server's interpreter.
 """
 
 from __future__ import annotations
@@ -238,14 +240,16 @@ def answer_echo(
     )
 
 
-def point_tiles(scene: Scene, regions: Sequence[Region]) -> list[tuple[int, int]]:
-    """Tiles of a tiled forest near ``regions``, in order, at most :data:`MAX_POINT_TILES`."""
-    forest = scene.forest_source
+def region_tiles(
+    forest: Any, regions: Sequence[Region], limit: int | None = None
+) -> list[tuple[int, int]]:
+    """Tiles of the tiled ``forest`` (a :class:`sim_core.world.TiledForest`, its geometry is
+    enough) near ``regions``, in the order of the regions, at most ``limit``."""
     out: dict[tuple[int, int], None] = {}
     for center, r in regions:
         for t in forest.tiles_near(np.asarray(center, dtype=np.float64), r):
             out.setdefault(t)
-            if len(out) >= MAX_POINT_TILES:
+            if limit is not None and len(out) >= limit:
                 return list(out)
     return list(out)
 
@@ -260,7 +264,7 @@ def compute_points(
     centers, radii = [], []
     if scene.spec.forest is not None and scene.spec.forest.tiled:
         forest = scene.forest_source
-        for t in point_tiles(scene, regions):
+        for t in region_tiles(forest, regions, MAX_POINT_TILES):
             leaves = forest.tile(t)
             centers.append(np.asarray(leaves.centers, dtype=np.float32))
             radii.append(np.asarray(leaves.radii, dtype=np.float32))
@@ -447,21 +451,22 @@ class EchoService:
 
     def _refresh_wanted(self) -> None:
         """Tiles of the regions the sonars will reach, nearest in time first."""
-        if self._lookahead is None or self.scene.spec.forest is None:
-            return
-        if not self.scene.spec.forest.tiled:
+        if self._lookahead is None or not self._tiled():
             return
         try:
             regions = self._lookahead()
         except (ValueError, KeyError) as exc:
             log.warning("echo lookahead failed: %s", exc)
             return
-        geometry = self._pool.geometry if self._pool is not None else self.scene.forest_source
-        wanted: OrderedDict[tuple[int, int], None] = OrderedDict()
-        for center, r in regions:
-            for t in geometry.tiles_near(np.asarray(center, dtype=np.float64), r):
-                wanted.setdefault(t)
-        self._wanted = wanted
+        self._wanted = OrderedDict.fromkeys(region_tiles(self._geometry(), regions))
+
+    def _tiled(self) -> bool:
+        forest = self.scene.spec.forest
+        return forest is not None and forest.tiled and bool(self.scene.spec.sonars)
+
+    def _geometry(self) -> Any:
+        """Which tiles a region needs (the pool's geometry: no tile built in this process)."""
+        return self._pool.geometry if self._pool is not None else self.scene.forest_source
 
     def _finish(self, req: EchoRequest, result: EchoResult | None, error: str) -> None:
         """Account for one request's outcome and hand it on."""
@@ -503,10 +508,16 @@ class EchoService:
                 self._c["errors"] += 1
 
     def _serve(self, workers: Any) -> None:
-        """The scheduler: replies in, then idle workers get the most urgent echo, else the
-        points, else a tile ahead of the sonars."""
+        """The scheduler: replies in, then idle workers get the most urgent echo, else a tile
+        ahead of the sonars, else a tile of the points, else (those built once) the points.
+        Every tile is its own job, so a ping never waits behind a whole ``/forest/points``."""
         next_look = time.monotonic()
-        points_due = self._points is not None and self._on_points is not None
+        points = self._points if self._on_points is not None else None
+        point_tiles: list[tuple[int, int]] = []
+        if points is not None and self._tiled():
+            point_tiles = region_tiles(self._geometry(), points[0], MAX_POINT_TILES)
+        # consumed once: a tile evicted again before the points job is rebuilt by that job
+        points_ahead = OrderedDict.fromkeys(point_tiles)
         while not self._stop.is_set():
             replies = workers.poll(0.05, self._wake)
             self._wake.clear()
@@ -520,21 +531,30 @@ class EchoService:
                 req = self._next_request(time.monotonic())
                 if req is not None:
                     workers.echo(req, self._job(req))
-                elif points_due and self._points is not None:
-                    workers.points(*self._points)
-                    points_due = False
-                elif not self._prefetch_one(workers):
+                elif self._prefetch_one(workers, self._wanted):
+                    continue
+                elif points is None:
                     break
+                elif self._prefetch_one(workers, points_ahead):
+                    continue
+                elif points_ahead or any(map(workers.building, point_tiles)):
+                    break
+                else:
+                    workers.points(*points)
+                    points = None
 
-    def _prefetch_one(self, workers: Any) -> bool:
-        """Give one wanted tile to an idle worker (keeping one worker free for pings)."""
-        while self._wanted:
-            tile, _ = self._wanted.popitem(last=False)
+    def _prefetch_one(
+        self, workers: Any, wanted: OrderedDict[tuple[int, int], None]
+    ) -> bool:
+        """Give one tile of ``wanted`` (consumed in order) to an idle worker, keeping one
+        worker free for pings."""
+        while wanted:
+            tile, _ = wanted.popitem(last=False)
             if workers.has_tile(tile):
                 continue
             if not workers.may_prefetch():
-                self._wanted[tile] = None
-                self._wanted.move_to_end(tile, last=False)
+                wanted[tile] = None
+                wanted.move_to_end(tile, last=False)
                 return False
             workers.build(tile)
             with self._lock:

@@ -324,8 +324,9 @@ def test_a_dead_worker_is_replaced_and_its_echo_reported() -> None:
 
 def test_points_and_ahead_of_time_tiles_come_from_the_pool() -> None:
     got: queue.Queue[tuple[Any, Any]] = queue.Queue()
-    # one worker: the points first (tiles 0..1 around (5, 5)), then the tiles the lookahead
-    # wants that the points did not build (10 m tiles of the 20 x 20 m forest: 0..2)
+    # every tile a worker builds is built ahead, one job each: those the lookahead wants, then
+    # those of the points (10 m tiles of the 20 x 20 m forest: 0..2 each way), then the points
+    # gathered from the shared tiles
     svc = EchoService(load_scene(SCENE), worker="pool", workers=1,
                       on_echo=lambda r, e: None, on_error=lambda r, m: None,
                       points=((((5.0, 5.0, 2.0), 4.0),), 500),
@@ -341,4 +342,26 @@ def test_points_and_ahead_of_time_tiles_come_from_the_pool() -> None:
     finally:
         svc.close()
     assert centres.shape == (500, 3) and radii.shape == (500,)
-    assert (st["tiles_built"], st["tiles_prefetched"]) == (9, 5)
+    assert (st["tiles_built"], st["tiles_prefetched"]) == (9, 9)
+
+
+def test_points_arrive_when_their_tiles_do_not_fit_the_tile_cache_together() -> None:
+    """Each tile of the points is built ahead once; tiles the cache evicted again before the
+    points job are rebuilt by that job, not re-queued for ever."""
+    got: queue.Queue[tuple[Any, Any]] = queue.Queue()
+    scene = load_scene({**SCENE, "forest": {**SCENE["forest"], "max_cache_bytes": 1}})
+    svc = EchoService(scene, worker="thread", on_echo=lambda r, e: None,
+                      on_error=lambda r, m: None,
+                      points=((((5.0, 5.0, 2.0), 4.0), ((15.0, 15.0, 2.0), 4.0)), 10**6),
+                      on_points=lambda c, r: got.put((c, r)))
+    svc.start()
+    try:
+        centres, radii = got.get(timeout=60)
+        st = svc.stats()
+    finally:
+        svc.close()
+    full = load_scene(SCENE)
+    tiles = {t for c in ((5.0, 5.0, 2.0), (15.0, 15.0, 2.0))
+             for t in full.forest_source.tiles_near(np.asarray(c), 4.0)}
+    assert st["tiles_prefetched"] == len(tiles) >= 2
+    assert len(centres) == len(radii) == sum(len(full.forest_source.tile(t).radii) for t in tiles)
