@@ -12,7 +12,10 @@ geodetic, PX4 ULog, ArduPilot DataFlash, MAVLink tlog, ROS 2 bags and echoloop r
 Multi-vehicle logs (swarm traces, recordings, tlogs of several systems) need ``vehicle_id``.
 
 The vehicle's time axis starts at the file's first ``t``: sim time 0 is mapped to it. The run
-pace is the server clock's real-time factor ``rate``.
+pace is the server clock's real-time factor ``rate``; echoes, the forest tiles along the path
+(built ahead of the vehicle) and ``/forest/points`` are computed in a worker process, so they
+never hold the interpreter whose tick loop keeps that pace (the server reports the pace it
+kept, ``rate_achieved``).
 """
 
 from __future__ import annotations
@@ -249,9 +252,11 @@ def build_replay_launch(
         base["sonars"] = [{"id": 0, "mount": vid, **dict(sonar or {})}]
     base["state_rate_hz"] = state_rate_hz
     base["clock"] = {"mode": clock_mode, "rate": rate}
+    # echoes, the tiles along the path and /forest/points are computed in a worker process,
+    # never holding the interpreter the tick loop paces the replay with
     nodes: list[dict[str, Any]] = [
         {"name": "server", "entry": "hil_bridge.server:SimServer",
-         "params": {"scene": base, "stop_after_s": traj.duration}},
+         "params": {"scene": base, "stop_after_s": traj.duration, "echo_worker": "process"}},
     ]
     if sonar_rate_hz is not None and "forest" in base:
         ping_params: dict[str, Any] = {"beamwidth_range": [math.radians(30), math.radians(65)]}

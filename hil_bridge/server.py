@@ -213,6 +213,7 @@ class SimServer:
         self._cmd_effect_ticks: deque[int] = deque(maxlen=10000)
         self._sim_ns = 0
         self._tick_cpu_s = 0.0
+        self._tick_wall = (0.0, 0.0)  # monotonic time of the first and of the last tick
         self._last_echo_error = ""
         self._tick_error = ""
         self._flown_gliders: dict[int, dict[str, Any]] = {}
@@ -345,6 +346,9 @@ class SimServer:
             out: dict[str, Any] = dict(self._c)
             out["sim_time_s"] = self._sim_ns / 1e9
             out["tick_cpu_s"] = self._tick_cpu_s
+            wall = self._tick_wall[1] - self._tick_wall[0]
+            out["tick_wall_s"] = wall
+            out["rate_achieved"] = self._sim_ns / 1e9 / wall if wall > 0 else math.nan
             out["registered"] = sorted(self._registered)
             out["last_echo_error"] = self._last_echo_error
             out["tick_error"] = self._tick_error
@@ -687,6 +691,7 @@ class SimServer:
             with self._lock:
                 self._c["ticks"] += 1
                 self._tick_cpu_s += cpu - cpu0
+                self._tick_wall = (wall0, time.monotonic())
             cpu0 = cpu
             tick += 1
             now = time.monotonic()
