@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from hil_bridge.domain import Domain, shared_root
 from hil_bridge.echo_pool import WORKER_NAME
@@ -133,8 +134,8 @@ def test_tiles_are_published_once_and_mapped_read_only(tmp_path: Path) -> None:
     assert not store.directory.exists()
 
 
-def _deadline_service(sink: _Sink, cost: EchoCost) -> EchoService:
-    return sink.service(load_scene(SCENE), worker="thread", deadlines=True, cost=cost)
+def _deadline_service(sink: _Sink, cost: EchoCost, worker: str = "thread") -> EchoService:
+    return sink.service(load_scene(SCENE), worker=worker, workers=1, deadlines=True, cost=cost)
 
 
 def test_a_ping_superseded_by_its_sonars_next_ping_is_dropped_and_counted() -> None:
@@ -153,10 +154,14 @@ def test_a_ping_superseded_by_its_sonars_next_ping_is_dropped_and_counted() -> N
     assert (st["requests"], st["expired"], st["answered"], st["dropped"]) == (2, 1, 1, 0)
 
 
-def test_an_echo_that_cannot_be_ready_in_time_is_degraded_or_dropped_and_counted() -> None:
+@pytest.mark.parametrize("worker", ["thread", "pool"])
+def test_an_echo_that_cannot_be_ready_in_time_is_degraded_or_dropped_and_counted(
+    worker: str,
+) -> None:
     sink = _Sink()
-    # a cost model that predicts seconds per leaf: 'fast' never fits the time left
-    svc = _deadline_service(sink, EchoCost(per_examined_s=1.0))
+    # a cost model that predicts seconds per leaf: 'fast' never fits the time left (the pool's
+    # workers plan with the model they were given)
+    svc = _deadline_service(sink, EchoCost(per_examined_s=1.0), worker)
     now = time.monotonic()
     late = _requests(1, 0, deadline=now - 1.0)[0]  # its time is already up
     tight = dataclasses.replace(_requests(2, 0)[1], deadline=now + 30.0)
