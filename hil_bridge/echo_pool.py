@@ -2,9 +2,9 @@
 
 Both offer the scheduler the same small surface: ``idle()``, ``echo(request, job)``,
 ``points(regions, limit)``, ``build(tile)`` (a tile ahead of the sonars or of the points),
-``has_tile(tile)`` (built or being built), ``building(tile)``, ``may_prefetch()``,
-``poll(timeout) -> replies`` and ``close()``; a reply is ``(kind, request, result, error)``
-with kind ``"echo"`` or ``"points"``.
+``has_tile(tile)`` (built or being built), ``building(tile)``, ``up()``,
+``may_prefetch(reserve)``, ``poll(timeout) -> replies`` and ``close()``; a reply is ``(kind,
+request, result, error)`` with kind ``"echo"`` or ``"points"``.
 
 :class:`ProcessPool` runs ``n`` spawned processes, each with its own copy of the scene, one job
 at a time (so an idle worker is known and no job waits behind another), over one pipe each:
@@ -18,7 +18,8 @@ at a time (so an idle worker is known and no job waits behind another), over one
   numpy, scipy and finufft).
 - **The tick loop first.** Workers run at a lower CPU priority (nice :data:`WORKER_NICE`), so
   when the cores are short the server's tick loop, bus and scheduler threads get them first.
-  Prefetching takes at most ``n - 1`` workers (with one worker, only an idle one).
+  Prefetching takes at most ``n - 1`` workers (with one worker, only an idle one), all of
+  them before the server's first tick.
 - **Nothing outlives the server.** ``close()`` stops the workers (terminating one that does not
   finish its job within :data:`STOP_TIMEOUT_S`) and removes the shared tiles; a worker exits on
   its own when the server process is gone (its pipe closes). A worker that dies is replaced (at
@@ -89,7 +90,10 @@ class ThreadWorker:
     def idle(self) -> bool:
         return not self._replies
 
-    def may_prefetch(self) -> bool:
+    def up(self) -> bool:
+        return True
+
+    def may_prefetch(self, reserve: int = 1) -> bool:
         return True
 
     def has_tile(self, tile: Tile) -> bool:
@@ -292,9 +296,15 @@ class ProcessPool:
     def idle(self) -> bool:
         return any(s.ready and s.job is None for s in self._slots)
 
-    def may_prefetch(self) -> bool:
+    def up(self) -> bool:
+        """Every worker has started (imported, built its scene)."""
+        return bool(self._slots) and all(s.ready for s in self._slots)
+
+    def may_prefetch(self, reserve: int = 1) -> bool:
+        """Whether another tile may be built ahead, keeping ``reserve`` workers off building
+        (at least one may build)."""
         building = sum(1 for s in self._slots if s.job is not None and s.job[0] == "build")
-        return building < max(1, len(self._slots) - 1)
+        return building < max(1, len(self._slots) - reserve)
 
     def has_tile(self, tile: Tile) -> bool:
         """Published or being built."""

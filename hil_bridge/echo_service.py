@@ -34,7 +34,11 @@ oldest dropped).
 
 **Ahead of the pings.** Every :data:`LOOKAHEAD_S` the scheduler asks ``lookahead()`` for the
 regions the sonars will reach (the server's prediction along each vehicle's motion) and has
-idle workers build those tiles, so a ping seldom waits for a tile. ``points=(regions, limit)``
+idle workers build those tiles, so a ping seldom waits for a tile: before the service is
+ready (:meth:`EchoService.wait_ready`, which a server waits for before its first tick) every
+worker builds the tiles of the first lookahead; afterwards, in a pool of two or more, a
+missing tile ahead takes one worker before a waiting echo (an echo whose tile is missing
+would build it anyway, past its deadline), the others answering pings. ``points=(regions, limit)``
 asks for the leaf points of :func:`compute_points` once, handed to ``on_points(centres,
 radii)``: its tiles are built first, one job each, then the points are gathered from them.
 Both run at a lower priority than echoes, and with a process worker neither holds the
@@ -341,6 +345,7 @@ class EchoService:
         self.cost = cost
         self._stop = threading.Event()
         self._wake = threading.Event()
+        self._ready = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._waiting: list[_Waiting] = []
@@ -357,6 +362,12 @@ class EchoService:
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name="echo-service", daemon=True)
             self._thread.start()
+
+    def wait_ready(self, timeout: float | None = None) -> bool:
+        """Block until the workers are up and the tiles the sonars reach first are built
+        (:meth:`start` first); False on timeout. A server calls it before its first tick, so
+        neither the workers' start nor those tiles compete with its tick loop."""
+        return self._ready.wait(timeout)
 
     def close(self) -> None:
         self._stop.set()
@@ -506,11 +517,16 @@ class EchoService:
             log.exception("echo service failed")
             with self._lock:
                 self._c["errors"] += 1
+        finally:
+            self._ready.set()  # nobody waits for a service that ended
 
     def _serve(self, workers: Any) -> None:
-        """The scheduler: replies in, then idle workers get the most urgent echo, else a tile
-        ahead of the sonars, else a tile of the points, else (those built once) the points.
-        Every tile is its own job, so a ping never waits behind a whole ``/forest/points``."""
+        """The scheduler: replies in, then idle workers get, in order: until ready, the tiles
+        the sonars reach first (every worker); a tile ahead of the sonars when another worker
+        is free for pings (a pool of two or more: an echo whose tile is missing would build it
+        anyway, past its deadline); the most urgent echo; a tile ahead of the sonars; a tile of
+        the points; else (those built once) the points. Every tile is its own job, so a ping
+        never waits behind a whole ``/forest/points``."""
         next_look = time.monotonic()
         points = self._points if self._on_points is not None else None
         point_tiles: list[tuple[int, int]] = []
@@ -518,6 +534,9 @@ class EchoService:
             point_tiles = region_tiles(self._geometry(), points[0], MAX_POINT_TILES)
         # consumed once: a tile evicted again before the points job is rebuilt by that job
         points_ahead = OrderedDict.fromkeys(point_tiles)
+        self._refresh_wanted()
+        first_tiles = list(self._wanted)
+        tiles_first = self.n_workers > 1
         while not self._stop.is_set():
             replies = workers.poll(0.05, self._wake)
             self._wake.clear()
@@ -527,7 +546,12 @@ class EchoService:
             if now >= next_look:
                 self._refresh_wanted()
                 next_look = now + LOOKAHEAD_S
+            warming = not self._ready.is_set()
             while not self._stop.is_set() and workers.idle():
+                if warming and self._prefetch_one(workers, self._wanted, reserve=0):
+                    continue
+                if tiles_first and self._prefetch_one(workers, self._wanted):
+                    continue
                 req = self._next_request(time.monotonic())
                 if req is not None:
                     workers.echo(req, self._job(req))
@@ -542,17 +566,20 @@ class EchoService:
                 else:
                     workers.points(*points)
                     points = None
+            if warming and workers.up() and all(
+                    workers.has_tile(t) and not workers.building(t) for t in first_tiles):
+                self._ready.set()
 
     def _prefetch_one(
-        self, workers: Any, wanted: OrderedDict[tuple[int, int], None]
+        self, workers: Any, wanted: OrderedDict[tuple[int, int], None], reserve: int = 1
     ) -> bool:
-        """Give one tile of ``wanted`` (consumed in order) to an idle worker, keeping one
-        worker free for pings."""
+        """Give one tile of ``wanted`` (consumed in order) to an idle worker, keeping
+        ``reserve`` workers free for pings."""
         while wanted:
             tile, _ = wanted.popitem(last=False)
             if workers.has_tile(tile):
                 continue
-            if not workers.may_prefetch():
+            if not workers.may_prefetch(reserve):
                 wanted[tile] = None
                 wanted.move_to_end(tile, last=False)
                 return False

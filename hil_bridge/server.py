@@ -47,7 +47,8 @@ its sonar's next ping (``echo_deadlines``): one that cannot be ready by then is 
 (``pings_dropped_deadline``) instead of queuing. Without deadlines pings wait in a bounded
 queue per sonar (``echo_queue``; when full its oldest is dropped, ``pings_dropped``). The
 tiles each sonar will reach along its vehicle's motion (the next :data:`LOOKAHEAD_HORIZON_S` s
-of wall time) are built ahead of its pings.
+of wall time) are built ahead of its pings; the first tick waits until the workers are up and
+the tiles of that first horizon are built (at most :data:`ECHO_READY_TIMEOUT_S`).
 
 **Time.** The server ticks at ``state_rate_hz`` of sim time. Clock modes: ``realtime`` (ticks
 paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (after each tick,
@@ -94,7 +95,9 @@ from sim_core.config import ConfigError, from_dict
 from sim_core.pose import pose_compose, quat_from_euler
 from sim_core.scene import ClockSpec, Scene, load_scene
 
-__all__ = ["LOOKAHEAD_HORIZON_S", "ServerParams", "SimServer", "percentiles"]
+__all__ = [
+    "ECHO_READY_TIMEOUT_S", "LOOKAHEAD_HORIZON_S", "ServerParams", "SimServer", "percentiles",
+]
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +105,8 @@ log = logging.getLogger(__name__)
 LOOKAHEAD_HORIZON_S = 2.0
 #: points per second of that horizon at which the path ahead is sampled
 LOOKAHEAD_STEPS = 2
+#: how long start() waits for the echo workers and the tiles the sonars reach first (s)
+ECHO_READY_TIMEOUT_S = 60.0
 
 
 def percentiles(values: Sequence[float]) -> dict[str, float]:
@@ -315,13 +320,16 @@ class SimServer:
                 on_points=self._publish_points, lookahead=self._lookahead, domain=self._domain,
             )
         node.start()
+        if self._echo is not None:
+            self._echo.start()
+            if not self._echo.wait_ready(ECHO_READY_TIMEOUT_S):
+                log.warning("%s: echo workers not ready after %.0f s; ticking anyway", self.name,
+                            ECHO_READY_TIMEOUT_S)
         self._threads = [
             threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),
         ]
         for t in self._threads:
             t.start()
-        if self._echo is not None:
-            self._echo.start()
 
     def stop(self) -> None:
         """Stop ticking and echoing, join threads, close the node and proxy (idempotent)."""

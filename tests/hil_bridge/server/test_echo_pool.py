@@ -239,15 +239,29 @@ def test_a_server_with_a_pool_leaves_no_worker_or_shared_memory_behind() -> None
                     echo_worker="pool", echo_workers=2, stop_after_s=0.5)
     srv.start()
     try:
-        deadline = time.monotonic() + 60.0
+        # start() returned once the workers were up and the first tiles built
         workers, stores = _leaks()
-        while time.monotonic() < deadline and (len(workers), len(stores)) != (2, 1):
-            time.sleep(0.05)
-            workers, stores = _leaks()
         assert len(workers) == 2 and len(stores) == 1
+        assert srv.stats()["echo_tiles_built"] >= 1
     finally:
         srv.stop()
     assert _leaks() == ([], [])
+
+
+def test_the_tiles_the_sonars_reach_first_are_built_before_the_service_is_ready() -> None:
+    region = ((10.0, 10.0, 2.0), 6.0)
+    svc = EchoService(load_scene(SCENE), worker="pool", workers=2, on_echo=lambda r, e: None,
+                      on_error=lambda r, m: None, lookahead=lambda: [region])
+    svc.start()
+    try:
+        assert svc.wait_ready(60.0)
+        st = svc.stats()
+        pool = svc._pool
+        first = list(pool.geometry.tiles_near(np.asarray(region[0]), region[1]))
+    finally:
+        svc.close()
+    assert len(first) >= 4  # the ball straddles the corner of four 10 m tiles
+    assert st["tiles_built"] == st["tiles_prefetched"] == len(first)
 
 
 CRASH = textwrap.dedent("""
