@@ -33,6 +33,7 @@ import finufft
 import numpy as np
 from numpy.typing import NDArray
 
+from sim_core.sonar.cost import COST
 from sim_core.sonar.model import SCRATCH_MAX_BYTES, LeafBudget, Scene, leaf_weights
 from sim_core.sonar.params import EchoParams
 from sim_core.sonar.reference import Band, Fidelity, direct_sum
@@ -369,8 +370,9 @@ def _plan(modes: int, eps: float, single: bool, n_trans: int) -> Any:
 class Realtime(Fidelity):
     """``fast`` within a per-echo time budget (``EchoParams.budget_s``), geometry included.
 
-    A fixed, deterministic cost model (:class:`~sim_core.sonar.model.LeafBudget`, measured on
-    the reference machine; same inputs -> same echo): an echo costs ``overhead_s`` +
+    A fixed, deterministic cost model (:class:`~sim_core.sonar.model.LeafBudget`, by default
+    the constants of :data:`sim_core.sonar.cost.COST`, the model the server's echo deadlines
+    plan with; same inputs -> same echo): an echo costs ``overhead_s`` +
     ``per_examined_s`` per leaf examined by the range / cone pre-cull + ``per_candidate_s`` per
     leaf passing it + ``per_selected_s`` per candidate given the off-axis angle and waterdrop
     test + ``per_leaf_s`` per leaf synthesised (incidence, gain, delay, node weights, NUFFT).
@@ -393,11 +395,11 @@ class Realtime(Fidelity):
         self,
         order: int = 3,
         eps: float = 1e-3,
-        overhead_s: float = 1e-3,
-        per_leaf_s: float = 6e-8,
-        per_examined_s: float = 1.5e-8,
-        per_selected_s: float = 2.5e-8,
-        per_candidate_s: float = 2e-8,
+        overhead_s: float = COST.overhead_s,
+        per_leaf_s: float = COST.per_leaf_s,
+        per_examined_s: float = COST.per_examined_s,
+        per_selected_s: float = COST.per_selected_s,
+        per_candidate_s: float = COST.per_candidate_s,
     ) -> None:
         self.fast = Fast(order=order, eps=eps, adapt=None, kink_share=math.inf)
         costs = (overhead_s, per_examined_s, per_selected_s, per_candidate_s)
