@@ -555,6 +555,8 @@ class EchoService:
                 req = self._next_request(time.monotonic())
                 if req is not None:
                     workers.echo(req, self._job(req))
+                elif warming:
+                    break  # the points once ticking: the first tick waits for the tiles only
                 elif self._prefetch_one(workers, self._wanted):
                     continue
                 elif points is None:
