@@ -33,22 +33,23 @@ until the next good one. Commands for path vehicles are counted in ``cmd_ignored
 when it arrived, plus one (1: in effect at the next tick; 2: it arrived while that tick was
 being computed).
 
-**Echoes** (:mod:`hil_bridge.echo_service`). A ping is answered at its sonar's world pose at the
-ping's *emission*: the ping's ``stamp_ns`` when the sender gives one (> 0), else its arrival
-(the latest tick), the vehicle's pose interpolated between ticks from a ``pose_history_s``
-history, composed with the sonar's mount. Stamps after the latest tick or before the history
-use its newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``). Echoes are computed
-off the tick loop by :class:`hil_bridge.echo_service.EchoService`: on a thread (default), or
-``echo_worker: pool``, ``echo_workers`` processes (default one per core) sharing the forest's
-tiles in shared memory at a lower CPU priority than the tick loop (``process``: a pool of one;
-the launching script must be import-safe). In ``realtime`` mode a ping's echo is due before
-its sonar's next ping (``echo_deadlines``): one that cannot be ready by then is degraded to the
-``realtime`` fidelity within the time left (``echoes_degraded``) or dropped
-(``pings_dropped_deadline``) instead of queuing. Without deadlines pings wait in a bounded
-queue per sonar (``echo_queue``; when full its oldest is dropped, ``pings_dropped``). The
-tiles each sonar will reach along its vehicle's motion (the next :data:`LOOKAHEAD_HORIZON_S` s
-of wall time) are built ahead of its pings; the first tick waits until the workers are up and
-the tiles of that first horizon are built (at most :data:`ECHO_READY_TIMEOUT_S`).
+**Echoes** (:mod:`hil_bridge.server_sonars`, :mod:`hil_bridge.echo_service`). A ping is answered
+at its sonar's world pose at the ping's *emission*: the ping's ``stamp_ns`` when the sender
+gives one (> 0), else its arrival (the latest tick), the vehicle's pose interpolated between
+ticks from a ``pose_history_s`` history, composed with the sonar's mount. Stamps after the
+latest tick or before the history use its newest or oldest pose (``ping_stamp_future``,
+``ping_stamp_old``). Echoes are computed off the tick loop by
+:class:`hil_bridge.echo_service.EchoService`: on a thread (default), or ``echo_worker: pool``,
+``echo_workers`` processes (default one per core) sharing the forest's tiles in shared memory at
+a lower CPU priority than the tick loop (``process``: a pool of one; the launching script must
+be import-safe). In ``realtime`` mode a ping's echo is due before its sonar's next ping
+(``echo_deadlines``): one that cannot be ready by then is degraded to the ``realtime`` fidelity
+within the time left (``echoes_degraded``) or dropped (``pings_dropped_deadline``) instead of
+queuing. Without deadlines pings wait in a bounded queue per sonar (``echo_queue``; when full
+its oldest is dropped, ``pings_dropped``). The tiles each sonar will reach along its vehicle's
+motion (the next :data:`~hil_bridge.server_sonars.LOOKAHEAD_HORIZON_S` s of wall time) are built
+ahead of its pings; the first tick waits until the workers are up and the tiles of that first
+horizon are built (at most :data:`~hil_bridge.server_sonars.ECHO_READY_TIMEOUT_S`).
 
 **Time.** The server ticks at ``state_rate_hz`` of sim time. Clock modes: ``realtime`` (ticks
 paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (after each tick,
@@ -76,7 +77,6 @@ from typing import Any, Literal
 import numpy as np
 
 from hil_bridge.domain import current as current_domain
-from hil_bridge.echo_service import EchoRequest, EchoResult, EchoService, Region, SonarPose
 from hil_bridge.fleet import Fleet, FleetStates
 from hil_bridge.lockstep import LockstepGate
 from hil_bridge.logs import load_trajectory
@@ -86,27 +86,15 @@ from hil_bridge.messages import (
     GliderCmd,
     GliderNeighbors,
     GliderState,
-    PointCloud,
-    SonarEcho,
-    SonarPing,
     ThermalMarkers,
 )
+from hil_bridge.server_sonars import ServerSonars
 from sim_core.config import ConfigError, from_dict
-from sim_core.pose import pose_compose, quat_from_euler
 from sim_core.scene import ClockSpec, Scene, load_scene
 
-__all__ = [
-    "ECHO_READY_TIMEOUT_S", "LOOKAHEAD_HORIZON_S", "ServerParams", "SimServer", "percentiles",
-]
+__all__ = ["ServerParams", "SimServer", "percentiles"]
 
 log = logging.getLogger(__name__)
-
-#: how far ahead (wall s) the tiles a sonar will reach are built
-LOOKAHEAD_HORIZON_S = 2.0
-#: points per second of that horizon at which the path ahead is sampled
-LOOKAHEAD_STEPS = 2
-#: how long start() waits for the echo workers and the tiles the sonars reach first (s)
-ECHO_READY_TIMEOUT_S = 60.0
 
 
 def percentiles(values: Sequence[float]) -> dict[str, float]:
@@ -164,17 +152,8 @@ _REJECT_BANK = math.pi / 2
 _COUNTERS = (
     "ticks", "physics_steps", "control_steps", "states_published", "neighbors_published",
     "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
-    "cmd_ignored", "pings_received", "ping_stamp_future", "ping_stamp_old",
-    "echoes_published", "late_ticks", "diagnostics_published", "external_steps",
+    "cmd_ignored", "late_ticks", "diagnostics_published", "external_steps",
 )
-#: EchoService stats -> server counters
-_ECHO_COUNTERS = {
-    "dropped": "pings_dropped", "expired": "pings_dropped_deadline",
-    "degraded": "echoes_degraded", "late": "echoes_late", "errors": "echo_errors",
-    "workers": "echo_workers", "worker_restarts": "echo_worker_restarts",
-    "tiles_built": "echo_tiles_built", "tiles_prefetched": "echo_tiles_prefetched",
-    "tile_bytes": "echo_tile_bytes",
-}
 
 
 class SimServer:
@@ -214,12 +193,10 @@ class SimServer:
         self._started = False
         self._stopped = False
         self._c: dict[str, int] = dict.fromkeys(_COUNTERS, 0)
-        self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._cmd_effect_ticks: deque[int] = deque(maxlen=10000)
         self._sim_ns = 0
         self._tick_cpu_s = 0.0
         self._tick_wall = (0.0, 0.0)  # monotonic time of the first and of the last tick
-        self._last_echo_error = ""
         self._tick_error = ""
         self._flown_gliders: dict[int, dict[str, Any]] = {}
         self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
@@ -240,17 +217,14 @@ class SimServer:
         self._good_cmd: dict[int, tuple[float, float]] = {}
         #: id -> the tick due when its newest good command arrived, until that command is flown
         self._cmd_pending: dict[int, int] = {}
-        self._mounts = {
-            s.id: (s.mount, np.asarray(s.mount_offset_m, dtype=np.float64),
-                   quat_from_euler(*s.mount_rpy_rad))
-            for s in spec.sonars
-        }
         self.fleet = Fleet(
             self.scene, tick_ns=self.tick_ns, substeps=self.substeps,
             history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
         )
-        self._echo: EchoService | None = None
-        self._domain = current_domain()  # the run's: active while the launcher builds nodes
+        self._sonars = ServerSonars(
+            name, self.scene, self.fleet, self._gate, self.clock_spec, self.params, self._now_ns,
+            current_domain(),  # the run's: active while the launcher builds nodes
+        )
         self._node: Any = None
         self._proxy: Any = None
         self._pubs: dict[str, Any] = {}
@@ -278,10 +252,6 @@ class SimServer:
         node = self._node
         self._pubs["/clock"] = node.create_publisher(Clock, "/clock", qos=SENSOR)
         self._pubs["/diagnostics"] = node.create_publisher(Diagnostics, "/diagnostics", qos=SENSOR)
-        if self.scene.spec.sonars and self.params.forest_points > 0:
-            self._pubs["/forest/points"] = node.create_publisher(
-                PointCloud, "/forest/points", qos=LATCHED
-            )
         if self.scene.spec.swarm is not None and self.params.publish_thermals:
             self._pubs["/thermals"] = node.create_publisher(
                 ThermalMarkers, "/thermals", qos=LATCHED
@@ -298,33 +268,11 @@ class SimServer:
             self._pubs[f"/glider/{gid}/neighbors"] = node.create_publisher(
                 GliderNeighbors, f"/glider/{gid}/neighbors", qos=SENSOR
             )
-        for sonar in self.scene.spec.sonars:
-            self._pubs[f"/sonar/{sonar.id}/echo"] = node.create_publisher(
-                SonarEcho, f"/sonar/{sonar.id}/echo", qos=SENSOR,
-                frame_id=f"glider/{sonar.mount}",
-            )
-            node.create_subscription(
-                SonarPing, f"/sonar/{sonar.id}/ping", self._make_ping_callback(sonar.id),
-                qos=SENSOR,
-            )
         # the state of tick 0 before any callback can run: the first ping has a pose
         first = self.fleet.states()
-        if self.scene.spec.sonars:
-            self._echo = EchoService(
-                self.scene, worker=self.params.echo_worker, workers=self.params.echo_workers,
-                queue_size=self.params.echo_queue,
-                deadlines=self.params.echo_deadlines and self.clock_spec.mode == "realtime",
-                on_echo=self._publish_echo, on_error=self._echo_failed,
-                on_drop=lambda req: self._gate.echo_done(req.sonar_id),
-                points=self._points_request(first) if "/forest/points" in self._pubs else None,
-                on_points=self._publish_points, lookahead=self._lookahead, domain=self._domain,
-            )
+        self._sonars.attach(node, first)
         node.start()
-        if self._echo is not None:
-            self._echo.start()
-            if not self._echo.wait_ready(ECHO_READY_TIMEOUT_S):
-                log.warning("%s: echo workers not ready after %.0f s; ticking anyway", self.name,
-                            ECHO_READY_TIMEOUT_S)
+        self._sonars.start()
         self._threads = [
             threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),
         ]
@@ -340,8 +288,7 @@ class SimServer:
         self._gate.interrupt()
         for t in self._threads:
             t.join()
-        if self._echo is not None:
-            self._echo.close()
+        self._sonars.close()
         if self._node is not None:
             self._node.stop()
         if self._proxy is not None:
@@ -349,7 +296,7 @@ class SimServer:
 
     def stats(self) -> dict[str, Any]:
         """Counters, the sim time, registered autopilots and latency percentiles (ms)."""
-        echo = self._echo.stats() if self._echo is not None else {}
+        sonars = self._sonars.stats()
         with self._lock:
             out: dict[str, Any] = dict(self._c)
             out["sim_time_s"] = self._sim_ns / 1e9
@@ -358,18 +305,15 @@ class SimServer:
             out["tick_wall_s"] = wall
             out["rate_achieved"] = self._sim_ns / 1e9 / wall if wall > 0 else math.nan
             out["registered"] = sorted(self._registered)
-            out["last_echo_error"] = self._last_echo_error
             out["tick_error"] = self._tick_error
             out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
-            ping_echo = list(self._ping_echo_ms)
             effect = list(self._cmd_effect_ticks)
         out.update(self._gate.stats())
-        for key, name in _ECHO_COUNTERS.items():
-            out[name] = int(echo.get(key, 0))
+        out.update(sonars)
         out["clock_mode"] = self.clock_spec.mode
         out["built"] = sorted(self.scene.built)
-        out["ping_echo_ms"] = percentiles(ping_echo)
-        out["echo_compute_ms"] = percentiles(echo.get("compute_ms", []))
+        out["ping_echo_ms"] = percentiles(sonars["ping_echo_ms"])
+        out["echo_compute_ms"] = percentiles(sonars["echo_compute_ms"])
         out["cmd_effect_ticks"] = percentiles(effect)
         if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
             out["gliders_alive"] = int(np.count_nonzero(self.fleet.swarm.alive[0]))
@@ -437,110 +381,6 @@ class SimServer:
                 self._cmd_effect_ticks.append(tick - arrived + 1)
             self._cmd_pending.clear()
             return dict(self._good_cmd)
-
-    # ------------------------------------------------------------------ echoes
-
-    def _make_ping_callback(self, sonar_id: int) -> Any:
-        def on_ping(msg: SonarPing) -> None:
-            self._on_ping(sonar_id, msg)
-
-        return on_ping
-
-    def _on_ping(self, sonar_id: int, msg: SonarPing) -> None:
-        """Queue the ping with its sonar's pose at emission (bus thread)."""
-        t_recv = time.monotonic()
-        mount, offset, rotation = self._mounts[sonar_id]
-        with self._lock:
-            self._c["pings_received"] += 1
-            now = self._sim_ns
-        if not self._gate.on_ping(sonar_id, int(msg.stamp_ns), int(msg.next_ns)):
-            return
-        emit = int(msg.stamp_ns) if msg.stamp_ns > 0 else now
-        pose = self.fleet.pose_at(mount, emit)
-        if pose.clamped:
-            with self._lock:
-                self._c["ping_stamp_future" if pose.clamped > 0 else "ping_stamp_old"] += 1
-        position, orientation = pose_compose(pose.position, pose.orientation, offset, rotation)
-        if self._echo is not None:
-            deadline = None
-            if msg.next_ns > msg.stamp_ns > 0 and self.clock_spec.mode == "realtime":
-                # a head on sim time says when its next ping is due
-                deadline = t_recv + (msg.next_ns - msg.stamp_ns) / 1e9 / self.clock_spec.rate
-            self._echo.submit(EchoRequest(
-                sonar_id, msg, SonarPose(pose.t_ns, position, orientation), t_recv, deadline))
-        else:
-            self._gate.echo_done(sonar_id)
-
-    def _publish_echo(self, req: EchoRequest, out: EchoResult) -> None:
-        msg = SonarEcho(
-            stamp_ns=self._now_ns(), ping_seq=int(req.ping.ping_seq), fs=out.fs,
-            samples=out.samples, leaves_in_beam=out.leaves_in_beam, fidelity=out.fidelity,
-            sonar_id=req.sonar_id, dropped=out.dropped, error_bound=out.error_bound,
-            compute_ns=out.compute_ns, position=req.pose.position,
-            orientation=req.pose.orientation, boresight=out.boresight, emit_ns=req.pose.t_ns,
-        )
-        self._pubs[f"/sonar/{req.sonar_id}/echo"].publish(msg)
-        self._gate.echo_done(req.sonar_id)
-        t2 = time.monotonic()
-        with self._lock:
-            self._c["echoes_published"] += 1
-            self._ping_echo_ms.append((t2 - req.received) * 1e3)
-
-    def _echo_failed(self, req: EchoRequest, error: str) -> None:
-        self._gate.echo_done(req.sonar_id)
-        with self._lock:
-            self._last_echo_error = f"ping {req.ping.ping_seq} of sonar {req.sonar_id}: {error}"
-        log.warning("%s: %s", self.name, self._last_echo_error)
-
-    def _points_request(self, first: FleetStates) -> tuple[tuple[Region, ...], int]:
-        """Balls along each sonar's route (a path vehicle's whole path, sampled every half
-        query radius; any other vehicle's start), the routes interleaved, for the latched
-        ``/forest/points``."""
-        index = {vid: k for k, vid in enumerate(first.ids)}
-        routes: list[list[Region]] = []
-        for sonar in self.scene.spec.sonars:
-            r = self.scene.query_radius_m(sonar.id)
-            traj = self.scene.trajectories.get(sonar.mount) if self._vehicle_specs else None
-            if traj is not None:
-                xyz = traj.xyz
-                arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xyz, axis=0),
-                                                                      axis=1))])
-                keep = np.searchsorted(arc, np.arange(0.0, arc[-1] + 1e-9, r / 2.0))
-                pts = xyz[np.unique(np.minimum(keep, len(xyz) - 1))]
-            else:
-                pts = first.position[index[sonar.mount]][None]
-            routes.append([((float(p[0]), float(p[1]), float(p[2])), r) for p in pts])
-        regions = [route[k] for k in range(max(map(len, routes), default=0))
-                   for route in routes if k < len(route)]
-        return tuple(regions), self.params.forest_points
-
-    def _lookahead(self) -> list[Region]:
-        """Where each sonar will be over the next LOOKAHEAD_HORIZON_S s of wall time (its
-        path, for a vehicle on one; else straight on at its velocity), soonest first."""
-        rate = self.clock_spec.rate if self.clock_spec.mode == "realtime" else 1.0
-        steps = round(LOOKAHEAD_HORIZON_S * LOOKAHEAD_STEPS)
-        taus = np.linspace(0.0, LOOKAHEAD_HORIZON_S * rate, steps + 1)
-        per_sonar: list[list[Region]] = []
-        for sonar in self.scene.spec.sonars:
-            latest = self.fleet.latest(sonar.mount)
-            if latest is None:
-                continue
-            t_ns, p, v = latest
-            vehicle = self._vehicle_specs.get(sonar.mount)
-            if vehicle is not None and not vehicle.commanded:
-                s = self.scene.trajectories[sonar.mount].sample(t_ns / 1e9 + taus)
-                xyz = np.column_stack([s["x"], s["y"], s["z"]])
-            else:
-                xyz = p[None, :] + taus[:, None] * v[None, :]
-            r = self.scene.query_radius_m(sonar.id)
-            per_sonar.append([((float(a), float(b), float(c)), r) for a, b, c in xyz])
-        return [regions[k] for k in range(steps + 1) for regions in per_sonar]
-
-    def _publish_points(self, points: Any, radii: Any) -> None:
-        """Leaf centres as one latched PointCloud (intensity = leaf radius, m), stamped 0 like
-        ``/thermals``: it describes the scene, not a moment of it."""
-        self._pubs["/forest/points"].publish(PointCloud(
-            stamp_ns=0, points=points, intensity=radii, label="leaves"))
 
     # ------------------------------------------------------------------ tick loop
 
