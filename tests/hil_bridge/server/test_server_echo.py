@@ -65,7 +65,11 @@ def test_echo_is_computed_at_the_pose_and_beam_of_the_ping(worker: str) -> None:
 
 def test_state_stream_keeps_ticking_while_an_echo_computes() -> None:
     bus = "mem://server_rate"
-    srv = SimServer("server", bus=bus, scene=_scene("fast"), stop_after_s=600.0)
+    # a 'reference' echo takes hundreds of ms: many ticks fit in it however loaded the machine
+    # (a 'fast' one takes ~10 ms, a handful of ticks)
+    scene = _scene("fast")
+    scene["sonars"] = [{**scene["sonars"][0], "fidelity": "reference"}]
+    srv = SimServer("server", bus=bus, scene=scene, stop_after_s=600.0)
     head = Node("head", bus=bus)
     ping_pub = head.create_publisher(SonarPing, "/sonar/3/ping")
     echoes: queue.Queue[SonarEcho] = queue.Queue()
