@@ -11,8 +11,10 @@ and ``S`` so that ``t`` fits its budget: :class:`sim_core.sonar.model.LeafBudget
 constants). Before an echo is computed only ``N`` and the beam are known; :meth:`EchoCost.
 estimate` predicts ``C = N·fill·(1 − cos ρ)/2`` from the fraction of the sphere inside the
 pre-cull cone of half-angle ρ (``fill`` > 1 when the foliage is denser in front of the sonar
-than around it) and ``S = C·kept``. The constants are measured on the reference machine
-(``python -m bench multisonar``); a scheduler scales them by its own measured ratio.
+than around it) and ``S = C·kept``. The synthesis constants are the ``realtime`` calibration
+(``python -m bench sonar``); ``python -m bench multisonar`` checks the whole model, gathering
+included, on the 8-sonar scene (docs/sonar.md, "Cost model"); a scheduler scales it by its own
+measured ratio.
 """
 
 from __future__ import annotations
