@@ -10,8 +10,9 @@ across the whole 160 × 80 m maple forest of ``launch/bench_multisonar.yaml``, 9
 of its ticks) over the asked rate; *sim covered* is the sim time served over ``R × D``; *run
 after start* is the wall time from every node running to the run's end (stopping included)
 against ``D``. The replay computes echoes, tiles and points in a worker process (``echo_worker:
-process``); the last row is the echo thread it used before (issue 12: a 4× replay ran 14×
-slow). Issue 12's goal: the rate within 5 %, ``--duration`` held.
+process``); the last row is the echo thread it used before (issue 12: a 4× replay of a swarm
+trace ran 14× slow, most of it re-summing the tile cache's sizes, which ``TiledForest`` now
+keeps as a running total). Issue 12's goal: the rate within 5 %, ``--duration`` held.
 """
 
 from __future__ import annotations
