@@ -260,12 +260,48 @@ class Domain:
         root = self.directory or runtime_root() / str(self.number)
         if root.is_dir():
             for entry in sorted(root.iterdir()):
-                if entry.is_symlink() and entry.exists():
+                if entry.is_symlink() and link_in_use(entry):
                     return f"{entry} links to a live pty ({os.readlink(entry)})"
         return None
 
     def __str__(self) -> str:
         return f"private domain {self.token}" if self.number is None else f"domain {self.number}"
+
+
+def _owner_lock(link: Path) -> Path:
+    return link.with_name(f".{link.name}.owner")
+
+
+def hold_link(link: str | os.PathLike[str]) -> int:
+    """Take ownership of the device link ``link`` for this process: an exclusive lock on a file
+    beside it, held on the returned fd until it is closed (or the process ends, even by
+    SIGKILL). ``ValueError`` if a live process owns it. A link's target alone cannot say this:
+    pty numbers are reused, so a link left by a killed run may point at another program's pty."""
+    path = Path(link)
+    fd = os.open(_owner_lock(path), os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        target = os.readlink(path) if path.is_symlink() else "?"
+        raise ValueError(f"link {str(path)!r} points to a pty another process holds open "
+                         f"({target}); stop it, or use another link or domain") from None
+    return fd
+
+
+def link_in_use(link: str | os.PathLike[str]) -> bool:
+    """True while a live process owns ``link`` (:func:`hold_link`)."""
+    try:
+        fd = os.open(_owner_lock(Path(link)), os.O_RDONLY)
+    except FileNotFoundError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+    return False
 
 
 def parse_domain(text: str | int, *, where: str = "domain") -> int:

@@ -8,9 +8,10 @@ opens it are buffered (pyserial flushes them on open) and the host may close and
 ``unplug()`` closes both sides and removes the symlink: the host's reads fail the way they do
 when a USB adapter is pulled. ``replug()`` creates a new pty and points the symlink at it.
 
-The symlink never replaces a file that is not a symlink, nor a symlink to a pty that is still
-open (another mock holds it: two runs in one domain, see :mod:`hil_bridge.domain`); a symlink
-whose pty is gone (left by a crashed run) is replaced.
+The symlink never replaces a file that is not a symlink, nor one another live port owns (two
+runs in one domain: ownership is a lock held beside the link, :func:`hil_bridge.domain.hold_link`,
+released when the port closes or its process dies); a symlink left by a killed run is replaced,
+even when its pty number has since been given to another program.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ import select
 import threading
 import tty
 from pathlib import Path
+
+from hil_bridge.domain import hold_link
 
 __all__ = ["PtyPort"]
 
@@ -35,10 +38,7 @@ class PtyPort:
             if self.link.exists() and not self.link.is_symlink():
                 raise ValueError(f"link {str(self.link)!r} exists and is not a symlink; refusing "
                                  "to replace it")
-            if self.link.is_symlink() and self.link.exists():
-                raise ValueError(f"link {str(self.link)!r} points to a pty another process holds "
-                                 f"open ({os.readlink(self.link)}); stop it, or use another "
-                                 "link or domain")
+        self._owner = -1 if self.link is None else hold_link(self.link)
         self._lock = threading.Lock()
         self._master = -1
         self._slave = -1
@@ -97,6 +97,9 @@ class PtyPort:
                 return
             self._unplug_locked()
             self._closed = True
+            if self._owner >= 0:
+                os.close(self._owner)
+                self._owner = -1
         os.write(self._wake_w, b"c")
         os.close(self._wake_r)
         os.close(self._wake_w)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 import socket
 from pathlib import Path
 
@@ -147,3 +148,25 @@ def test_cli_domain_flag_reaches_the_defaults(
         echoloop(["topic", "list", "--domain", "100"])
     assert exc.value.code == 2
     assert "expected an integer 0..99" in capsys.readouterr().err
+
+
+def test_a_link_left_by_a_killed_run_is_replaced_even_when_its_pty_number_is_reused(
+    tmp_path: Path,
+) -> None:
+    """A link's target cannot tell a live run from a dead one (pty numbers are reused): a link
+    that a killed run left behind, pointing at a pty another program now holds open, neither
+    makes the domain busy nor stops the next mock from taking it."""
+    from drivers.serial.ptyport import PtyPort
+
+    d = Domain.private(tmp_path)
+    other = PtyPort()  # another program's pty, open
+    try:
+        os.symlink(other.path, d.path("sonar0"))  # what a SIGKILLed mock leaves behind
+        assert d.busy_reason() is None
+        port = PtyPort(d.path("sonar0"))
+        try:
+            assert os.readlink(d.path("sonar0")) == port.path != other.path
+        finally:
+            port.close()
+    finally:
+        other.close()
