@@ -331,16 +331,25 @@ def _bad_bytes(kind: Kind, corruption: str, scratch: Path) -> bytes | None:
     return bytes(flipped)
 
 
-@pytest.mark.parametrize("corruption", CORRUPTIONS)
-@pytest.mark.parametrize("reader", READERS, ids=[r.id for r in READERS])
+def _applies(reader: Reader, corruption: str) -> bool:
+    """Whether ``corruption`` means something for the reader's kind of file (a YAML key file
+    has no shape to make huge; a ULog's NaN rows are valid data)."""
+    kind = KINDS[reader.kind]
+    return {"huge-shape": kind.huge, "nan-rows": kind.nan}.get(corruption, True) is not None
+
+
+CASES = [pytest.param(r, c, id=f"{r.id}-{c}")
+         for r in READERS for c in CORRUPTIONS if _applies(r, c)]
+
+
+@pytest.mark.parametrize(("reader", "corruption"), CASES)
 def test_every_reader_reports_a_bad_file_in_one_line(
     reader: Reader, corruption: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     kind = KINDS[reader.kind]
     data = _bad_bytes(kind, corruption, tmp_path)
-    if data is None:
-        pytest.skip(f"{corruption} means nothing for a {reader.kind} file")
+    assert data is not None
     (tmp_path / "ok.csv").write_bytes(_csv(_trajectory()))
     path = reader.place(tmp_path) if reader.place else tmp_path / f"input{kind.suffix}"
     path.write_bytes(data)
