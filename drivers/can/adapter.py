@@ -438,12 +438,16 @@ class AutopilotAdapter(Node):
         if nbs is not None:
             self._send_neighbours(g, st, nbs, nb_set)
         ok &= self._send_attitude(g, st, counter)
-        ok &= self._send(
+        ok &= self._send_motion(g, st, counter)
+        self._inc("lockstep_samples_sent" if ok else "states_dropped")
+
+    def _send_motion(self, g: _Glider, st: GliderState, counter: int) -> bool:
+        """GLIDER_STATE_MOTION, the frame that completes a state sample."""
+        return self._send(
             "GLIDER_STATE_MOTION", g.node,
             {"heading_rad": st.heading, "bank_rad": st.bank, "airspeed_mps": st.airspeed,
              "vz_mps": st.vz, "alive": float(st.alive), "state_counter": counter},
         )
-        self._inc("lockstep_samples_sent" if ok else "states_dropped")
 
     def _send_states(self, now: float) -> None:
         if self._lockstep:
@@ -465,11 +469,7 @@ class AutopilotAdapter(Node):
                 "GLIDER_STATE_POS", g.node, {"x_m": st.x, "y_m": st.y, "z_m": st.z}
             )
             ok &= self._send_attitude(g, st, counter)
-            ok &= self._send(
-                "GLIDER_STATE_MOTION", g.node,
-                {"heading_rad": st.heading, "bank_rad": st.bank, "airspeed_mps": st.airspeed,
-                 "vz_mps": st.vz, "alive": float(st.alive), "state_counter": counter},
-            )
+            ok &= self._send_motion(g, st, counter)
             self._inc("states_sent" if ok else "states_dropped")
             if nbs is not None:
                 self._send_neighbours(g, st, nbs, nb_set)
