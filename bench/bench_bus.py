@@ -1,7 +1,7 @@
 """Bus benchmarks: state-path latency through the proxy vs raw pyzmq, recorder throughput, codec.
 
 Latency: a 250 Hz publisher thread sends ``GliderState`` on ``/glider/0/state`` through a real
-XSUB/XPUB proxy (loopback TCP) to a subscribing :class:`~hil_bridge.node.Node` in the same
+XSUB/XPUB proxy (loopback TCP) to a subscribing :class:`~hil_bridge.bus.node.Node` in the same
 process; latency is the subscriber callback's ``time.monotonic_ns()`` minus the header's
 ``pub_ns``. A second thread meanwhile computes echo-like numpy work without pause (FFT
 convolution of 64 Ki-sample signals), as the server's echo worker does. The baseline, measured in
@@ -22,11 +22,11 @@ import numpy as np
 import zmq
 
 from bench._util import fmt_s, median, table, time_it
-from hil_bridge.codec import Envelope, decode, encode
-from hil_bridge.messages import GliderState, Message, SonarEcho
-from hil_bridge.node import Node
-from hil_bridge.proxy import Proxy
-from hil_bridge.recorder import Recorder
+from hil_bridge.bus.codec import Envelope, decode, encode
+from hil_bridge.bus.messages import GliderState, Message, SonarEcho
+from hil_bridge.bus.node import Node
+from hil_bridge.bus.proxy import Proxy
+from hil_bridge.recording.recorder import Recorder
 
 TITLE = "Bus: state-path latency, recorder throughput, codec costs"
 

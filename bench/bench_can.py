@@ -35,10 +35,10 @@ from drivers.can.busload import frame_bits, worst_case_bits
 from drivers.can.codec import GliderCanCodec
 from drivers.faults.can_bus import FaultInjectingBus
 from drivers.mocks.autopilot import MockAutopilot, ProfileReceiver, figure_eight_waypoints
+from hil_bridge.bus.messages import GliderCmd, GliderState
+from hil_bridge.bus.node import Node
 from hil_bridge.errors import CodecError
-from hil_bridge.messages import GliderCmd, GliderState
-from hil_bridge.node import Node
-from hil_bridge.server import SimServer
+from hil_bridge.server.sim_server import SimServer
 
 TITLE = "CAN glider autopilot (drivers.can)"
 

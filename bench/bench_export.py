@@ -25,9 +25,8 @@ REPEAT = 3
 
 
 def _write(path: Path, kinds: set[str], seconds: float = 20.0) -> int:
-    from hil_bridge.bag import BagWriter, MessageEncoding
-    from hil_bridge.codec import Header, encode_payload
-    from hil_bridge.messages import (
+    from hil_bridge.bus.codec import Header, encode_payload
+    from hil_bridge.bus.messages import (
         Clock,
         GliderCmd,
         GliderState,
@@ -36,6 +35,7 @@ def _write(path: Path, kinds: set[str], seconds: float = 20.0) -> int:
         SonarPing,
         ThermalMarkers,
     )
+    from hil_bridge.recording.bag import BagWriter, MessageEncoding
 
     rng = np.random.default_rng(0)
     count = 0
@@ -85,9 +85,9 @@ def _cpu(fn: Callable[[], Any]) -> float:
 
 
 def run(out_dir: Path) -> str:
-    from hil_bridge.bag import export_json
-    from hil_bridge.export import run_exporter
-    from hil_bridge.export.common import ExportCounts, decoded
+    from hil_bridge.recording.bag import export_json
+    from hil_bridge.recording.export import run_exporter
+    from hil_bridge.recording.export.common import ExportCounts, decoded
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -2,14 +2,16 @@
 
 1. **Flood isolation.** The demo graph (``launch/demo.yaml``: server with 8 soaring gliders and
    the sonar vehicle, mock sonar head + serial adapter, CAN adapter, mock autopilots) runs on a
-   free loopback ``tcp://`` bus twice: quiet, and with ``python -m hil_bridge.flood`` (a separate
+   free loopback ``tcp://`` bus twice: quiet, and with ``python -m hil_bridge.tools.flood`` (a
+   separate
    process) injecting FLOOD_RATE malformed messages/s on ``/glider/0/state`` for FLOOD_S seconds
    after a WARMUP_S warm-up. Measured: the injected rate; the state latency (server ``pub_ns``
    → the CAN adapter's state callback) over the adapter's last 10,000 states; the malformed
    messages the adapter dropped and counted per second; hold/failsafe entries and failsafe
    commands of the CAN adapter (goal: 0); the sonar head's ping outcomes.
 2. **Recovery.** A recorder in a child process records incompressible echoes and states until
-   it is killed with SIGKILL; ``hil_bridge.bag.recover`` turns its unfinished ``.part`` file into
+   it is killed with SIGKILL; ``hil_bridge.recording.bag.recover`` turns its unfinished ``.part``
+   file into
    a finished one. Measured: recover speed (MB/s of input, median of 3) and the kept fraction
    (messages recovered / messages the recorder had received when it was killed).
 """
@@ -31,9 +33,9 @@ from typing import Any
 from mcap.reader import make_reader
 
 from bench._util import median, table
-from hil_bridge.bag import recover
-from hil_bridge.launch import LaunchSpec, load
-from hil_bridge.launch import run as run_launch
+from hil_bridge.launch.runner import LaunchSpec, load
+from hil_bridge.launch.runner import run as run_launch
+from hil_bridge.recording.bag import recover
 
 TITLE = "Faults: flood isolation, recovering a killed recording"
 
@@ -90,7 +92,7 @@ def _run(flood: bool, tmp: Path) -> dict[str, Any]:
         stop.wait(WARMUP_S)
         if flood:
             proc = subprocess.run(
-                [sys.executable, "-m", "hil_bridge.flood", "--bus", bus, "--topic", FLOODED,
+                [sys.executable, "-m", "hil_bridge.tools.flood", "--bus", bus, "--topic", FLOODED,
                  "--rate", str(FLOOD_RATE), "--duration", str(FLOOD_S)],
                 capture_output=True, text=True, check=True, cwd=ROOT, timeout=FLOOD_S + 60)
             sent, secs = proc.stdout.split()[1], proc.stdout.split(" in ")[1].split()[0]
@@ -134,8 +136,8 @@ def _flood_section() -> str:
         ])
     return (
         f"Demo graph on loopback `tcp://`, {WARMUP_S:.0f} s warm-up, then {FLOOD_S:.0f} s quiet "
-        f"or under `python -m hil_bridge.flood --rate {FLOOD_RATE}` (malformed messages of every "
-        f"kind on `{FLOODED}`, a separate process); the run ends with the flood. State "
+        f"or under `python -m hil_bridge.tools.flood --rate {FLOOD_RATE}` (malformed messages "
+        f"of every kind on `{FLOODED}`, a separate process); the run ends with the flood. State "
         "latency = the CAN adapter's state callback time − the server's `pub_ns` (same host), "
         "ms, over its last 10,000 state callbacks (9 vehicles × 50 Hz: the last 22 s, 20 s of "
         "them flooded), for the 8 vehicles whose topic is not flooded (the worst of them) and "
@@ -159,9 +161,9 @@ def _flood_section() -> str:
 _CHILD = textwrap.dedent("""
     import sys, threading
     import numpy as np
-    from hil_bridge.messages import GliderState, SonarEcho
-    from hil_bridge.node import Node
-    from hil_bridge.recorder import Recorder
+    from hil_bridge.bus.messages import GliderState, SonarEcho
+    from hil_bridge.bus.node import Node
+    from hil_bridge.recording.recorder import Recorder
     bus = "mem://bench_kill?depth=100000"
     rec = Recorder(sys.argv[1], bus=bus, diagnostics_period_s=0)
     rec.start()

@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from bench._util import median, table
-from hil_bridge.domain import Domain
-from hil_bridge.launch import load, parse_param_overrides
-from hil_bridge.launch import run as launch_run
+from hil_bridge.bus.domain import Domain
+from hil_bridge.launch.runner import load, parse_param_overrides
+from hil_bridge.launch.runner import run as launch_run
 
 TITLE = "Lockstep demo: sim seconds per wall second, stalls"
 

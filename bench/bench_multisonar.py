@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from bench._util import table
-from hil_bridge.domain import claim_first_free
-from hil_bridge.launch import run as launch_run
+from hil_bridge.bus.domain import claim_first_free
+from hil_bridge.launch.runner import run as launch_run
 from sim_core.config import load_yaml
 
 TITLE = "Eight sonar vehicles × 20 Hz: one echo worker and the pool"
@@ -48,7 +48,7 @@ def _pinger_apart(spec: dict[str, Any], domain: Any, run_s: float, out: Any) -> 
     """Child process: the launch file's pinger alone (no bus monitor), on the server's bus."""
     import time
 
-    from hil_bridge.replay import Pinger
+    from hil_bridge.replay.trajectory import Pinger
 
     node = spec["nodes"][1]
     pinger = Pinger(node["name"], bus=domain.bus_url, **node["params"])

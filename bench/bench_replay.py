@@ -4,7 +4,8 @@ does ``--duration`` hold?
 A flight log (CSV ``t, x, y, z`` at 25 Hz, written here: a 366 m stadium loop at 5 m/s, 6 m up,
 across the whole 160 × 80 m maple forest of ``launch/bench_multisonar.yaml``, 978,432 leaves in
 32 tiles of 20 m) is replayed as ``echoloop replay LOG --scene … --rate R --duration D`` does
-(:func:`hil_bridge.replay.build_replay_launch`, a claimed domain, its ZeroMQ bus): states at
+(:func:`hil_bridge.replay.trajectory.build_replay_launch`, a claimed domain, its ZeroMQ bus):
+states at
 50 Hz, sonar 0 on the vehicle pinged at 10 Hz, and ``/forest/points`` along the whole route
 (every tile of the forest). *Rate kept* is the server's ``rate_achieved`` (sim time / wall time
 of its ticks) over the asked rate; *sim covered* is the sim time served over ``R × D``; *run
@@ -26,9 +27,9 @@ from typing import Any
 import numpy as np
 
 from bench._util import table
-from hil_bridge.domain import claim_first_free
-from hil_bridge.launch import run as launch_run
-from hil_bridge.replay import build_replay_launch
+from hil_bridge.bus.domain import claim_first_free
+from hil_bridge.launch.runner import run as launch_run
+from hil_bridge.replay.trajectory import build_replay_launch
 from sim_core.config import load_yaml
 
 TITLE = "Replay at the asked rate"

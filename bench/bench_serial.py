@@ -28,8 +28,8 @@ from drivers.serial.adapter import SonarHeadAdapter
 from drivers.serial.framing import FrameDecoder, MsgType, frame_bytes
 from drivers.serial.host import link_budget
 from drivers.serial.protocol import Encoding, chunk_echo, encode_samples
-from hil_bridge.messages import SonarEcho, SonarPing
-from hil_bridge.node import Node
+from hil_bridge.bus.messages import SonarEcho, SonarPing
+from hil_bridge.bus.node import Node
 from sim_core.rng import make_rng
 
 TITLE = "Serial sonar-head link (drivers.serial)"

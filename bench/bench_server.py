@@ -1,7 +1,8 @@
 """Simulation server: does echo synthesis delay the 250 Hz state stream, and is every state
 of the stream a new physics state?
 
-**One sonar vehicle.** The real :class:`hil_bridge.server.SimServer` runs the seed 000 forest
+**One sonar vehicle.** The real :class:`hil_bridge.server.sim_server.SimServer` runs the seed 000
+forest
 with a sonar vehicle on the "8" route at ``state_rate_hz = 250`` (realtime clock), on an
 in-process ``mem://`` bus so that only the server's own threads compete. A subscriber timestamps
 every ``/glider/0/state`` on arrival; we report the inter-arrival gaps (ideal 4 ms) and the
@@ -33,10 +34,10 @@ from typing import Any
 import numpy as np
 
 from bench._util import table
-from hil_bridge.messages import GliderState
-from hil_bridge.node import Node
-from hil_bridge.replay import Pinger
-from hil_bridge.server import SimServer
+from hil_bridge.bus.messages import GliderState
+from hil_bridge.bus.node import Node
+from hil_bridge.replay.trajectory import Pinger
+from hil_bridge.server.sim_server import SimServer
 
 TITLE = "Server: 250 Hz state stream while echoes are computed"
 
@@ -119,8 +120,8 @@ def _fresh(states: list[tuple[int, tuple[float, float, float]]], tick_ns: int) -
 
 
 def _measure_loop(rate: float, ping_hz: float, worker: str = "thread") -> dict[str, Any]:
-    from hil_bridge.messages import GliderCmd
-    from hil_bridge.qos import QoSProfile
+    from hil_bridge.bus.messages import GliderCmd
+    from hil_bridge.bus.qos import QoSProfile
 
     bus = f"mem://bench_loop_{rate:g}_{ping_hz:g}_{worker}?depth=100000"
     srv = SimServer("server", bus=bus, scene=_loop_scene(rate), echo_worker=worker)

@@ -15,8 +15,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from hil_bridge.bus.domain import use
 from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
-from hil_bridge.domain import use
 
 __all__ = ["SUBCOMMANDS", "main", "sonar_head"]
 

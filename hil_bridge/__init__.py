@@ -1,1 +1,16 @@
-"""hil_bridge: the echoloop bus (ROS 2-style topics over ZeroMQ), sim clock, server and tools."""
+"""hil_bridge: the echoloop bus (ROS 2-style topics over ZeroMQ), the simulation server and tools.
+
+Sub-packages, each a layer that imports only the layers below it (``importlinter`` contracts in
+``pyproject.toml`` enforce it; ``docs/architecture.md`` draws it):
+
+- ``cli`` — the ``echoloop`` command line;
+- ``launch`` — launch files run by a runner, the bus monitor, ``--expect``, the pytest plugin;
+- ``server``, ``replay``, ``tools``, ``plots`` — the simulation server (tick loop, fleet, sonars,
+  echo service), trajectory replay, topic tools / live view / flood / sweeps, and figures;
+- ``recording`` — MCAP bags, the recorder, scan and recovery, flight-log readers, exports;
+- ``bus`` — messages, codec, QoS, sequences, node API, transports, proxy, clock, security,
+  domains;
+- ``errors`` and ``outputs`` — the error types and the never-clobber output files every layer uses.
+
+Everything here may import ``sim_core`` (the pure world); nothing here imports ``drivers``.
+"""

@@ -83,7 +83,8 @@ FloatArray = NDArray[np.float64]
 
 class TrajectoryReader(Protocol):
     """Reads a logged path: ``reader(path, vehicle_id=, topic=, origin=) -> Trajectory``
-    (``hil_bridge.logs.load_trajectory``); raises ``ValueError`` naming the file on bad input."""
+    (``hil_bridge.recording.logs.load_trajectory``); raises ``ValueError`` naming the file on bad
+    input."""
 
     def __call__(
         self,
@@ -267,7 +268,7 @@ class ClockSpec:
     ``lockstep_timeout_s`` of wall time per step, ``lockstep_start_timeout_s`` for a participant
     not heard from yet; a miss is a stall and the step goes ahead), ``fast`` (as fast as
     possible). A participant that stalls ``lockstep_max_stalls`` steps in a row is no longer
-    waited for until it answers again (``hil_bridge.lockstep``).
+    waited for until it answers again (``hil_bridge.server.lockstep``).
     """
 
     mode: Literal["realtime", "lockstep", "fast"] = "realtime"
@@ -387,7 +388,8 @@ class PathSpec:
     """A kinematic path: ``figure_eight`` (seed 000 "8" route), a logged ``file``, or points.
 
     ``params`` go to :func:`sim_core.sonar.scenarios.figure_eight_path`; ``file`` names a flight
-    log read by the scene's :data:`TrajectoryReader` (``hil_bridge.logs.load_trajectory``: CSV,
+    log read by the scene's :data:`TrajectoryReader`
+    (``hil_bridge.recording.logs.load_trajectory``: CSV,
     NPZ, ULog, DataFlash, tlog, ROS 2 bags, echoloop recordings) with its options ``id``
     (vehicle of a multi-vehicle log), ``topic`` (ROS 2 bags) and ``origin`` ([lat, lon, alt]
     of the local ENU frame for geodetic logs; default the first fix); ``points`` is a list of
@@ -522,7 +524,7 @@ class Scene:
 
     Files are I/O, which ``sim_core`` does not do: a scene with ``kind: file`` paths needs a
     ``trajectory_reader`` (the layer that runs the scene passes
-    ``hil_bridge.logs.load_trajectory``).
+    ``hil_bridge.recording.logs.load_trajectory``).
     """
 
     def __init__(
@@ -695,7 +697,7 @@ class Scene:
             if self.trajectory_reader is None:
                 raise ValueError(
                     f"file {ps.file!r}: a logged path needs a trajectory reader; build the "
-                    "scene with trajectory_reader=hil_bridge.logs.load_trajectory"
+                    "scene with trajectory_reader=hil_bridge.recording.logs.load_trajectory"
                 )
             traj = self.trajectory_reader(str(ps.file), vehicle_id=ps.id, topic=ps.topic,
                                           origin=ps.origin)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil_bridge.domain import Domain, use
+from hil_bridge.bus.domain import Domain, use
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -47,7 +47,7 @@ def data_dir() -> Path:
 @pytest.fixture(scope="session", autouse=True)
 def _private_domain(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Domain]:
     """Every default bus, pty link and virtual CAN channel of the suite belongs to this run
-    (hil_bridge.domain), so the suite never meets a demo or another run on the machine."""
+    (hil_bridge.bus.domain), so the suite never meets a demo or another run on the machine."""
     with use(Domain.private(tmp_path_factory.mktemp("domain"))) as domain:
         yield domain
 
@@ -72,12 +72,12 @@ def _no_thread_leaks() -> Iterator[None]:
 
 @pytest.fixture(autouse=True)
 def _no_worker_or_shared_memory_leaks() -> Iterator[None]:
-    """Fail a test that leaves an echo worker process (``hil_bridge.echo_pool``) running or a
-    shared tile store (``hil_bridge.shared_tiles``) of this process behind."""
+    """Fail a test that leaves an echo worker process (``hil_bridge.server.echo_pool``) running or a
+    shared tile store (``hil_bridge.server.shared_tiles``) of this process behind."""
     import multiprocessing
 
-    from hil_bridge.echo_pool import WORKER_NAME
-    from hil_bridge.shared_tiles import stores_of
+    from hil_bridge.server.echo_pool import WORKER_NAME
+    from hil_bridge.server.shared_tiles import stores_of
 
     yield
     deadline = time.monotonic() + 5.0

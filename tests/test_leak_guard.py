@@ -11,7 +11,7 @@ pytest_plugins = ["pytester"]
 
 INNER = '''
 import threading, time
-from hil_bridge.echo_pool import ProcessPool
+from hil_bridge.server.echo_pool import ProcessPool
 from sim_core.scene import load_scene
 
 SCENE = {"forest": {"preset": "seed000-fig5d", "tiled": True, "tile_size_m": 10.0},

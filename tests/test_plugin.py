@@ -18,8 +18,8 @@ from typing import Any
 
 import pytest
 
-from hil_bridge.launch import EXIT_EXPECT
-from hil_bridge.pytest_plugin import RunFailed, node_overrides
+from hil_bridge.launch.pytest_plugin import RunFailed, node_overrides
+from hil_bridge.launch.runner import EXIT_EXPECT
 
 ROOT = Path(__file__).resolve().parents[1]
 _BLOCK = re.compile(r"```(?:python|yaml)\n# (?P<name>[\w.]+)\n(?P<body>.*?)```", re.S)
@@ -27,7 +27,7 @@ _BLOCK = re.compile(r"```(?:python|yaml)\n# (?P<name>[\w.]+)\n(?P<body>.*?)```",
 FAILURES = '''
 import pytest
 
-from hil_bridge.pytest_plugin import RunFailed
+from hil_bridge.launch.pytest_plugin import RunFailed
 
 SERVER = {"name": "server", "entry": "hil_bridge.server:SimServer",
           "params": {"scene": {"swarm": {"overrides": {"numAgents": 2, "dt": 0.1}},

@@ -30,7 +30,7 @@ GLIDER_STATE_POS with ``lockstep = 1``, the neighbour list of the same step (if 
 attitude frames, then GLIDER_STATE_MOTION, so the sample completes with its neighbours. The
 autopilot answers it with one AUTOPILOT_CMD (``answer = 1``, ``answer_counter`` = the sample's
 ``state_counter``), which is published as ``/glider/<id>/cmd`` with the ``step`` and stamp of
-the state it answers: the server waits for exactly that (:mod:`hil_bridge.lockstep`). A state
+the state it answers: the server waits for exactly that (:mod:`hil_bridge.server.lockstep`). A state
 the server sends again (the same tick again: same step and stamp) while its answer is missing is
 sent again. Command ages for HOLD and FAILSAFE are then measured in sim time, so a simulation
 that waits for something else never ages the commands; held and failsafe commands carry the step
@@ -38,7 +38,7 @@ of the last command.
 
 The control path has priority on the node's executor: state and ``/clock`` callbacks run before
 neighbour lists, and malformed bus messages are dropped and counted before they queue
-(:mod:`hil_bridge.node`), so a flood on one topic cannot hold states back.
+(:mod:`hil_bridge.bus.node`), so a flood on one topic cannot hold states back.
 
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
 recovery, re-open); no exception leaves the adapter's threads (anything unexpected is logged
@@ -62,13 +62,13 @@ import numpy as np
 
 from drivers.can.bus import CanBusConfig, CanLink, LinkPolicy
 from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
-from hil_bridge.clock import SimClock
-from hil_bridge.codec import Envelope
+from hil_bridge.bus.clock import SimClock
+from hil_bridge.bus.codec import Envelope
+from hil_bridge.bus.messages import Clock, GliderCmd, GliderNeighbors, GliderState
+from hil_bridge.bus.node import Node, Publisher
+from hil_bridge.bus.qos import SENSOR, QoSProfile
 from hil_bridge.errors import CodecError
-from hil_bridge.messages import Clock, GliderCmd, GliderNeighbors, GliderState
-from hil_bridge.node import Node, Publisher
 from hil_bridge.outputs import check_output
-from hil_bridge.qos import SENSOR, QoSProfile
 from sim_core.soaring.law import Law
 
 __all__ = [

@@ -26,7 +26,7 @@
    ``overwrite``.
 5. ``close()`` is idempotent and flushes the log.
 6. :meth:`CanLink.report` says whether the bus was ever open and its state when closed (the run
-   summary's ``links``, :func:`hil_bridge.launch.collect_links`).
+   summary's ``links``, :func:`hil_bridge.launch.runner.collect_links`).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ from drivers.faults.can_bus import (
     FaultInjectingBus,
     fault_rngs,
 )
-from hil_bridge.domain import current as current_domain
+from hil_bridge.bus.domain import current as current_domain
 from hil_bridge.outputs import AtomicOutput
 from sim_core.config import from_dict
 
@@ -70,7 +70,7 @@ class CanBusConfig:
     """Where the CAN bus is: python-can ``interface``, ``channel`` and ``bitrate``.
 
     :meth:`from_params` (what launch parameters go through) gives a ``virtual`` bus without a
-    channel the domain's channel ``glider`` (``glider.d<N>``, :mod:`hil_bridge.domain`), so two
+    channel the domain's channel ``glider`` (``glider.d<N>``, :mod:`hil_bridge.bus.domain`), so two
     runs in one process never share a virtual bus by accident; other interfaces need one.
     ``bitrate`` None leaves the interface's own setting (socketcan takes it from
     ``ip link set can0 type can bitrate ...``). ``options`` are further ``can.Bus`` keyword

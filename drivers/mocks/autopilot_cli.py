@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from hil_bridge.bus.domain import use
 from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
-from hil_bridge.domain import use
 
 __all__ = ["main"]
 

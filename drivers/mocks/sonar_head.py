@@ -4,7 +4,7 @@
 ``stats``) and runs alone via ``echoloop mock sonar-head``. It
 
 1. owns a device port: a new pty (``pty=True``) symlinked to ``link`` (default the domain's
-   ``sonar<sonar_id>``, where ``SonarHeadAdapter`` looks by default; :mod:`hil_bridge.domain`),
+   ``sonar<sonar_id>``, where ``SonarHeadAdapter`` looks by default; :mod:`hil_bridge.bus.domain`),
    an existing serial URL (``port=...``, e.g. one end of a null-modem cable or ``socket://``),
    or an in-process pipe (the ``sonarsim://`` pyserial URL handler);
 2. sends CONFIG and HEARTBEAT once a second (CONFIG also as soon as a host (re)appears, i.e.
@@ -57,7 +57,7 @@ from drivers.serial.protocol import (
     ping_period_ns,
 )
 from drivers.serial.ptyport import PtyPort
-from hil_bridge.domain import current as current_domain
+from hil_bridge.bus.domain import current as current_domain
 from sim_core.config import from_dict
 from sim_core.rng import make_rng
 

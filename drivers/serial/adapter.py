@@ -48,10 +48,10 @@ from drivers.serial.protocol import (
     PingPayload,
     ping_period_ns,
 )
-from hil_bridge.clock import SimClock
-from hil_bridge.domain import current as current_domain
-from hil_bridge.messages import Clock, SonarEcho, SonarPing
-from hil_bridge.node import Node
+from hil_bridge.bus.clock import SimClock
+from hil_bridge.bus.domain import current as current_domain
+from hil_bridge.bus.messages import Clock, SonarEcho, SonarPing
+from hil_bridge.bus.node import Node
 from sim_core.config import from_dict
 
 __all__ = ["SonarHeadAdapter", "SonarHeadParams"]
@@ -66,7 +66,7 @@ class SonarHeadParams:
     ``port``: device path, pty path/symlink or URL (``loop://``, ``socket://h:p``,
     ``sonarsim://?...``); default the domain's link ``sonar<sonar_id>``, where
     ``MockSonarHead(pty=True)`` and ``echoloop mock sonar-head --pty`` put their pty
-    (:mod:`hil_bridge.domain`). ``capture``: path prefix for the raw byte capture (None: off).
+    (:mod:`hil_bridge.bus.domain`). ``capture``: path prefix for the raw byte capture (None: off).
     ``ping_rate_hz``/``echo_samples``/``channels``: what the link budget assumes (samples per
     channel at the echo rate, before IQ decimation).
     """

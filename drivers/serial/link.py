@@ -23,7 +23,7 @@ above never knows which.
    (renamed from temporary files) when the link stops.
 5. ``stop()`` is idempotent, joins both threads and closes the port and capture files.
 6. :meth:`Link.report` says whether the port was ever open and its state when the link stopped
-   (the run summary's ``links``, :func:`hil_bridge.launch.collect_links`).
+   (the run summary's ``links``, :func:`hil_bridge.launch.runner.collect_links`).
 """
 
 from __future__ import annotations

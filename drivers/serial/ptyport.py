@@ -9,7 +9,8 @@ opens it are buffered (pyserial flushes them on open) and the host may close and
 when a USB adapter is pulled. ``replug()`` creates a new pty and points the symlink at it.
 
 The symlink never replaces a file that is not a symlink, nor one another live port owns (two
-runs in one domain: ownership is a lock held beside the link, :func:`hil_bridge.domain.hold_link`,
+runs in one domain: ownership is a lock held beside the link,
+:func:`hil_bridge.bus.domain.hold_link`,
 released when the port closes or its process dies); a symlink left by a killed run is replaced,
 even when its pty number has since been given to another program.
 """
@@ -24,7 +25,7 @@ import threading
 import tty
 from pathlib import Path
 
-from hil_bridge.domain import hold_link
+from hil_bridge.bus.domain import hold_link
 
 __all__ = ["PtyPort"]
 

@@ -4,7 +4,7 @@ Each sub-command module exposes ``main(argv: list[str]) -> int`` with its own ``
 (``prog="echoloop <name>"``). User errors (``ValueError``, ``OSError``, :class:`HilError`, and
 running out of memory) are printed as one line on stderr and exit with status 1; a usage error
 exits 2 (argparse). Readers of input files name the file in their error
-(``tests/hil_bridge/test_cli_bad_inputs.py`` feeds every command a corpus of bad files).
+(``tests/hil_bridge/cli/test_cli_bad_inputs.py`` feeds every command a corpus of bad files).
 ``echoloop --version`` prints the installed distribution's version.
 """
 

@@ -7,7 +7,7 @@ import contextlib
 import sys
 from collections.abc import Iterator
 
-from hil_bridge.domain import (
+from hil_bridge.bus.domain import (
     DOMAIN_ENV,
     MAX_DOMAIN,
     Domain,
@@ -21,7 +21,7 @@ __all__ = ["add_domain_argument", "domain_for_run", "domain_from", "seconds"]
 
 def seconds(text: str) -> float:
     """argparse type: a finite number of seconds > 0 (NaN, 0, negatives and inf rejected)."""
-    from hil_bridge.launch import check_duration
+    from hil_bridge.launch.runner import check_duration
 
     try:
         return check_duration(text, where="")

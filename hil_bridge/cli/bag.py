@@ -27,10 +27,10 @@ import threading
 import time
 from types import FrameType
 
-from hil_bridge.bag import BagInfo, Player, bag_info, export_json, recover
 from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
 from hil_bridge.outputs import atomic_output
-from hil_bridge.recorder import Recorder
+from hil_bridge.recording.bag import BagInfo, Player, bag_info, export_json, recover
+from hil_bridge.recording.recorder import Recorder
 
 
 def _rate(text: str) -> float:
@@ -147,7 +147,7 @@ def _export(args: argparse.Namespace) -> int:
         print(f"wrote {counts['messages']} JSON messages to {args.json_out}"
               + (f" (skipped {counts['skipped']} undecodable)" if counts["skipped"] else ""))
         return 0
-    from hil_bridge.export import EXPORTERS, run_exporter
+    from hil_bridge.recording.export import EXPORTERS, run_exporter
 
     kind = next(k for k in EXPORTERS if getattr(args, k) is not None)
     result = run_exporter(kind, args.file, getattr(args, kind), overwrite=args.overwrite)

@@ -13,10 +13,10 @@ import signal
 import threading
 from types import FrameType
 
+from hil_bridge.bus.proxy import Proxy
+from hil_bridge.bus.security import CurveKeys, generate_keys
+from hil_bridge.bus.transport.zmq import parse_zmq_url
 from hil_bridge.cli._args import add_domain_argument, domain_from
-from hil_bridge.proxy import Proxy
-from hil_bridge.security import CurveKeys, generate_keys
-from hil_bridge.transport.zmq import parse_zmq_url
 
 
 def main(argv: list[str]) -> int:

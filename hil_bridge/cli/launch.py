@@ -1,12 +1,13 @@
 """``echoloop launch FILE [--param NODE.KEY=VALUE ...] [--duration S] [--expect CHECK ...]``.
 
-Runs the nodes of a launch file as threads of this process (see :mod:`hil_bridge.launch`) until
+Runs the nodes of a launch file as threads of this process (see :mod:`hil_bridge.launch.runner`)
+until
 ``--duration`` seconds have passed or Ctrl-C/SIGTERM arrives, then stops them in reverse order.
 ``--json`` prints the run summary (messages per topic, drops, stalls, latency percentiles, every
 node's ``stats()``, link states, failures) as one JSON document on stdout; otherwise a short
 human summary is printed. What failed (an ``--expect`` that did not hold, a hardware link that
 never connected) is printed on stderr, one line each, and sets the exit status
-(:attr:`hil_bridge.launch.RunSummary.exit_status`).
+(:attr:`hil_bridge.launch.runner.RunSummary.exit_status`).
 """
 
 from __future__ import annotations
@@ -16,11 +17,11 @@ import json
 import sys
 from typing import Any
 
+from hil_bridge.bus.domain import Domain
 from hil_bridge.cli._args import add_domain_argument, domain_for_run, seconds
-from hil_bridge.domain import Domain
-from hil_bridge.launch import LaunchSpec, RunSummary, parse_param_overrides, run
+from hil_bridge.launch.runner import LaunchSpec, RunSummary, parse_param_overrides, run
 from hil_bridge.outputs import atomic_output, check_output
-from hil_bridge.recording_plot import plot_recording
+from hil_bridge.plots.recording import plot_recording
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -159,7 +160,7 @@ def format_summary(summary: RunSummary, *, verbose: bool = False) -> str:
 
 
 def format_link(key: str, link: dict[str, Any]) -> str:
-    """One line of a link report (:func:`hil_bridge.launch.collect_links`)."""
+    """One line of a link report (:func:`hil_bridge.launch.runner.collect_links`)."""
     head = f"link {key}: {link.get('kind', '?')} {link.get('target', '?')}"
     if not link.get("connected"):
         return f"{head}: NEVER CONNECTED ({link.get('error') or 'no error reported'})"

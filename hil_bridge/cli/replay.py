@@ -4,7 +4,7 @@ Drives a vehicle along a logged trajectory (linear position, shortest-arc headin
 attitude) through a scene's forest and answers pings along it with echoes, in real time times
 ``--rate`` (or as fast as possible with ``--fast``). ``LOG`` is a PX4 ULog, an ArduPilot
 DataFlash log, a MAVLink tlog, a ROS 2 bag, an echoloop recording, or a CSV/NPZ table
-(:mod:`hil_bridge.logs`); what was read, the origin and any time gaps or jumps are printed
+(:mod:`hil_bridge.recording.logs`); what was read, the origin and any time gaps or jumps are printed
 first. ``--sonar HZ`` pings over the bus at that rate (0: no built-in pinger; a sonar-head
 adapter or any other node pings ``/sonar/0/ping``). The run lasts the trajectory's duration
 unless ``--duration`` says otherwise. See docs/server.md for the file formats.
@@ -18,9 +18,9 @@ import sys
 
 from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
 from hil_bridge.cli.launch import _jsonable, announcer, format_summary, report_failures
-from hil_bridge.launch import run
-from hil_bridge.logs import read_log
-from hil_bridge.replay import build_replay_launch
+from hil_bridge.launch.runner import run
+from hil_bridge.recording.logs import read_log
+from hil_bridge.replay.trajectory import build_replay_launch
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -156,7 +156,7 @@ def _run(law: Any, args: argparse.Namespace) -> int:
 
 
 def _sweep(law: Any, args: argparse.Namespace) -> int:
-    from hil_bridge.sweep import sweep
+    from hil_bridge.tools.sweep import sweep
     from sim_core.soaring.sweep import expand_grid, load_grid
 
     grid = load_grid(args.grid)
@@ -210,7 +210,7 @@ def _plot(args: argparse.Namespace) -> int:
 
 def _read_plot_table(path: str, columns: list[str]) -> list[dict[str, Any]]:
     """Rows of a sweep table with finite numbers in ``columns``; errors name the file."""
-    from hil_bridge.sweep import read_table
+    from hil_bridge.tools.sweep import read_table
     from sim_core.config import read_text
 
     if not path.lower().endswith(".parquet"):

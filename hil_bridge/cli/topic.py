@@ -20,12 +20,13 @@ from typing import Any
 
 import numpy as np
 
+from hil_bridge.bus.codec import Header, decode_payload, payload_to_jsonable, validate_topic
+from hil_bridge.bus.messages import Message
+from hil_bridge.bus.stats import TopicStats
+from hil_bridge.bus.transport import Frames
 from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
-from hil_bridge.codec import Header, decode_payload, payload_to_jsonable, validate_topic
 from hil_bridge.errors import CodecError
-from hil_bridge.messages import Message
-from hil_bridge.topic_tools import TopicMonitor, TopicStats
-from hil_bridge.transport import Frames
+from hil_bridge.tools.topic import TopicMonitor
 
 
 def _fmt(x: float | None, unit: str, scale: float = 1.0) -> str:

@@ -6,7 +6,8 @@ with the last key varying fastest. :func:`run_key` is a stable hash of a run's f
 seed is ``rngSeed``), the row key of a results table.
 
 Running a grid is :func:`~sim_core.soaring.run_batch` on its laws; executing a sweep (results
-tables, worker processes, a dask cluster) is :mod:`hil_bridge.sweep` (``echoloop swarm sweep``).
+tables, worker processes, a dask cluster) is :mod:`hil_bridge.tools.sweep` (``echoloop swarm
+sweep``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ per cell from their own streams and the minimum-distance merge is resolved local
 so building a region tile by tile gives the same trees and leaves as a one-shot build of it.
 Built tiles sit in an LRU cache bounded in bytes (leaf arrays + their k-d trees). A tile missing
 from the cache comes from ``source`` (default :meth:`TiledForest.build`): a runner may put a store
-shared between processes in front of the build (``hil_bridge.shared_tiles``); ``sim_core`` itself
+shared between processes in front of the build (``hil_bridge.server.shared_tiles``); ``sim_core``
+itself
 never does I/O. Tiles outside a bounded forest's domain own no trees and are never visited.
 """
 

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hil_bridge.launch import load, parse_param_overrides, run
-from hil_bridge.messages import GliderCmd
-from hil_bridge.node import Node
-from hil_bridge.qos import QoSProfile
+from hil_bridge.bus.messages import GliderCmd
+from hil_bridge.bus.node import Node
+from hil_bridge.bus.qos import QoSProfile
+from hil_bridge.launch.runner import load, parse_param_overrides, run
 from sim_core.soaring import Law
 
 ROOT = Path(__file__).resolve().parents[2]

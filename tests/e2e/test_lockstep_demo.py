@@ -17,13 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from hil_bridge.bag import read_bag
-from hil_bridge.codec import decode_payload
-from hil_bridge.domain import current
-from hil_bridge.launch import RunSummary, load, parse_param_overrides, run
-from hil_bridge.messages import Clock
-from hil_bridge.node import Node
-from hil_bridge.qos import SENSOR
+from hil_bridge.bus.codec import decode_payload
+from hil_bridge.bus.domain import current
+from hil_bridge.bus.messages import Clock
+from hil_bridge.bus.node import Node
+from hil_bridge.bus.qos import SENSOR
+from hil_bridge.launch.runner import RunSummary, load, parse_param_overrides, run
+from hil_bridge.recording.bag import read_bag
 
 ROOT = Path(__file__).resolve().parents[2]
 

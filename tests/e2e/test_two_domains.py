@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from hil_bridge.domain import DOMAIN_ENV, MAX_DOMAIN, Domain, claim_first_free
+from hil_bridge.bus.domain import DOMAIN_ENV, MAX_DOMAIN, Domain, claim_first_free
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -17,8 +17,8 @@ from drivers.can.adapter import CMD_STATES, AutopilotAdapter, best_glide_speed, 
 from drivers.can.codec import GliderCanCodec
 from drivers.faults.can_bus import FaultInjectingBus
 from drivers.mocks.autopilot import MockAutopilot
-from hil_bridge.messages import GliderCmd, GliderNeighbors, GliderState
-from hil_bridge.node import Node, Publisher
+from hil_bridge.bus.messages import GliderCmd, GliderNeighbors, GliderState
+from hil_bridge.bus.node import Node, Publisher
 from sim_core.soaring.boids import controller_command
 from sim_core.soaring.law import Law
 from tests.drivers.can._util import unique, wait_until
@@ -175,7 +175,7 @@ def test_attitude_frames_follow_the_state(sim: Sim, make_adapter: Any, make_mock
 
 def test_diagnostics_and_stats_report_the_link(sim: Sim, make_adapter: Any,
                                                make_mock: Any, bus_url: str) -> None:
-    from hil_bridge.messages import Diagnostics
+    from hil_bridge.bus.messages import Diagnostics
 
     seen: list[Diagnostics] = []
     sim.node.create_subscription(Diagnostics, "/diagnostics", seen.append)
@@ -387,9 +387,9 @@ def test_spoofed_state_and_clock_do_not_freeze_the_adapter(sim: Sim, make_adapte
                                                           forged: int) -> None:
     """The issue's attack: one spoofed /glider/<id>/state and /clock carrying the server's
     ``src`` and a forged ``seq``. The next real message of each stream still gets through."""
-    from hil_bridge.codec import encode
-    from hil_bridge.messages import Clock
-    from hil_bridge.transport import open_transport
+    from hil_bridge.bus.codec import encode
+    from hil_bridge.bus.messages import Clock
+    from hil_bridge.bus.transport import open_transport
 
     ad = make_adapter()
     clock_pub = sim.node.create_publisher(Clock, "/clock")

@@ -7,9 +7,9 @@ import threading
 from drivers.can.adapter import AutopilotAdapter
 from drivers.faults.can_bus import FaultInjectingBus
 from drivers.mocks.autopilot import MockAutopilot
-from hil_bridge.messages import GliderCmd, GliderState
-from hil_bridge.node import Node
-from hil_bridge.server import SimServer
+from hil_bridge.bus.messages import GliderCmd, GliderState
+from hil_bridge.bus.node import Node
+from hil_bridge.server.sim_server import SimServer
 from tests.drivers.can._util import unique, wait_until
 
 

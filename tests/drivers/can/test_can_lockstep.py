@@ -14,8 +14,8 @@ import pytest
 from drivers.can.adapter import CMD_STATES, AutopilotAdapter
 from drivers.can.codec import DecodedFrame, GliderCanCodec
 from drivers.mocks.autopilot import MockAutopilot
-from hil_bridge.messages import Clock, GliderCmd, GliderNeighbors, GliderState
-from hil_bridge.node import Node
+from hil_bridge.bus.messages import Clock, GliderCmd, GliderNeighbors, GliderState
+from hil_bridge.bus.node import Node
 from sim_core.soaring.boids import GliderObs, controller_command
 from sim_core.soaring.law import Law
 from tests.drivers.can._util import unique, wait_until

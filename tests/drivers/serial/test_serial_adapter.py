@@ -13,9 +13,9 @@ import pytest
 
 from drivers.mocks.sonar_head import MockSonarHead
 from drivers.serial.adapter import SonarHeadAdapter
-from hil_bridge.domain import Domain, use
-from hil_bridge.messages import Diagnostics, SonarEcho, SonarPing
-from hil_bridge.node import Node
+from hil_bridge.bus.domain import Domain, use
+from hil_bridge.bus.messages import Diagnostics, SonarEcho, SonarPing
+from hil_bridge.bus.node import Node
 from sim_core.config import ConfigError
 
 FS = 400000.0

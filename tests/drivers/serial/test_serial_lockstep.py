@@ -15,8 +15,8 @@ from drivers.serial.adapter import SonarHeadAdapter
 from drivers.serial.framing import Frame
 from drivers.serial.host import SonarHeadHost
 from drivers.serial.protocol import HEARTBEAT_LOCKSTEP, HeartbeatPayload, PingPayload
-from hil_bridge.messages import Clock, SonarEcho, SonarPing
-from hil_bridge.node import Node
+from hil_bridge.bus.messages import Clock, SonarEcho, SonarPing
+from hil_bridge.bus.node import Node
 from sim_core.rng import make_rng
 from tests.drivers.can._util import unique, wait_until
 

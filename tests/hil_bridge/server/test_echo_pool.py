@@ -17,17 +17,17 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_bridge.domain import Domain, shared_root
-from hil_bridge.echo_pool import WORKER_NAME
-from hil_bridge.echo_service import (
+from hil_bridge.bus.domain import Domain, shared_root
+from hil_bridge.bus.messages import SonarPing
+from hil_bridge.server.echo_pool import WORKER_NAME
+from hil_bridge.server.echo_service import (
     EchoRequest,
     EchoResult,
     EchoService,
     SonarPose,
     compute_echo,
 )
-from hil_bridge.messages import SonarPing
-from hil_bridge.shared_tiles import SharedTiles, stores_of
+from hil_bridge.server.shared_tiles import SharedTiles, stores_of
 from sim_core.pose import quat_from_euler
 from sim_core.scene import Scene, load_scene
 from sim_core.sonar.cost import EchoCost
@@ -192,8 +192,8 @@ def test_without_deadlines_each_sonar_keeps_its_own_bounded_queue() -> None:
 
 def test_a_realtime_server_degrades_what_its_deadlines_cannot_hold_and_accounts_for_every_ping(
 ) -> None:
-    from hil_bridge.node import Node
-    from hil_bridge.server import SimServer
+    from hil_bridge.bus.node import Node
+    from hil_bridge.server.sim_server import SimServer
 
     # a 'reference' sonar at 10 Hz: its echo (hundreds of ms) can never be ready before the
     # next ping, so after the first (late) one the worker learns it and degrades to realtime
@@ -233,7 +233,7 @@ def _leaks() -> tuple[list[Any], list[Path]]:
 
 
 def test_a_server_with_a_pool_leaves_no_worker_or_shared_memory_behind() -> None:
-    from hil_bridge.server import SimServer
+    from hil_bridge.server.sim_server import SimServer
 
     srv = SimServer("server", bus="mem://pool_leaks", scene={**SCENE, "clock": {"mode": "fast"}},
                     echo_worker="pool", echo_workers=2, stop_after_s=0.5)
@@ -266,9 +266,9 @@ def test_the_tiles_the_sonars_reach_first_are_built_before_the_service_is_ready(
 
 CRASH = textwrap.dedent("""
     import multiprocessing, os, sys, time
-    from hil_bridge.domain import Domain, use
-    from hil_bridge.server import SimServer
-    from hil_bridge.shared_tiles import stores_of
+    from hil_bridge.bus.domain import Domain, use
+    from hil_bridge.server.sim_server import SimServer
+    from hil_bridge.server.shared_tiles import stores_of
     if __name__ == "__main__":
         with use(Domain.private(sys.argv[1])) as domain:
             srv = SimServer("server", bus="mem://crash", scene={scene!r}, echo_worker="pool",

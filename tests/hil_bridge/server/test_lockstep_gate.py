@@ -6,7 +6,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from hil_bridge.lockstep import LockstepGate
+from hil_bridge.server.lockstep import LockstepGate
 
 
 def _gate(**kw: object) -> LockstepGate:

@@ -10,8 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from hil_bridge.bag import bag_info, read_bag
-from hil_bridge.launch import run
+from hil_bridge.launch.runner import run
+from hil_bridge.recording.bag import bag_info, read_bag
 
 
 def _launch(seed: int) -> dict[str, Any]:

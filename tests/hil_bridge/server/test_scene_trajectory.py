@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil_bridge.logs import load_trajectory
+from hil_bridge.recording.logs import load_trajectory
 from sim_core.scene import Trajectory
 
 

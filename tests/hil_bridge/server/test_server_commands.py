@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_bridge.messages import GliderCmd, GliderNeighbors, GliderState
-from hil_bridge.node import Node
-from hil_bridge.qos import COMMAND
-from hil_bridge.server import SimServer
+from hil_bridge.bus.messages import GliderCmd, GliderNeighbors, GliderState
+from hil_bridge.bus.node import Node
+from hil_bridge.bus.qos import COMMAND
+from hil_bridge.server.sim_server import SimServer
 from sim_core.config import ConfigError
 
 SWARM = {"overrides": {"numAgents": 3, "dt": 0.1}, "seed": 4}

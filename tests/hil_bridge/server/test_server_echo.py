@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_bridge.messages import GliderState, SonarEcho, SonarPing
-from hil_bridge.node import Node
-from hil_bridge.server import SimServer
+from hil_bridge.bus.messages import GliderState, SonarEcho, SonarPing
+from hil_bridge.bus.node import Node
+from hil_bridge.server.sim_server import SimServer
 from sim_core.scene import load_scene
 from sim_core.sonar import Beam, synthesize
 

@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_bridge.fleet import Fleet
-from hil_bridge.messages import GliderCmd, GliderState
-from hil_bridge.node import Node
-from hil_bridge.qos import COMMAND, QoSProfile
-from hil_bridge.server import SimServer
+from hil_bridge.bus.messages import GliderCmd, GliderState
+from hil_bridge.bus.node import Node
+from hil_bridge.bus.qos import COMMAND, QoSProfile
+from hil_bridge.server.fleet import Fleet
+from hil_bridge.server.sim_server import SimServer
 from sim_core.config import ConfigError
 from sim_core.pose import euler_from_quat, quat_from_euler
 from sim_core.scene import load_scene

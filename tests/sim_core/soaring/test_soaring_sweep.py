@@ -1,5 +1,5 @@
 """Parameter grids: file checks, the Megarun 7 grid, errors naming the point (execution:
-tests/hil_bridge/test_sweep.py)."""
+tests/hil_bridge/tools/test_sweep.py)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,275 @@
+"""Trajectory replay: drive a vehicle along a logged trajectory so pings get echoes from a scene.
+
+``echoloop replay FILE`` builds a launch description in code (plain data, the same runner as
+``echoloop launch``): a :class:`~hil_bridge.server.sim_server.SimServer` whose scene has one path
+vehicle
+following ``FILE`` (:func:`sim_core.scene.load_trajectory`: linear position, shortest-arc
+heading), a sonar mounted on it, and optionally a :class:`Pinger` node that pings at a fixed
+rate. External pingers (a sonar-head adapter with a real head) can ping ``/sonar/<id>/ping``
+instead; the server answers each at the vehicle's pose when the ping was emitted (its stamp).
+
+File formats (:mod:`hil_bridge.recording.logs`, ``docs/server.md``): CSV/NPZ columns in local ENU or
+geodetic, PX4 ULog, ArduPilot DataFlash, MAVLink tlog, ROS 2 bags and echoloop recordings.
+Multi-vehicle logs (swarm traces, recordings, tlogs of several systems) need ``vehicle_id``.
+
+The vehicle's time axis starts at the file's first ``t``: sim time 0 is mapped to it. The run
+pace is the server clock's real-time factor ``rate``; echoes, the forest tiles along the path
+(built ahead of the vehicle) and ``/forest/points`` are computed in a worker process, so they
+never hold the interpreter whose tick loop keeps that pace (the server reports the pace it
+kept, ``rate_achieved``).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim_core.config import ConfigError, from_dict, load_yaml
+from sim_core.rng import derive_rng, make_rng
+from sim_core.scene import SceneSpec
+
+__all__ = ["DEFAULT_REPLAY_SCENE", "Pinger", "build_replay_launch"]
+
+#: Scene used when none is given: the seed 000 forest (tiled) around the replayed vehicle.
+DEFAULT_REPLAY_SCENE: dict[str, Any] = {
+    "forest": {"preset": "seed000-fig5d", "tiled": True},
+}
+
+
+class Pinger:
+    """Launchable node that pings ``/sonar/<sonar_id>/ping`` at ``rate_hz`` (wall clock).
+
+    ``Pinger(name, *, bus, sonar_id=0, rate_hz=10.0, az=0.0, el=0.0, beamwidth=0.7,
+    beamwidth_range=None, seed=0, max_pings=None, sonar_ids=None)``. With ``beamwidth_range =
+    [lo, hi]`` each ping's beamwidth is drawn from U(lo, hi) (seed 000 used [30°, 65°]). Pings
+    are stamped with the bus's sim time (``/clock``) when sent, their emission. It subscribes
+    to the echoes and reports how many came back, with ping -> echo latency percentiles (ms).
+    ``sonar_ids``: ping several sonars from one node (one clock subscription for all), each
+    at ``rate_hz`` from its own phase, drawn uniformly over a period (``seed``); ``max_pings``
+    then counts per sonar.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        bus: str,
+        sonar_id: int = 0,
+        rate_hz: float = 10.0,
+        az: float = 0.0,
+        el: float = 0.0,
+        beamwidth: float = 0.7,
+        beamwidth_range: tuple[float, float] | list[float] | None = None,
+        seed: int = 0,
+        max_pings: int | None = None,
+        sonar_ids: list[int] | tuple[int, ...] | None = None,
+    ) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz: expected > 0, got {rate_hz}")
+        if not 0 < beamwidth < np.pi:
+            raise ValueError(f"beamwidth: expected 0 < beamwidth < pi rad, got {beamwidth}")
+        if beamwidth_range is not None:
+            lo, hi = (float(v) for v in beamwidth_range)
+            if not 0 < lo <= hi < np.pi:
+                raise ValueError(f"beamwidth_range: expected 0 < lo <= hi < pi, got {[lo, hi]}")
+        if max_pings is not None and max_pings < 1:
+            raise ValueError(f"max_pings: expected >= 1, got {max_pings}")
+        ids = [int(sonar_id)] if sonar_ids is None else [int(i) for i in sonar_ids]
+        if not ids or len(set(ids)) != len(ids) or min(ids) < 0:
+            raise ValueError(f"sonar_ids: expected distinct ids >= 0, got {sonar_ids}")
+        self.name = name
+        self.bus = bus
+        self.sonar_ids = tuple(ids)
+        self.sonar_id = ids[0]
+        self.period_s = 1.0 / float(rate_hz)
+        self.az, self.el, self.beamwidth = float(az), float(el), float(beamwidth)
+        self.beamwidth_range = None if beamwidth_range is None else (lo, hi)
+        self.max_pings = max_pings
+        self._rng = make_rng(seed)
+        self._seed = seed
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._node: Any = None
+        self._pubs: dict[int, Any] = {}
+        self._sent: dict[tuple[int, int], int] = {}
+        self._c = {"pings_sent": 0, "echoes_received": 0, "echoes_unmatched": 0,
+                   "echo_samples": 0}
+        self._latency_ms: deque[float] = deque(maxlen=10000)
+        self._last_echo: Any = None
+
+    def start(self) -> None:
+        from hil_bridge.bus.clock import SimClock
+        from hil_bridge.bus.messages import SonarEcho, SonarPing
+        from hil_bridge.bus.node import Node
+        from hil_bridge.bus.qos import SENSOR
+
+        self._node = Node(self.name, bus=self.bus, clock=SimClock("lockstep"))
+        self._node.follow_bus_clock()
+        self._pubs = {
+            i: self._node.create_publisher(SonarPing, f"/sonar/{i}/ping", qos=SENSOR)
+            for i in self.sonar_ids
+        }
+        for i in self.sonar_ids:
+            self._node.create_subscription(SonarEcho, f"/sonar/{i}/echo", self._on_echo,
+                                           qos=SENSOR)
+        self._node.start()
+        self._thread = threading.Thread(target=self._loop, name=f"{self.name}-ping", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._node is not None:
+            self._node.stop()
+            self._node = None
+
+    def stats(self) -> dict[str, Any]:
+        from hil_bridge.bus.stats import percentiles
+
+        with self._lock:
+            out: dict[str, Any] = dict(self._c)
+            out["ping_echo_ms"] = percentiles(list(self._latency_ms))
+        return out
+
+    @property
+    def last_echo(self) -> Any:
+        """The most recent :class:`~hil_bridge.bus.messages.SonarEcho` received (or None)."""
+        with self._lock:
+            return self._last_echo
+
+    def _loop(self) -> None:
+        from hil_bridge.bus.messages import SonarPing
+
+        n = len(self.sonar_ids)
+        phases = [0.0] if n == 1 else (
+            derive_rng(self._seed, "phase").uniform(0.0, self.period_s, n).tolist())
+        start = time.monotonic()
+        due = [start + ph for ph in phases]
+        seqs = [0] * n
+        while not self._stop.is_set():
+            k = min(range(n), key=due.__getitem__)
+            if self.max_pings is not None and seqs[k] >= self.max_pings:
+                due[k] = math.inf
+                if all(math.isinf(d) for d in due):
+                    break
+                continue
+            if self._stop.wait(max(0.0, due[k] - time.monotonic())):
+                break
+            sonar, seq = self.sonar_ids[k], seqs[k]
+            bw = self.beamwidth
+            if self.beamwidth_range is not None:
+                bw = float(self._rng.uniform(*self.beamwidth_range))
+            with self._lock:
+                self._sent[(sonar, seq)] = time.monotonic_ns()
+                if len(self._sent) > 4096:
+                    self._sent.pop(next(iter(self._sent)))
+                self._c["pings_sent"] += 1
+            self._pubs[sonar].publish(SonarPing(
+                stamp_ns=self._node.now_ns(), ping_seq=seq, az=self.az, el=self.el,
+                beamwidth=bw, encoding=2, sonar_id=sonar,
+            ))
+            seqs[k] = (seq + 1) % 65536
+            due[k] += self.period_s
+
+    def _on_echo(self, msg: Any) -> None:
+        now = time.monotonic_ns()
+        with self._lock:
+            t_ping = self._sent.pop((int(msg.sonar_id), int(msg.ping_seq)), None)
+            if t_ping is None:
+                self._c["echoes_unmatched"] += 1
+            else:
+                self._latency_ms.append((now - t_ping) / 1e6)
+            self._c["echoes_received"] += 1
+            self._c["echo_samples"] += int(msg.samples.shape[-1])
+            self._last_echo = msg
+
+
+def build_replay_launch(
+    trajectory: str | Path,
+    *,
+    vehicle_id: int | None = None,
+    scene: str | Path | Mapping[str, Any] | None = None,
+    sonar_rate_hz: float | None = 10.0,
+    sonar: Mapping[str, Any] | None = None,
+    pinger: Mapping[str, Any] | None = None,
+    rate: float = 1.0,
+    state_rate_hz: float = 50.0,
+    bus: str | None = None,
+    clock_mode: str = "realtime",
+    topic: str | None = None,
+    origin: tuple[float, float, float] | None = None,
+) -> tuple[dict[str, Any], float]:
+    """Launch mapping (for :func:`hil_bridge.launch.runner.run`) replaying ``trajectory``, and its
+    length.
+
+    ``scene``: a scene YAML path or mapping (validated) whose ``forest`` and ``seed`` are used,
+    the rest is replaced; default :data:`DEFAULT_REPLAY_SCENE`. The replayed vehicle gets id
+    ``vehicle_id`` (default 0, or the file's id) and sonar 0 is mounted on it with ``sonar``
+    settings (``fidelity``, ``echo`` overrides). ``sonar_rate_hz`` None: no built-in pinger;
+    ``pinger``: extra :class:`Pinger` params (default beamwidths U(30°, 65°) as seed 000).
+    The server stops ticking at the trajectory's end (the vehicle rests at its last pose).
+    ``topic`` and ``origin`` go to the log reader (:func:`hil_bridge.recording.logs.read_log`).
+    Returns ``(launch mapping, trajectory duration in wall seconds at rate)``.
+    """
+    from hil_bridge.recording.logs import load_trajectory
+
+    traj = load_trajectory(trajectory, vehicle_id=vehicle_id, topic=topic, origin=origin)
+    source: Mapping[str, Any]
+    if scene is None:
+        source = DEFAULT_REPLAY_SCENE
+    elif isinstance(scene, Mapping):
+        source = scene
+    else:
+        loaded = load_yaml(scene)
+        if loaded is None:
+            loaded = {}
+        if not isinstance(loaded, Mapping):
+            raise ConfigError(f"{scene}: expected a scene mapping, got {loaded!r}")
+        source = loaded
+    try:
+        from_dict(SceneSpec, source, path="scene")
+    except ConfigError as exc:
+        raise ConfigError(f"{scene}: {exc}") from None
+    base: dict[str, Any] = {k: source[k] for k in ("seed", "forest") if k in source}
+    vid = 0 if vehicle_id is None else int(vehicle_id)
+    path: dict[str, Any] = {"kind": "file", "file": str(trajectory), "loop": False}
+    if vehicle_id is not None:
+        path["id"] = int(vehicle_id)
+    if topic is not None:
+        path["topic"] = topic
+    if origin is not None:
+        path["origin"] = [float(v) for v in origin]
+    base["vehicles"] = [{"id": vid, "path": path, "time_offset_s": -float(traj.t[0])}]
+    if "forest" in base:
+        base["sonars"] = [{"id": 0, "mount": vid, **dict(sonar or {})}]
+    base["state_rate_hz"] = state_rate_hz
+    base["clock"] = {"mode": clock_mode, "rate": rate}
+    # echoes, the tiles along the path and /forest/points are computed in a worker process,
+    # never holding the interpreter the tick loop paces the replay with
+    nodes: list[dict[str, Any]] = [
+        {"name": "server", "entry": "hil_bridge.server:SimServer",
+         "params": {"scene": base, "stop_after_s": traj.duration, "echo_worker": "process"}},
+    ]
+    if sonar_rate_hz is not None and "forest" in base:
+        ping_params: dict[str, Any] = {"beamwidth_range": [math.radians(30), math.radians(65)]}
+        ping_params.update(dict(pinger or {}))
+        if "beamwidth" in ping_params:
+            ping_params.pop("beamwidth_range")
+        nodes.append({
+            "name": "pinger", "entry": "hil_bridge.replay:Pinger",
+            "params": {"sonar_id": 0, "rate_hz": float(sonar_rate_hz), **ping_params},
+        })
+    launch: dict[str, Any] = {"nodes": nodes}
+    if bus is not None:
+        launch["bus"] = bus
+    return launch, traj.duration / rate

@@ -1,0 +1,549 @@
+"""The simulation server: a launchable node that owns a Scene and the sim clock.
+
+Topics (ids are the scene's vehicle/glider/sonar ids)::
+
+    publishes  /clock                     every tick
+               /glider/<id>/state         every tick, for every swarm glider and vehicle
+               /glider/<id>/neighbors     after every control step, only for registered gliders
+               /sonar/<id>/echo           one per answered /sonar/<id>/ping (frame_id
+                                          ``glider/<mount id>``: the vehicle carrying it)
+               /thermals                  latched ThermalMarkers (with a swarm)
+               /forest/points             latched PointCloud of leaves around the sonars
+               /diagnostics               every ``diagnostics_period_s`` of wall time
+    subscribes /glider/<id>/cmd           bank_cmd (rad), airspeed_cmd (m/s)
+               /sonar/<id>/ping           ping_seq, az, el (rad, sonar frame), beamwidth (rad)
+
+**Flight** (:mod:`hil_bridge.server.fleet`). Every tick is a new physics state: the vehicles are
+integrated from the previous tick (``physics_rate_hz`` sets the sub-steps) on the commands held
+when the tick starts, so a command received before tick k is flown in the state of tick k.
+Swarm gliders fly :mod:`sim_core.flight`; those without an autopilot follow the law's Boids
+controller, which decides every ``law.dt`` (its commands held in between); commanded vehicles
+fly the same model once taken over; path vehicles follow their path with the bank and pitch it
+implies. Every state carries the full attitude (roll, pitch, yaw, quaternion, body rates).
+
+**Registration.** A glider's autopilot registers by publishing on ``/glider/<id>/cmd`` (its first
+command, even a rejected one, registers it) or by being listed in the ``autopilots`` parameter.
+Only registered gliders get ``/neighbors`` and, in ``lockstep`` mode, are waited for.
+
+**Commands.** A command is *rejected* (counted, the last good one held) if a value is non-finite,
+``|bank_cmd| >= pi/2`` or ``airspeed_cmd`` is outside (0, 3 * max speed]; otherwise it is
+clipped to the glider's (the law's) or vehicle's envelope (counted in ``cmd_clipped``) and held
+until the next good one. Commands for path vehicles are counted in ``cmd_ignored``.
+``cmd_effect_ticks``: for each command, the tick it was first flown in minus the next tick due
+when it arrived, plus one (1: in effect at the next tick; 2: it arrived while that tick was
+being computed).
+
+**Echoes** (:mod:`hil_bridge.server.sonars`, :mod:`hil_bridge.server.echo_service`). A ping is
+answered
+at its sonar's world pose at the ping's *emission*: the ping's ``stamp_ns`` when the sender
+gives one (> 0), else its arrival (the latest tick), the vehicle's pose interpolated between
+ticks from a ``pose_history_s`` history, composed with the sonar's mount. Stamps after the
+latest tick or before the history use its newest or oldest pose (``ping_stamp_future``,
+``ping_stamp_old``). Echoes are computed off the tick loop by
+:class:`hil_bridge.server.echo_service.EchoService`: on a thread (default), or ``echo_worker:
+pool``,
+``echo_workers`` processes (default one per core) sharing the forest's tiles in shared memory at
+a lower CPU priority than the tick loop (``process``: a pool of one; the launching script must
+be import-safe). In ``realtime`` mode a ping's echo is due before its sonar's next ping
+(``echo_deadlines``): one that cannot be ready by then is degraded to the ``realtime`` fidelity
+within the time left (``echoes_degraded``) or dropped (``pings_dropped_deadline``) instead of
+queuing. Without deadlines pings wait in a bounded queue per sonar (``echo_queue``; when full
+its oldest is dropped, ``pings_dropped``). The tiles each sonar will reach along its vehicle's
+motion (the next :data:`~hil_bridge.server.sonars.LOOKAHEAD_HORIZON_S` s of wall time) are built
+ahead of its pings; the first tick waits until the workers are up and the tiles of that first
+horizon are built (at most :data:`~hil_bridge.server.sonars.ECHO_READY_TIMEOUT_S`).
+
+**Time.** The server ticks at ``state_rate_hz`` of sim time. Clock modes: ``realtime`` (ticks
+paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (after each tick,
+:class:`hil_bridge.server.lockstep.LockstepGate` holds the server until the registered autopilots
+answered their state steps and the sonar heads that ping on sim time sent their due pings; a
+swarm glider's answer to a control step is needed before the period it governs is flown;
+``/clock`` says ``lockstep`` so adapters drive their devices on sim time). Within a tick,
+neighbour lists are published before the states of the same step. Stamps are integer sim
+nanoseconds and never decrease.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from hil_bridge.bus.domain import current as current_domain
+from hil_bridge.bus.messages import (
+    Clock,
+    Diagnostics,
+    GliderCmd,
+    GliderNeighbors,
+    GliderState,
+    ThermalMarkers,
+)
+from hil_bridge.bus.stats import percentiles
+from hil_bridge.recording.logs import load_trajectory
+from hil_bridge.server.fleet import Fleet, FleetStates
+from hil_bridge.server.lockstep import LockstepGate
+from hil_bridge.server.sonars import ServerSonars
+from sim_core.config import ConfigError, from_dict
+from sim_core.scene import ClockSpec, Scene, load_scene
+
+__all__ = ["ServerParams", "SimServer"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class ServerParams:
+    """Validated parameters of :class:`SimServer` (launch ``params``)."""
+
+    scene: Any
+    clock: ClockSpec | None = None
+    state_rate_hz: float | None = None
+    embed_proxy: bool = True
+    autopilots: tuple[int, ...] = ()
+    sonar_heads: tuple[int, ...] = ()
+    echo_queue: int = 4
+    diagnostics_period_s: float = 1.0
+    stop_after_s: float | None = None
+    publish_thermals: bool = True
+    forest_points: int = 20000
+    echo_worker: Literal["thread", "process", "pool"] = "thread"
+    echo_workers: int | None = None
+    echo_deadlines: bool = True
+    pose_history_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.scene, str | Mapping | Path):
+            raise ValueError(f"scene: expected a YAML path or a mapping, got {self.scene!r}")
+        if self.forest_points < 0:
+            raise ValueError(f"forest_points: expected >= 0, got {self.forest_points}")
+        if self.echo_queue < 1:
+            raise ValueError(f"echo_queue: expected >= 1, got {self.echo_queue}")
+        if not self.diagnostics_period_s > 0:
+            raise ValueError(f"diagnostics_period_s: expected > 0, got {self.diagnostics_period_s}")
+        if self.stop_after_s is not None and not self.stop_after_s > 0:
+            raise ValueError(f"stop_after_s: expected > 0, got {self.stop_after_s}")
+        if self.state_rate_hz is not None and not 0 < self.state_rate_hz <= 2000:
+            raise ValueError(f"state_rate_hz: expected 0 < rate <= 2000, got {self.state_rate_hz}")
+        if not self.pose_history_s > 0:
+            raise ValueError(f"pose_history_s: expected > 0, got {self.pose_history_s}")
+        if self.echo_workers is not None and self.echo_workers < 1:
+            raise ValueError(f"echo_workers: expected >= 1 or null (one per core), got "
+                             f"{self.echo_workers}")
+
+
+_REJECT_BANK = math.pi / 2
+
+_COUNTERS = (
+    "ticks", "physics_steps", "control_steps", "states_published", "neighbors_published",
+    "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
+    "cmd_ignored", "late_ticks", "diagnostics_published", "external_steps",
+)
+
+
+class SimServer:
+    """Launchable simulation server (see the module docstring for topics and semantics).
+
+    ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
+    autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
+    publish_thermals=True, forest_points=20000, echo_worker="thread", echo_workers=None,
+    echo_deadlines=True, pose_history_s=2.0)``.
+    ``scene`` is a scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and
+    ``state_rate_hz`` override the scene's. ``stop_after_s``: stop ticking at that sim time
+    (the node keeps answering pings). ``forest_points``: at most this many leaf centres around
+    the sonars' routes are published once (latched) on ``/forest/points`` for viewers and plots
+    (0: none). ``pose_history_s``: how far back a ping's emission stamp may reach.
+    ``echo_worker``, ``echo_workers``, ``echo_deadlines``: see the module docstring.
+    """
+
+    def __init__(self, name: str, *, bus: str, **params: Any) -> None:
+        self.name = name
+        self.bus = bus
+        self.params = from_dict(ServerParams, params, path=f"{name}.params")
+        scene_src = self.params.scene
+        self.scene: Scene = load_scene(
+            str(scene_src) if isinstance(scene_src, Path) else scene_src,
+            trajectory_reader=load_trajectory,
+        )
+        spec = self.scene.spec
+        self.clock_spec: ClockSpec = self.params.clock or spec.clock
+        self.state_rate_hz = float(self.params.state_rate_hz or spec.state_rate_hz)
+        self.tick_ns = round(1e9 / self.state_rate_hz)
+        physics_hz = max(self.state_rate_hz, float(spec.physics_rate_hz or 0.0))
+        self.substeps = max(1, math.ceil(physics_hz / self.state_rate_hz - 1e-9))
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._done = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._started = False
+        self._stopped = False
+        self._c: dict[str, int] = dict.fromkeys(_COUNTERS, 0)
+        self._cmd_effect_ticks: deque[int] = deque(maxlen=10000)
+        self._sim_ns = 0
+        self._tick_cpu_s = 0.0
+        self._tick_wall = (0.0, 0.0)  # monotonic time of the first and of the last tick
+        self._tick_error = ""
+        self._flown_gliders: dict[int, dict[str, Any]] = {}
+        self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
+        self._vehicle_specs = {v.id: v for v in spec.vehicles}
+        self._registered: set[int] = {int(a) for a in self.params.autopilots}
+        unknown = sorted(self._registered - set(self._glider_index) - set(self._vehicle_specs))
+        if unknown:
+            raise ConfigError(f"{name}.params.autopilots: unknown glider id(s) {unknown}")
+        bad_heads = sorted(set(self.params.sonar_heads) - {s.id for s in spec.sonars})
+        if bad_heads:
+            raise ConfigError(f"{name}.params.sonar_heads: unknown sonar id(s) {bad_heads}")
+        clock = self.clock_spec
+        self._gate = LockstepGate(
+            lockstep=clock.mode == "lockstep", timeout_s=clock.lockstep_timeout_s,
+            max_stalls=clock.lockstep_max_stalls, start_timeout_s=clock.lockstep_start_timeout_s,
+            autopilots=self._registered, sonars=self.params.sonar_heads,
+        )
+        self._good_cmd: dict[int, tuple[float, float]] = {}
+        #: id -> the tick due when its newest good command arrived, until that command is flown
+        self._cmd_pending: dict[int, int] = {}
+        self.fleet = Fleet(
+            self.scene, tick_ns=self.tick_ns, substeps=self.substeps,
+            history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
+        )
+        self._sonars = ServerSonars(
+            name, self.scene, self.fleet, self._gate, self.clock_spec, self.params, self._now_ns,
+            current_domain(),  # the run's: active while the launcher builds nodes
+        )
+        self._node: Any = None
+        self._proxy: Any = None
+        self._pubs: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ launchable contract
+
+    def start(self) -> None:
+        """Start the proxy (if embedded), the node, the tick loop and the echo service."""
+        if self._started:
+            return
+        self._started = True
+        from hil_bridge.bus.clock import SimClock
+        from hil_bridge.bus.node import Node
+        from hil_bridge.bus.qos import COMMAND, LATCHED, SENSOR
+
+        if self.params.embed_proxy:
+            from hil_bridge.bus.proxy import proxy_for
+
+            self._proxy = proxy_for(self.bus)
+            if self._proxy is not None:
+                self._proxy.start()
+        # The server steps the clock itself (it paces realtime ticks against the wall clock).
+        self.clock = SimClock("lockstep" if self.clock_spec.mode == "lockstep" else "fast")
+        self._node = Node(self.name, bus=self.bus, clock=self.clock, diagnostics_period_s=0)
+        node = self._node
+        self._pubs["/clock"] = node.create_publisher(Clock, "/clock", qos=SENSOR)
+        self._pubs["/diagnostics"] = node.create_publisher(Diagnostics, "/diagnostics", qos=SENSOR)
+        if self.scene.spec.swarm is not None and self.params.publish_thermals:
+            self._pubs["/thermals"] = node.create_publisher(
+                ThermalMarkers, "/thermals", qos=LATCHED
+            )
+        for gid in self.fleet.ids:
+            self._pubs[f"/glider/{gid}/state"] = node.create_publisher(
+                GliderState, f"/glider/{gid}/state", qos=SENSOR
+            )
+            node.create_subscription(
+                GliderCmd, f"/glider/{gid}/cmd", self._make_cmd_callback(gid), qos=COMMAND,
+                priority=True,
+            )
+        for gid in self._glider_index:
+            self._pubs[f"/glider/{gid}/neighbors"] = node.create_publisher(
+                GliderNeighbors, f"/glider/{gid}/neighbors", qos=SENSOR
+            )
+        # the state of tick 0 before any callback can run: the first ping has a pose
+        first = self.fleet.states()
+        self._sonars.attach(node, first)
+        node.start()
+        self._sonars.start()
+        self._threads = [
+            threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def stop(self) -> None:
+        """Stop ticking and echoing, join threads, close the node and proxy (idempotent)."""
+        if self._stopped:
+            return
+        self._stopped = True
+        self._stop.set()
+        self._gate.interrupt()
+        for t in self._threads:
+            t.join()
+        self._sonars.close()
+        if self._node is not None:
+            self._node.stop()
+        if self._proxy is not None:
+            self._proxy.stop()
+
+    def stats(self) -> dict[str, Any]:
+        """Counters, the sim time, registered autopilots and latency percentiles (ms)."""
+        sonars = self._sonars.stats()
+        with self._lock:
+            out: dict[str, Any] = dict(self._c)
+            out["sim_time_s"] = self._sim_ns / 1e9
+            out["tick_cpu_s"] = self._tick_cpu_s
+            wall = self._tick_wall[1] - self._tick_wall[0]
+            out["tick_wall_s"] = wall
+            out["rate_achieved"] = self._sim_ns / 1e9 / wall if wall > 0 else math.nan
+            out["registered"] = sorted(self._registered)
+            out["tick_error"] = self._tick_error
+            out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
+            effect = list(self._cmd_effect_ticks)
+        out.update(self._gate.stats())
+        out.update(sonars)
+        out["clock_mode"] = self.clock_spec.mode
+        out["built"] = sorted(self.scene.built)
+        out["ping_echo_ms"] = percentiles(sonars["ping_echo_ms"])
+        out["echo_compute_ms"] = percentiles(sonars["echo_compute_ms"])
+        out["cmd_effect_ticks"] = percentiles(effect)
+        if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
+            out["gliders_alive"] = int(np.count_nonzero(self.fleet.swarm.alive[0]))
+        return out
+
+    def failure(self) -> str | None:
+        """Why the server failed (its tick loop died), or None (the launch run summary)."""
+        with self._lock:
+            return f"tick loop failed: {self._tick_error}" if self._tick_error else None
+
+    def wait_done(self, timeout: float | None = None) -> bool:
+        """Block until the tick loop ended (``stop_after_s`` reached or stopped)."""
+        return self._done.wait(timeout)
+
+    # ------------------------------------------------------------------ commands (bus thread)
+
+    def _make_cmd_callback(self, gid: int) -> Any:
+        def on_cmd(msg: GliderCmd) -> None:
+            self._on_cmd(gid, msg)
+
+        return on_cmd
+
+    def _on_cmd(self, gid: int, msg: GliderCmd) -> None:
+        with self._lock:
+            self._c["cmd_received"] += 1
+            vehicle = self._vehicle_specs.get(gid)
+            if vehicle is not None and not vehicle.commanded:
+                self._c["cmd_ignored"] += 1
+                return
+            self._registered.add(gid)
+            checked = self._check_cmd(gid, msg.bank_cmd, msg.airspeed_cmd)
+            if checked is None:
+                self._c["cmd_rejected"] += 1
+            else:
+                bank, speed, clipped = checked
+                self._good_cmd[gid] = (bank, speed)
+                self._cmd_pending.setdefault(gid, self._c["ticks"])
+                self._c["cmd_applied"] += 1
+                self._c["cmd_clipped"] += int(clipped)
+        self._gate.on_cmd(gid, int(msg.step))
+
+    def _check_cmd(self, gid: int, bank: float, speed: float) -> tuple[float, float, bool] | None:
+        """Reject (None) or clip a command to glider/vehicle ``gid``'s envelope."""
+        vehicle = self._vehicle_specs.get(gid)
+        if vehicle is None:
+            law = self.scene.law
+            bank_lo, bank_hi = float(law.bankMin), float(law.bankMax)
+            v_lo, v_hi = float(law.forwardSpeedMin), float(law.forwardSpeedMax)
+        else:
+            bank_lo, bank_hi = -vehicle.bank_max_rad, vehicle.bank_max_rad
+            v_lo, v_hi = vehicle.speed_min_mps, vehicle.speed_max_mps
+        b, v = float(bank), float(speed)
+        if not (math.isfinite(b) and math.isfinite(v)):
+            return None
+        if abs(b) >= _REJECT_BANK or not 0 < v <= 3 * v_hi:
+            return None
+        bc = min(max(b, bank_lo), bank_hi)
+        vc = min(max(v, v_lo), v_hi)
+        return bc, vc, (bc != b or vc != v)
+
+    def _commands_for_tick(self, tick: int) -> dict[int, tuple[float, float]]:
+        """The held good commands that tick ``tick`` flies (and their effect latency)."""
+        with self._lock:
+            for arrived in self._cmd_pending.values():
+                self._cmd_effect_ticks.append(tick - arrived + 1)
+            self._cmd_pending.clear()
+            return dict(self._good_cmd)
+
+    # ------------------------------------------------------------------ tick loop
+
+    def _now_ns(self) -> int:
+        with self._lock:
+            return self._sim_ns
+
+    def _record_flown(self, commands: Mapping[int, tuple[float, float]]) -> None:
+        """Per externally commanded glider, at a control step: its held command and state."""
+        st = self.fleet.swarm.state
+        flown: dict[int, dict[str, Any]] = {}
+        for gid, (bank_cmd, speed_cmd) in commands.items():
+            i = self._glider_index.get(gid)
+            if i is None:
+                continue
+            flown[gid] = {
+                "step": int(self.fleet.swarm.step_count), "bank_cmd": float(bank_cmd),
+                "bank": float(st.bank[0, i]), "airspeed_cmd": float(speed_cmd),
+                "airspeed": float(st.speed[0, i]), "alive": bool(st.alive[0, i]),
+            }
+        with self._lock:
+            self._c["external_steps"] += len(flown)
+            self._flown_gliders.update(flown)
+
+    def _publish_tick(self, st: FleetStates, decided: bool) -> None:
+        """/clock, then the neighbour lists of a control step, then every state (so a consumer
+        acting on a state already has the neighbours of the same step)."""
+        pubs = self._pubs
+        t_ns = st.t_ns
+        pubs["/clock"].publish(Clock(stamp_ns=t_ns, lockstep=self.clock_spec.mode == "lockstep"))
+        if decided:
+            self._publish_neighbors(t_ns)
+        gliders = self._glider_index
+        rows = zip(
+            st.ids, st.position.tolist(), st.heading.tolist(), st.bank.tolist(),
+            st.airspeed.tolist(), st.vz.tolist(), st.alive.tolist(), st.step.tolist(),
+            st.roll.tolist(), st.pitch.tolist(), st.yaw.tolist(), st.quat.tolist(),
+            st.rates.tolist(), strict=True,
+        )
+        for gid, p, hdg, bank, v, vz, alive, step, roll, pitch, yaw, q, w in rows:
+            pubs[f"/glider/{gid}/state"].publish(GliderState(
+                stamp_ns=t_ns, x=p[0], y=p[1], z=p[2], heading=hdg, bank=bank, airspeed=v,
+                vz=vz, alive=alive, glider_id=gid, step=step, roll=roll, pitch=pitch, yaw=yaw,
+                qw=q[0], qx=q[1], qy=q[2], qz=q[3], roll_rate=w[0], pitch_rate=w[1],
+                yaw_rate=w[2],
+            ))
+            self._gate.published(gid, step, alive=alive, every_tick=gid not in gliders)
+        with self._lock:
+            self._c["clock_published"] += 1
+            self._c["states_published"] += len(st.ids)
+
+    def _publish_neighbors(self, t_ns: int) -> None:
+        with self._lock:
+            targets = sorted(g for g in self._registered if g in self._glider_index)
+        if not targets:
+            return
+        swarm = self.fleet.swarm
+        st = swarm.state
+        step = int(swarm.step_count)
+        gids = np.array(list(self._glider_index), dtype=np.int32)
+        for gid in targets:
+            idx = np.asarray(swarm.neighbors(self._glider_index[gid]), dtype=np.intp)
+            self._pubs[f"/glider/{gid}/neighbors"].publish(GliderNeighbors(
+                stamp_ns=t_ns, glider_id=gid, ids=gids[idx], x=st.x[0, idx], y=st.y[0, idx],
+                z=st.z[0, idx], heading=st.heading[0, idx], bank=st.bank[0, idx],
+                airspeed=st.speed[0, idx], vz=st.vz[0, idx], step=step,
+            ))
+        with self._lock:
+            self._c["neighbors_published"] += len(targets)
+
+    def _publish_thermals(self, t_ns: int) -> None:
+        if "/thermals" not in self._pubs:
+            return
+        th = self.fleet.swarm.thermals
+        ok = th.valid[0]
+        self._pubs["/thermals"].publish(ThermalMarkers(
+            stamp_ns=t_ns, x=th.x[0, ok], y=th.y[0, ok], radius=th.radius[0, ok],
+            w_max=th.w_max[0, ok],
+        ))
+
+    def _publish_diagnostics(self, t_ns: int) -> None:
+        stats = self.stats()
+        counters: dict[str, int | float] = {
+            k: v for k, v in stats.items() if isinstance(v, int | float) and not isinstance(v, bool)
+        }
+        for key in ("ping_echo_ms", "echo_compute_ms", "cmd_effect_ticks"):
+            for p in ("p50", "p99"):
+                val = stats[key][p]
+                if math.isfinite(val):
+                    counters[f"{key}_{p}"] = val
+        node = self._node.stats()
+        for key in ("sent", "received", "dropped", "decode_errors", "callback_errors"):
+            counters[f"bus_{key}"] = int(node[key])
+        self._pubs["/diagnostics"].publish(
+            Diagnostics(stamp_ns=t_ns, node=self.name, counters=counters)
+        )
+        with self._lock:
+            self._c["diagnostics_published"] += 1
+
+    def _tick_loop(self) -> None:
+        try:
+            self._run_ticks()
+        except Exception as exc:  # a bug must not vanish with its thread: report it in stats
+            log.exception("%s: tick loop failed", self.name)
+            with self._lock:
+                self._tick_error = f"{type(exc).__name__}: {exc}"
+        finally:
+            self._done.set()
+
+    def _run_ticks(self) -> None:
+        mode: Literal["realtime", "lockstep", "fast"] = self.clock_spec.mode
+        fleet = self.fleet
+        stop_s = self.params.stop_after_s
+        stop_ns = None if stop_s is None else round(stop_s * 1e9)
+        wall0 = time.monotonic()
+        next_diag = wall0
+        tick = 0
+        decided = False
+        last: tuple[FleetStates, bool] | None = None  # the last published tick
+        if fleet.swarm is not None:
+            self._publish_thermals(0)
+        cpu0 = time.thread_time()
+        while not self._stop.is_set():
+            t_ns = tick * self.tick_ns
+            if stop_ns is not None and t_ns > stop_ns:
+                break
+            if tick > 0:
+                if mode == "lockstep" and last is not None:
+                    # the one place lockstep waits: before flying from the last published tick,
+                    # for what it owes (a swarm glider's answer to a control step is needed
+                    # before the period that step governs is flown)
+                    self._gate.wait(
+                        last[0].t_ns, resend=functools.partial(self._publish_tick, *last),
+                        physics_due=last[1],
+                    )
+                    if self._stop.is_set():
+                        return
+                fleet.advance(self._commands_for_tick(tick))
+                with self._lock:
+                    self._c["physics_steps"] += self.substeps
+            decided = fleet.control_due()
+            if decided:
+                commands = self._commands_for_tick(tick)
+                fleet.decide(commands)
+                with self._lock:
+                    self._c["control_steps"] += 1
+                self._record_flown(commands)
+            states = fleet.states()
+            with self._lock:
+                self._sim_ns = max(self._sim_ns, t_ns)
+            if t_ns > self.clock.now_ns():
+                self.clock.set_ns(t_ns)
+            self._publish_tick(states, decided)
+            last = (states, decided)
+            cpu = time.thread_time()
+            with self._lock:
+                self._c["ticks"] += 1
+                self._tick_cpu_s += cpu - cpu0
+                self._tick_wall = (wall0, time.monotonic())
+            cpu0 = cpu
+            tick += 1
+            now = time.monotonic()
+            if now >= next_diag:
+                self._publish_diagnostics(t_ns)
+                next_diag = now + self.params.diagnostics_period_s
+            if mode == "realtime":
+                target = wall0 + (tick * self.tick_ns / 1e9) / self.clock_spec.rate
+                remaining = target - time.monotonic()
+                if remaining > 0:
+                    self._stop.wait(remaining)
+                elif remaining < -self.tick_ns / 1e9:
+                    with self._lock:
+                        self._c["late_ticks"] += 1

@@ -1,0 +1,245 @@
+"""The simulation server's sonar side: pings in, echoes out (:mod:`hil_bridge.server.sim_server`,
+"Echoes").
+
+:class:`ServerSonars` subscribes to every ``/sonar/<id>/ping``, answers each at its sonar's
+world pose at the ping's emission (the carrying vehicle's pose from the fleet's history,
+composed with the sonar's mount) through :class:`hil_bridge.server.echo_service.EchoService`, and
+publishes ``/sonar/<id>/echo`` (frame ``glider/<mount id>``) and the latched
+``/forest/points``. It tells the echo service where the sonars are going (:meth:`lookahead`)
+so the tiles they will reach are built ahead, and which regions ``/forest/points`` covers
+(:meth:`points_request`). Its counters join the server's summary (:meth:`stats`).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from hil_bridge.bus.messages import PointCloud, SonarEcho, SonarPing
+from hil_bridge.server.echo_service import EchoRequest, EchoResult, EchoService, Region, SonarPose
+from hil_bridge.server.fleet import Fleet, FleetStates
+from hil_bridge.server.lockstep import LockstepGate
+from sim_core.pose import pose_compose, quat_from_euler
+from sim_core.scene import ClockSpec, Scene
+
+__all__ = ["ECHO_COUNTERS", "ECHO_READY_TIMEOUT_S", "LOOKAHEAD_HORIZON_S", "LOOKAHEAD_STEPS",
+           "ServerSonars"]
+
+log = logging.getLogger(__name__)
+
+#: how far ahead (wall s) the tiles a sonar will reach are built
+LOOKAHEAD_HORIZON_S = 2.0
+#: points per second of that horizon at which the path ahead is sampled
+LOOKAHEAD_STEPS = 2
+#: how long start() waits for the echo workers and the tiles the sonars reach first (s)
+ECHO_READY_TIMEOUT_S = 60.0
+
+#: EchoService stats -> server counters
+ECHO_COUNTERS = {
+    "dropped": "pings_dropped", "expired": "pings_dropped_deadline",
+    "degraded": "echoes_degraded", "late": "echoes_late", "errors": "echo_errors",
+    "workers": "echo_workers", "worker_restarts": "echo_worker_restarts",
+    "tiles_built": "echo_tiles_built", "tiles_prefetched": "echo_tiles_prefetched",
+    "tile_bytes": "echo_tile_bytes",
+}
+
+
+class ServerSonars:
+    """The sonars of ``scene`` served by the server ``name`` (module docstring).
+
+    ``now_ns()`` is the server's latest tick (sim ns): a ping without an emission stamp was
+    emitted then, and echoes are stamped with it. ``params`` are the server's
+    :class:`hil_bridge.server.sim_server.ServerParams` (``forest_points``, ``echo_*``).
+    """
+
+    def __init__(self, name: str, scene: Scene, fleet: Fleet, gate: LockstepGate,
+                 clock: ClockSpec, params: Any, now_ns: Any, domain: Any) -> None:
+        self.name = name
+        self.scene = scene
+        self.fleet = fleet
+        self._gate = gate
+        self._clock = clock
+        self._params = params
+        self._now_ns = now_ns
+        self._domain = domain
+        self._vehicle_specs = {v.id: v for v in scene.spec.vehicles}
+        self._mounts = {
+            s.id: (s.mount, np.asarray(s.mount_offset_m, dtype=np.float64),
+                   quat_from_euler(*s.mount_rpy_rad))
+            for s in scene.spec.sonars
+        }
+        self._lock = threading.Lock()
+        self._c = dict.fromkeys(
+            ("pings_received", "ping_stamp_future", "ping_stamp_old", "echoes_published"), 0)
+        self._ping_echo_ms: deque[float] = deque(maxlen=10000)
+        self._last_error = ""
+        self._pubs: dict[str, Any] = {}
+        self.service: EchoService | None = None
+
+    def attach(self, node: Any, first: FleetStates) -> None:
+        """Publishers, ping subscriptions and the (not yet started) echo service on ``node``;
+        ``first`` is the fleet's state of tick 0 (where the points' routes start)."""
+        from hil_bridge.bus.qos import LATCHED, SENSOR
+
+        sonars = self.scene.spec.sonars
+        if not sonars:
+            return
+        if self._params.forest_points > 0:
+            self._pubs["/forest/points"] = node.create_publisher(
+                PointCloud, "/forest/points", qos=LATCHED)
+        for sonar in sonars:
+            self._pubs[f"/sonar/{sonar.id}/echo"] = node.create_publisher(
+                SonarEcho, f"/sonar/{sonar.id}/echo", qos=SENSOR,
+                frame_id=f"glider/{sonar.mount}",
+            )
+            node.create_subscription(
+                SonarPing, f"/sonar/{sonar.id}/ping", self._make_ping_callback(sonar.id),
+                qos=SENSOR,
+            )
+        p = self._params
+        self.service = EchoService(
+            self.scene, worker=p.echo_worker, workers=p.echo_workers, queue_size=p.echo_queue,
+            deadlines=p.echo_deadlines and self._clock.mode == "realtime",
+            on_echo=self._publish_echo, on_error=self._echo_failed,
+            on_drop=lambda req: self._gate.echo_done(req.sonar_id),
+            points=self.points_request(first) if "/forest/points" in self._pubs else None,
+            on_points=self._publish_points, lookahead=self.lookahead, domain=self._domain,
+        )
+
+    def start(self) -> None:
+        """Start the echo service and wait (at most :data:`ECHO_READY_TIMEOUT_S`) until its
+        workers are up and the first tiles built: the server ticks after this."""
+        if self.service is None:
+            return
+        self.service.start()
+        if not self.service.wait_ready(ECHO_READY_TIMEOUT_S):
+            log.warning("%s: echo workers not ready after %.0f s; ticking anyway", self.name,
+                        ECHO_READY_TIMEOUT_S)
+
+    def close(self) -> None:
+        if self.service is not None:
+            self.service.close()
+
+    def stats(self) -> dict[str, Any]:
+        """Ping and echo counters, ``last_echo_error``, the echo service's counters (named as
+        in :data:`ECHO_COUNTERS`) and the raw ``ping_echo_ms`` / ``echo_compute_ms`` lists."""
+        echo = self.service.stats() if self.service is not None else {}
+        with self._lock:
+            out: dict[str, Any] = dict(self._c)
+            out["last_echo_error"] = self._last_error
+            out["ping_echo_ms"] = list(self._ping_echo_ms)
+        for key, name in ECHO_COUNTERS.items():
+            out[name] = int(echo.get(key, 0))
+        out["echo_compute_ms"] = echo.get("compute_ms", [])
+        return out
+
+    # ------------------------------------------------------------------ pings and echoes
+
+    def _make_ping_callback(self, sonar_id: int) -> Any:
+        def on_ping(msg: SonarPing) -> None:
+            self._on_ping(sonar_id, msg)
+
+        return on_ping
+
+    def _on_ping(self, sonar_id: int, msg: SonarPing) -> None:
+        """Queue the ping with its sonar's pose at emission (bus thread)."""
+        t_recv = time.monotonic()
+        mount, offset, rotation = self._mounts[sonar_id]
+        with self._lock:
+            self._c["pings_received"] += 1
+        now = self._now_ns()
+        if not self._gate.on_ping(sonar_id, int(msg.stamp_ns), int(msg.next_ns)):
+            return
+        emit = int(msg.stamp_ns) if msg.stamp_ns > 0 else now
+        pose = self.fleet.pose_at(mount, emit)
+        if pose.clamped:
+            with self._lock:
+                self._c["ping_stamp_future" if pose.clamped > 0 else "ping_stamp_old"] += 1
+        position, orientation = pose_compose(pose.position, pose.orientation, offset, rotation)
+        if self.service is not None:
+            deadline = None
+            if msg.next_ns > msg.stamp_ns > 0 and self._clock.mode == "realtime":
+                # a head on sim time says when its next ping is due
+                deadline = t_recv + (msg.next_ns - msg.stamp_ns) / 1e9 / self._clock.rate
+            self.service.submit(EchoRequest(
+                sonar_id, msg, SonarPose(pose.t_ns, position, orientation), t_recv, deadline))
+        else:
+            self._gate.echo_done(sonar_id)
+
+    def _publish_echo(self, req: EchoRequest, out: EchoResult) -> None:
+        msg = SonarEcho(
+            stamp_ns=self._now_ns(), ping_seq=int(req.ping.ping_seq), fs=out.fs,
+            samples=out.samples, leaves_in_beam=out.leaves_in_beam, fidelity=out.fidelity,
+            sonar_id=req.sonar_id, dropped=out.dropped, error_bound=out.error_bound,
+            compute_ns=out.compute_ns, position=req.pose.position,
+            orientation=req.pose.orientation, boresight=out.boresight, emit_ns=req.pose.t_ns,
+        )
+        self._pubs[f"/sonar/{req.sonar_id}/echo"].publish(msg)
+        self._gate.echo_done(req.sonar_id)
+        t2 = time.monotonic()
+        with self._lock:
+            self._c["echoes_published"] += 1
+            self._ping_echo_ms.append((t2 - req.received) * 1e3)
+
+    def _echo_failed(self, req: EchoRequest, error: str) -> None:
+        self._gate.echo_done(req.sonar_id)
+        with self._lock:
+            self._last_error = f"ping {req.ping.ping_seq} of sonar {req.sonar_id}: {error}"
+        log.warning("%s: %s", self.name, self._last_error)
+
+    # ------------------------------------------------------------------ where the sonars go
+
+    def points_request(self, first: FleetStates) -> tuple[tuple[Region, ...], int]:
+        """Balls along each sonar's route (a path vehicle's whole path, sampled every half
+        query radius; any other vehicle's start), the routes interleaved, for the latched
+        ``/forest/points``."""
+        index = {vid: k for k, vid in enumerate(first.ids)}
+        routes: list[list[Region]] = []
+        for sonar in self.scene.spec.sonars:
+            r = self.scene.query_radius_m(sonar.id)
+            traj = self.scene.trajectories.get(sonar.mount) if self._vehicle_specs else None
+            if traj is not None:
+                xyz = traj.xyz
+                arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xyz, axis=0),
+                                                                      axis=1))])
+                keep = np.searchsorted(arc, np.arange(0.0, arc[-1] + 1e-9, r / 2.0))
+                pts = xyz[np.unique(np.minimum(keep, len(xyz) - 1))]
+            else:
+                pts = first.position[index[sonar.mount]][None]
+            routes.append([((float(p[0]), float(p[1]), float(p[2])), r) for p in pts])
+        regions = [route[k] for k in range(max(map(len, routes), default=0))
+                   for route in routes if k < len(route)]
+        return tuple(regions), self._params.forest_points
+
+    def lookahead(self) -> list[Region]:
+        """Where each sonar will be over the next LOOKAHEAD_HORIZON_S s of wall time (its
+        path, for a vehicle on one; else straight on at its velocity), soonest first."""
+        rate = self._clock.rate if self._clock.mode == "realtime" else 1.0
+        steps = round(LOOKAHEAD_HORIZON_S * LOOKAHEAD_STEPS)
+        taus = np.linspace(0.0, LOOKAHEAD_HORIZON_S * rate, steps + 1)
+        per_sonar: list[list[Region]] = []
+        for sonar in self.scene.spec.sonars:
+            latest = self.fleet.latest(sonar.mount)
+            if latest is None:
+                continue
+            t_ns, p, v = latest
+            vehicle = self._vehicle_specs.get(sonar.mount)
+            if vehicle is not None and not vehicle.commanded:
+                s = self.scene.trajectories[sonar.mount].sample(t_ns / 1e9 + taus)
+                xyz = np.column_stack([s["x"], s["y"], s["z"]])
+            else:
+                xyz = p[None, :] + taus[:, None] * v[None, :]
+            r = self.scene.query_radius_m(sonar.id)
+            per_sonar.append([((float(a), float(b), float(c)), r) for a, b, c in xyz])
+        return [regions[k] for k in range(steps + 1) for regions in per_sonar]
+
+    def _publish_points(self, points: Any, radii: Any) -> None:
+        """Leaf centres as one latched PointCloud (intensity = leaf radius, m), stamped 0 like
+        ``/thermals``: it describes the scene, not a moment of it."""
+        self._pubs["/forest/points"].publish(PointCloud(
+            stamp_ns=0, points=points, intensity=radii, label="leaves"))

@@ -1,0 +1,39 @@
+"""Bus fixtures, used by the conftests of ``bus/`` and ``recording/``: ``bus_url`` is one fresh
+bus per test, parametrised over ``mem`` and ``zmq``; an autouse guard fails a test that leaves
+a ZeroMQ socket or a ``mem://`` endpoint open."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterator
+
+import pytest
+import zmq
+
+from hil_bridge.bus.proxy import Proxy
+from hil_bridge.bus.transport import mem
+
+_names = itertools.count()
+
+
+@pytest.fixture(params=["mem", "zmq"])
+def bus_url(request: pytest.FixtureRequest) -> Iterator[str]:
+    """A bus URL: an unused ``mem://`` channel, or a proxy on free loopback ports."""
+    if request.param == "mem":
+        yield f"mem://test{next(_names)}"
+        return
+    with Proxy("tcp://127.0.0.1:0", "tcp://127.0.0.1:0") as proxy:
+        yield proxy.url
+
+
+@pytest.fixture(autouse=True)
+def _no_socket_leaks() -> Iterator[None]:
+    """Every transport the test opened must be closed when it ends (python-can's guard)."""
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
+    before = {id(s) for s in ctx._sockets if not s.closed}
+    channels_before = set(mem._CHANNELS)
+    yield
+    leaked = [s for s in ctx._sockets if not s.closed and id(s) not in before]
+    assert not leaked, f"test left {len(leaked)} ZeroMQ socket(s) open"
+    left = set(mem._CHANNELS) - channels_before
+    assert not left, f"test left mem:// endpoints open on {sorted(left)}"
