@@ -5,8 +5,8 @@ A flight log (CSV ``t, x, y, z`` at 25 Hz, written here: a 366 m stadium loop at
 across the whole 160 × 80 m maple forest of ``launch/bench_multisonar.yaml``, 978,432 leaves in
 32 tiles of 20 m) is replayed as ``echoloop replay LOG --scene … --rate R --duration D`` does
 (:func:`hil_bridge.replay.trajectory.build_replay_launch`, a claimed domain, its ZeroMQ bus):
-states at
-50 Hz, sonar 0 on the vehicle pinged at 10 Hz, and ``/forest/points`` along the whole route
+states at 50 Hz, sonar 0 on the vehicle pinged at 10 Hz, and ``/forest/points`` along the whole
+route
 (every tile of the forest). *Rate kept* is the server's ``rate_achieved`` (sim time / wall time
 of its ticks) over the asked rate; *sim covered* is the sim time served over ``R × D``; *run
 after start* is the wall time from every node running to the run's end (stopping included)

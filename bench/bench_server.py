@@ -2,8 +2,7 @@
 of the stream a new physics state?
 
 **One sonar vehicle.** The real :class:`hil_bridge.server.sim_server.SimServer` runs the seed 000
-forest
-with a sonar vehicle on the "8" route at ``state_rate_hz = 250`` (realtime clock), on an
+forest with a sonar vehicle on the "8" route at ``state_rate_hz = 250`` (realtime clock), on an
 in-process ``mem://`` bus so that only the server's own threads compete. A subscriber timestamps
 every ``/glider/0/state`` on arrival; we report the inter-arrival gaps (ideal 4 ms) and the
 server's late ticks, for three configurations measured in the same run: no pings (baseline),

@@ -10,8 +10,8 @@ when a USB adapter is pulled. ``replug()`` creates a new pty and points the syml
 
 The symlink never replaces a file that is not a symlink, nor one another live port owns (two
 runs in one domain: ownership is a lock held beside the link,
-:func:`hil_bridge.bus.domain.hold_link`,
-released when the port closes or its process dies); a symlink left by a killed run is replaced,
+:func:`hil_bridge.bus.domain.hold_link`, released when the port closes or its process dies); a
+symlink left by a killed run is replaced,
 even when its pty number has since been given to another program.
 """
 

@@ -8,8 +8,7 @@ Modes (``SimClock(mode, rate=1.0, start_ns=0)``):
 - ``lockstep`` — sim time moves only when the stepping owner calls :meth:`SimClock.advance` /
   :meth:`SimClock.set_ns`; before each step the owner waits for that step's commands from the
   registered autopilots (:class:`hil_bridge.server.sim_server.SimServer`: timeout → freewheel and
-  count
-  a stall).
+  count a stall).
 - ``fast`` — as ``lockstep`` but the owner steps as fast as it can without waiting for anyone.
 
 ``pause()``/``resume()`` and ``set_rate()`` re-base the mapping so :meth:`SimClock.now_ns` stays

@@ -1,8 +1,8 @@
 """``echoloop launch FILE [--param NODE.KEY=VALUE ...] [--duration S] [--expect CHECK ...]``.
 
 Runs the nodes of a launch file as threads of this process (see :mod:`hil_bridge.launch.runner`)
-until
-``--duration`` seconds have passed or Ctrl-C/SIGTERM arrives, then stops them in reverse order.
+until ``--duration`` seconds have passed or Ctrl-C/SIGTERM arrives, then stops them in reverse
+order.
 ``--json`` prints the run summary (messages per topic, drops, stalls, latency percentiles, every
 node's ``stats()``, link states, failures) as one JSON document on stdout; otherwise a short
 human summary is printed. What failed (an ``--expect`` that did not hold, a hardware link that

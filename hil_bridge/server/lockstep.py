@@ -1,8 +1,8 @@
 """Lockstep: who the simulation server waits for before each step, and for how long.
 
 In ``lockstep`` mode the server (:class:`hil_bridge.server.sim_server.SimServer`) publishes a
-tick, then
-asks :meth:`LockstepGate.wait` before computing the next one. The gate holds it until every
+tick, then asks :meth:`LockstepGate.wait` before computing the next one. The gate holds it until
+every
 *participant* has answered what that tick owes it:
 
 1. **Autopilots** (by glider/vehicle id). An autopilot answers each state *step* it is sent
