@@ -5,8 +5,8 @@
    free loopback ``tcp://`` bus twice: quiet, and with ``python -m hil_bridge.tools.flood`` (a
    separate process) injecting FLOOD_RATE malformed messages/s on ``/glider/0/state`` for FLOOD_S
    seconds after a WARMUP_S warm-up. Measured: the injected rate; the state latency (server
-   ``pub_ns`` → the CAN adapter's state callback) over the adapter's last 10,000 states; the malformed
-   messages the adapter dropped and counted per second; hold/failsafe entries and failsafe
+   ``pub_ns`` → the CAN adapter's state callback) over the adapter's last 10,000 states; the
+   malformed messages the adapter dropped and counted per second; hold/failsafe entries and failsafe
    commands of the CAN adapter (goal: 0); the sonar head's ping outcomes.
 2. **Recovery.** A recorder in a child process records incompressible echoes and states until
    it is killed with SIGKILL; ``hil_bridge.recording.bag.recover`` turns its unfinished ``.part``
