@@ -37,6 +37,7 @@ from hil_bridge.bus.messages import (
     SonarEcho,
     SonarPing,
     ThermalMarkers,
+    state_quaternions,
 )
 from hil_bridge.outputs import atomic_output
 from hil_bridge.recording.export.cdr import encoder, msgdef
@@ -45,7 +46,6 @@ from hil_bridge.recording.export.common import (
     ExportCounts,
     batches,
     decoded,
-    glider_attitudes,
     glider_velocities,
     mount_id,
     sonar_pose,
@@ -173,7 +173,7 @@ def export_ros2(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
         bag = _Bag(fh)
         for batch in batches(decoded(src, counts)):
             states = [d.msg for d in batch if isinstance(d.msg, GliderState)]
-            quats = glider_attitudes(states)
+            quats = state_quaternions(states)
             body_v = quat_rotate(quat_conjugate(quats), glider_velocities(states))
             k = 0
             for d in batch:
