@@ -23,11 +23,14 @@ commands ``(φ_c − φ)/FW_R_TC`` limited to ``FW_R_RMAX`` (ArduPlane's ``RLL2S
 ``RMAX`` likewise), its TECS airspeed loop ``(V_c − V)/FW_T_TAS_TC`` limited by the energy the
 airframe can trade; :class:`FlightParams` gives the defaults and their sources (docs/soaring.md).
 
-The attitude implied by a state (:meth:`FlightModel.outputs`) is that of a point mass with zero
-angle of attack and sideslip: yaw = ψ, roll = −φ, and pitch = −γ (FLU: positive pitch lowers
-the nose), where γ = asin(s/V) is the flight-path angle *through the air* (an updraft lifts the
-glider without tilting it; a ``hold`` vehicle flies level). Body rates follow from the Euler
-rates (:func:`sim_core.pose.body_rates_from_euler_rates`).
+The attitude implied by a state is that of a point mass with zero angle of attack and sideslip,
+:func:`attitude`, the one derivation of it in echoloop (the flight model, path vehicles, bus
+messages without an attitude, the live view and every exporter use it): yaw = ψ, roll = −φ,
+and pitch = −γ (FLU: positive pitch lowers the nose), where γ = asin(s/V) is the flight-path
+angle *through the air* (an updraft lifts the glider without tilting it; a ``hold`` vehicle
+flies level). :func:`glide_attitude` is it for a vehicle gliding on a polar (the SB-XC's by
+default), given only its heading, bank and airspeed. Body rates follow from the Euler rates
+(:func:`sim_core.pose.body_rates_from_euler_rates`).
 
 :meth:`FlightModel.step` integrates with the classical fourth-order Runge-Kutta method on
 ``substeps`` equal sub-steps and applies the height limits after each (the seed's rules: a
@@ -54,6 +57,8 @@ from sim_core.pose import (
     quat_from_euler,
 )
 from sim_core.soaring import kernels
+from sim_core.soaring.glider import sink_rate
+from sim_core.soaring.law import Law
 
 if TYPE_CHECKING:
     from sim_core.scene import Trajectory
@@ -63,6 +68,7 @@ __all__ = [
     "HEADING",
     "SPEED",
     "STATE_ROWS",
+    "Attitude",
     "FlightModel",
     "FlightOutputs",
     "FlightParams",
@@ -72,6 +78,8 @@ __all__ = [
     "X",
     "Y",
     "Z",
+    "attitude",
+    "glide_attitude",
     "path_state",
     "path_states",
 ]
@@ -139,6 +147,53 @@ class FlightOutputs:
 
 def _wrap(a: F8) -> F8:
     return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
+
+
+@dataclass(frozen=True, slots=True)
+class Attitude:
+    """A world-from-body attitude, arrays over ``S``: ``roll``, ``pitch``, ``yaw`` rad (Z-Y-X,
+    world ENU, body FLU; yaw wrapped to [−π, π)) and ``quat`` ``(*S, 4)`` ``[w, x, y, z]``."""
+
+    roll: F8
+    pitch: F8
+    yaw: F8
+    quat: F8
+
+
+def attitude(heading: ArrayLike, bank: ArrayLike, airspeed: ArrayLike,
+             air_vz: ArrayLike) -> Attitude:
+    """The attitude of point masses in coordinated turns with zero angle of attack and sideslip
+    (module docstring), arrays broadcast to ``S``: ``heading`` ψ rad, ``bank`` φ rad (the seed's
+    sign: positive in a left turn), ``airspeed`` V m/s and ``air_vz`` their vertical speed
+    *through the air*, m/s (> 0 up: a glider's polar sink, 0 for a vehicle holding its height,
+    the climb of a path). yaw = ψ, roll = −φ, pitch = −asin(air_vz / V) (clipped to ±π/2; level
+    where V <= 0, a vehicle not moving through the air)."""
+    psi = np.asarray(heading, dtype=np.float64)
+    phi = np.asarray(bank, dtype=np.float64)
+    v = np.asarray(airspeed, dtype=np.float64)
+    w = np.asarray(air_vz, dtype=np.float64)
+    psi, phi, v, w = np.broadcast_arrays(psi, phi, v, w)
+    moving = v > 0
+    ratio = np.divide(w, v, out=np.zeros(v.shape), where=moving)
+    pitch = -np.arcsin(np.clip(ratio, -1.0, 1.0))
+    roll, yaw = -phi, _wrap(psi)
+    return Attitude(roll=roll, pitch=pitch, yaw=yaw, quat=quat_from_euler(roll, pitch, yaw))
+
+
+def glide_attitude(heading: ArrayLike, bank: ArrayLike, airspeed: ArrayLike,
+                   polar: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None) -> Attitude:
+    """:func:`attitude` of vehicles gliding on ``polar`` ``(A, B, C)`` (default: the seed law's
+    SB-XC polar, :class:`sim_core.soaring.Law`): its sink ``(A V² + B V + C) / √cos φ``
+    (:func:`sim_core.soaring.sink_rate`) is their vertical speed through the air, whatever the
+    updraft. This is what :meth:`FlightModel.outputs` gives a gliding state, from its heading,
+    bank and airspeed alone (so for a state that carries no attitude, e.g. from a recording
+    older than the attitude fields)."""
+    if polar is None:
+        law = Law()
+        polar = (law.Sink_A, law.Sink_B, law.Sink_C)
+    v = np.asarray(airspeed, dtype=np.float64)
+    phi = np.asarray(bank, dtype=np.float64)
+    return attitude(heading, phi, v, sink_rate(v, phi, *polar))
 
 
 class FlightModel:
@@ -311,17 +366,17 @@ class FlightModel:
             dratio = ((ds_dv * v - s) / (v * v)) * dy[SPEED] + (s * np.tan(bank) / 2.0 / v) * dy[
                 BANK]
             gamma_rate = dratio / np.sqrt(np.maximum(1.0 - ratio * ratio, 1e-300))
-            pitch = np.where(self.glide, -np.arcsin(ratio), 0.0)
+            air_vz = np.where(self.glide, s, 0.0)
             pitch_rate = np.where(self.glide, -gamma_rate, 0.0)
         else:
-            pitch = np.zeros(np.shape(v))
+            air_vz = np.zeros(np.shape(v))
             pitch_rate = np.zeros(np.shape(v))
-        roll, yaw = -bank, _wrap(ya[HEADING])
-        rates = body_rates_from_euler_rates(roll, pitch, -dy[BANK], pitch_rate, dy[HEADING])
+        att = attitude(ya[HEADING], bank, v, air_vz)
+        rates = body_rates_from_euler_rates(att.roll, att.pitch, -dy[BANK], pitch_rate,
+                                            dy[HEADING])
         return FlightOutputs(
-            vz=np.asarray(dy[Z]), omega=np.asarray(dy[HEADING]), roll=np.asarray(roll),
-            pitch=np.asarray(pitch), yaw=yaw, quat=quat_from_euler(roll, pitch, yaw),
-            rates=rates,
+            vz=np.asarray(dy[Z]), omega=np.asarray(dy[HEADING]), roll=att.roll,
+            pitch=att.pitch, yaw=att.yaw, quat=att.quat, rates=rates,
         )
 
 
@@ -358,17 +413,16 @@ def path_states(trajs: Sequence[Trajectory], t: float, dt: float = 1e-3) -> Path
     trajectory's own when it carries one (a logged attitude, :meth:`Trajectory.attitude`),
     otherwise the one its path implies: yaw = its heading, roll = −bank (the trajectory's
     bank; for a timed geometric path the coordinated-turn bank), pitch = −asin(vz / speed)
-    (the climb of the path; 0 when level). Velocity, turn rate and body rates are central
-    differences over ``dt`` s."""
+    (the climb of the path; 0 when level): :func:`attitude` with the path's climb. Velocity,
+    turn rate and body rates are central differences over ``dt`` s."""
     from sim_core.scene import sample_paths
 
     times = np.array([t - dt / 2, t, t + dt / 2])
     s = sample_paths(trajs, np.broadcast_to(times, (len(trajs), 3)))
     xyz = np.stack([s["x"], s["y"], s["z"]], axis=-1)  # (V, 3 times, 3)
     speed, vz = s["airspeed"], s["vz"]
-    pitch = -np.arctan2(vz, np.sqrt(np.maximum(speed * speed - vz * vz, 0.0)))
-    roll, yaw = -s["bank"], s["heading"].copy()
-    quat = quat_from_euler(roll, pitch, yaw)
+    implied = attitude(s["heading"], s["bank"], speed, vz)
+    roll, pitch, yaw, quat = implied.roll, implied.pitch, implied.yaw, implied.quat
     for v, traj in enumerate(trajs):
         logged = traj.attitude(times)
         if logged is not None:

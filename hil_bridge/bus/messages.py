@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -40,6 +40,7 @@ __all__ = [
     "message_class",
     "register",
     "state_quaternion",
+    "state_quaternions",
 ]
 
 REGISTRY: dict[str, type[Message]] = {}
@@ -149,7 +150,7 @@ class GliderState(Message):
     ``roll = -bank``, a glide ``pitch > 0`` (nose down)), that rotation as the unit quaternion
     ``qw, qx, qy, qz``, and ``roll_rate``, ``pitch_rate``, ``yaw_rate`` (rad/s, body axes). NaN:
     not given by the publisher (e.g. a recording older than these fields; see
-    :func:`state_quaternion`).
+    :func:`state_quaternions`).
     """
 
     TYPE: ClassVar[str] = "echoloop/GliderState"
@@ -178,16 +179,27 @@ class GliderState(Message):
     yaw_rate: float = math.nan
 
 
-def state_quaternion(msg: GliderState) -> npt.NDArray[np.float64]:
-    """The world-from-body attitude ``[w, x, y, z]`` of a state: its quaternion, or, when the
-    publisher gave none (NaN), the level coordinated-turn attitude of its ``heading`` and
-    ``bank`` (roll = −bank, pitch 0)."""
-    q = np.array([msg.qw, msg.qx, msg.qy, msg.qz], dtype=np.float64)
-    if np.all(np.isfinite(q)):
-        return q
-    from sim_core.pose import quat_from_euler
+def state_quaternions(states: Sequence[GliderState]) -> npt.NDArray[np.float64]:
+    """The world-from-body attitudes ``[w, x, y, z]`` (K, 4) of K states: each state's
+    quaternion, or, for a state whose publisher gave none (NaN), the attitude the flight model
+    gives a glider at its ``heading``, ``bank`` and ``airspeed``
+    (:func:`sim_core.flight.glide_attitude`: roll −bank, pitch the SB-XC polar's glide angle
+    through the air). The live view and every exporter take attitudes from here."""
+    q = np.array([[s.qw, s.qx, s.qy, s.qz] for s in states], dtype=np.float64).reshape(-1, 4)
+    given = np.all(np.isfinite(q), axis=1)
+    if not given.all():
+        from sim_core.flight import glide_attitude
 
-    return quat_from_euler(-msg.bank, 0.0, msg.heading)
+        old = [s for s, ok in zip(states, given, strict=True) if not ok]
+        fields = np.array([[s.heading, s.bank, s.airspeed] for s in old], dtype=np.float64)
+        q[~given] = glide_attitude(fields[:, 0], fields[:, 1], fields[:, 2]).quat
+    return q
+
+
+def state_quaternion(msg: GliderState) -> npt.NDArray[np.float64]:
+    """The world-from-body attitude ``[w, x, y, z]`` (4,) of one state
+    (:func:`state_quaternions`)."""
+    return state_quaternions([msg])[0]
 
 
 @register

@@ -5,8 +5,9 @@ Off by default; ``echoloop launch FILE --live`` or ``live: true`` in a launch fi
 ``8765 + 10 N`` in domain N, :mod:`hil_bridge.bus.domain`). Topics served:
 
 - ``/live/gliders`` (``foxglove.SceneUpdate``): one arrow per glider/vehicle at its pose (world
-  frame ``world``, ENU metres) and attitude (the state's quaternion; for a publisher that gives
-  none, the level coordinated-turn attitude of its heading and bank), dead gliders grey;
+  frame ``world``, ENU metres) and attitude (:func:`hil_bridge.bus.messages.state_quaternion`:
+  the state's quaternion, or for a publisher that gives none the attitude the flight model
+  gives a glider at its heading, bank and airspeed, as every exporter does), dead gliders grey;
 - ``/live/beams`` (``SceneUpdate``): the beam of each sonar's latest echo, a translucent cone
   ``beam_length_m`` long from the sonar's position at emission along its boresight, as wide as
   the ping's beamwidth;
@@ -168,6 +169,12 @@ class LiveView:
         if self._server is not None:
             self._server.stop()
             self._server = None
+
+    def poses(self) -> dict[int, tuple[float, float, float, NDArray[np.float64], bool]]:
+        """The vehicles as ``/live/gliders`` draws them: id -> ``(x, y, z, quat, alive)``
+        (``quat`` world-from-body ``[w, x, y, z]``)."""
+        with self._lock:
+            return dict(self._poses)
 
     def stats(self) -> dict[str, Any]:
         with self._lock:

@@ -10,8 +10,19 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from sim_core.flight import BANK, HEADING, SPEED, FlightModel, FlightParams, X, Y, Z
-from sim_core.pose import body_rates_from_quats, euler_from_quat, quat_from_euler
+from sim_core.flight import (
+    BANK,
+    HEADING,
+    SPEED,
+    FlightModel,
+    FlightParams,
+    X,
+    Y,
+    Z,
+    attitude,
+    glide_attitude,
+)
+from sim_core.pose import body_rates_from_quats, euler_from_quat, quat_from_euler, quat_rotate
 
 POLAR = (-0.01843, 0.3782, -2.3782)
 G = 9.81
@@ -66,6 +77,62 @@ def test_steady_turn_radius_rate_sink_and_attitude(bank: float) -> None:
     assert p == pytest.approx(-omega * math.sin(-gamma), abs=1e-12)
     assert q == pytest.approx(omega * math.sin(-bank) * math.cos(gamma), abs=1e-12)
     assert r == pytest.approx(omega * math.cos(bank) * math.cos(gamma), abs=1e-12)
+
+
+def test_level_glide_pitch_is_the_sink_over_airspeed_ratio() -> None:
+    # heading 0.3 rad, wings level, 10 m/s on the SB-XC polar: sink -0.4392 m/s, so the nose
+    # is down by asin(0.4392 / 10) = 2.52 deg (docs/bus.md: "about 2.5 deg at 10 m/s")
+    att = glide_attitude(0.3, 0.0, 10.0)
+    gamma = math.asin(-_sink(10.0) / 10.0)
+    assert _sink(10.0) == pytest.approx(-0.4392, abs=1e-12)
+    assert float(att.pitch) == pytest.approx(gamma, rel=1e-14)
+    assert math.degrees(gamma) == pytest.approx(2.52, abs=0.005)
+    assert float(att.roll) == 0.0 and float(att.yaw) == pytest.approx(0.3, abs=1e-15)
+    nose = quat_rotate(att.quat, [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(nose, [math.cos(gamma) * math.cos(0.3),
+                                      math.cos(gamma) * math.sin(0.3), -math.sin(gamma)],
+                               atol=1e-15)
+    # the same from the ratio given directly: 1 m/s down at 10 m/s is asin(0.1)
+    assert float(attitude(0.0, 0.0, 10.0, -1.0).pitch) == pytest.approx(math.asin(0.1), 1e-15)
+    # a vehicle holding its height, or not moving through the air, flies level
+    assert float(attitude(0.0, 0.2, 10.0, 0.0).pitch) == 0.0
+    assert float(attitude(0.0, 0.2, 0.0, -1.0).pitch) == 0.0
+
+
+@pytest.mark.parametrize("bank", [0.3, -0.5])
+def test_coordinated_turn_attitude_has_roll_minus_bank(bank: float) -> None:
+    v = 12.0
+    att = glide_attitude(math.pi / 2, bank, v)
+    assert float(att.roll) == -bank  # docs/bus.md: a coordinated turn has roll = -bank
+    gamma = math.asin(-_sink(v, bank) / v)
+    assert float(att.pitch) == pytest.approx(gamma, rel=1e-14)
+    # heading north, nose down by the glide angle; a left turn (bank > 0) lowers the left
+    # wing (body +y), a right turn the right one
+    nose = quat_rotate(att.quat, [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(nose, [0.0, math.cos(gamma), -math.sin(gamma)], atol=1e-15)
+    left = quat_rotate(att.quat, [0.0, 1.0, 0.0])
+    assert left[2] == pytest.approx(-math.sin(bank) * math.cos(gamma), abs=1e-15)
+
+
+def test_flight_model_attitude_is_the_one_derivation_and_ignores_the_updraft() -> None:
+    m = FlightModel.from_params([FlightParams()] * 3, glide=[True, True, False], polar=POLAR)
+    y = np.array([[0.0, 1.0, 2.0], [0.0] * 3, [500.0] * 3, [0.3, 2.0, -1.0],
+                  [0.2, -0.4, 0.1], [9.0, 12.0, 10.0]])
+    u = np.stack([y[BANK], y[SPEED]])
+    still, lifted = m.outputs(y, u), m.outputs(y, u, np.array([2.5, 1.0, 2.5]))
+    assert lifted.vz[0] == pytest.approx(still.vz[0] + 2.5, abs=1e-12)  # it climbs ...
+    np.testing.assert_array_equal(lifted.quat, still.quat)  # ... without tilting
+    glides = glide_attitude(y[HEADING, :2], y[BANK, :2], y[SPEED, :2], POLAR)
+    np.testing.assert_array_equal(still.quat[:2], glides.quat)
+    np.testing.assert_array_equal(still.quat[2], attitude(-1.0, 0.1, 10.0, 0.0).quat)
+    # the default polar is the seed law's SB-XC
+    np.testing.assert_allclose(glide_attitude(y[HEADING], y[BANK], y[SPEED]).quat[:2],
+                               glides.quat, atol=0.0)
+    # vectorised over any shape S: (2, 3) runs x vehicles as each alone
+    h, b, v = (np.stack([y[r], y[r][::-1]]) for r in (HEADING, BANK, SPEED))
+    grid = glide_attitude(h, b, v)
+    assert grid.quat.shape == (2, 3, 4)
+    np.testing.assert_array_equal(grid.quat[1, 0], glide_attitude(h[1, 0], b[1, 0], v[1, 0]).quat)
 
 
 def test_bank_follows_a_rate_limited_first_order_lag() -> None:

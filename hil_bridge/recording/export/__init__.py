@@ -4,8 +4,8 @@
 ``.wav``;
 - :mod:`hil_bridge.recording.export.matlab`: a recording's echoes, pings and glider tracks as
 ``.mat``;
-- :mod:`hil_bridge.recording.export.ros2`: a recording as a ROS 2 bag (MCAP, CDR, ``ros2msg``
-schemas);
+- :mod:`hil_bridge.recording.export.ros2`: a recording as a ROS 2 (Jazzy) bag (MCAP, CDR,
+``ros2msg`` schemas, through rosbags' type store);
 - :mod:`hil_bridge.recording.export.foxglove`: a recording with Foxglove's well-known schemas.
 
 Every output goes through :func:`hil_bridge.outputs.atomic_output` (never clobbered without

@@ -1,11 +1,10 @@
 """What every exporter needs: decoded messages of a recording, glider and sonar poses.
 
 Poses follow REP 103 (world ENU, body FLU, quaternions ``[w, x, y, z]`` world-from-body).
-A ``GliderState`` that carries its attitude (a finite ``qw, qx, qy, qz``, as the server
-publishes) is used as is; older states (NaN there) get it from their fields in
-:func:`glider_attitudes`, the one place that derives it: yaw = heading, roll = −bank (positive
-bank is a left turn), pitch from the flight-path angle (``−atan2(vz, airspeed)``: FLU pitch is
-positive nose down). A ``SonarEcho`` that carries the sonar's pose at emission (finite
+A ``GliderState``'s attitude is :func:`hil_bridge.bus.messages.state_quaternions`: its own
+quaternion (as the server publishes it) or, for older states (NaN there), the one
+:func:`sim_core.flight.glide_attitude` derives from its heading, bank and airspeed, as the live
+view shows it. A ``SonarEcho`` that carries the sonar's pose at emission (finite
 ``position``, ``orientation``, ``boresight``) is used as is, turned so that x is the
 boresight; older echoes are located as the server used to compute them: at the mount
 vehicle's latest state, boresight at world azimuth ``heading + az`` and elevation ``el``.
@@ -30,7 +29,7 @@ from hil_bridge.recording.bag import BagMessage, read_bag
 from sim_core.pose import quat_from_euler
 
 __all__ = ["STATE_TOPIC", "Decoded", "ExportCounts", "SonarPose", "batches", "decoded",
-           "glider_attitude", "glider_attitudes", "glider_velocities", "mount_id", "sonar_pose"]
+           "glider_velocities", "mount_id", "sonar_pose"]
 
 STATE_TOPIC = re.compile(r"^/glider/(\d+)/state$")
 FloatArray = NDArray[np.float64]
@@ -87,26 +86,6 @@ def mount_id(frame_id: str) -> int | None:
     """The vehicle id of an echo's ``frame_id`` (``glider/<id>``), or None."""
     head, _, tail = frame_id.partition("/")
     return int(tail) if head == "glider" and tail.isdigit() else None
-
-
-def glider_attitudes(states: list[Any]) -> FloatArray:
-    """World-from-body ``[w, x, y, z]`` (K, 4) of K ``GliderState`` (module docstring)."""
-    given = np.array([[st.qw, st.qx, st.qy, st.qz] for st in states],
-                     dtype=np.float64).reshape(-1, 4)
-    ok = np.all(np.isfinite(given), axis=1)
-    if ok.all():
-        return given
-    a = np.array([[st.heading, st.bank, st.airspeed, st.vz] for st in states],
-                 dtype=np.float64).reshape(-1, 4)
-    pitch = -np.arctan2(a[:, 3], np.maximum(a[:, 2], 1e-9))
-    q = quat_from_euler(-a[:, 1], pitch, a[:, 0])
-    q[ok] = given[ok]
-    return q
-
-
-def glider_attitude(state: Any) -> FloatArray:
-    """World-from-body ``[w, x, y, z]`` (4,) of one ``GliderState``."""
-    return glider_attitudes([state])[0]
 
 
 def glider_velocities(states: list[Any]) -> FloatArray:

@@ -27,14 +27,20 @@ from typing import Any
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from hil_bridge.bus.messages import GliderState, PointCloud, SonarEcho, SonarPing, ThermalMarkers
+from hil_bridge.bus.messages import (
+    GliderState,
+    PointCloud,
+    SonarEcho,
+    SonarPing,
+    ThermalMarkers,
+    state_quaternions,
+)
 from hil_bridge.outputs import atomic_output
 from hil_bridge.recording.export.common import (
     STATE_TOPIC,
     ExportCounts,
     batches,
     decoded,
-    glider_attitudes,
     mount_id,
     sonar_pose,
 )
@@ -190,7 +196,7 @@ def export_foxglove(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
         out = _Writer(fh, counts)
         for batch in batches(decoded(src, counts)):
             states = [d.msg for d in batch if isinstance(d.msg, GliderState)]
-            quats = iter(glider_attitudes(states))
+            quats = iter(state_quaternions(states))
             for d in batch:
                 if isinstance(d.msg, GliderState):
                     out.state(d, next(quats))

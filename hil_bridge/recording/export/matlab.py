@@ -10,7 +10,8 @@
   ``[w x y z]`` world-from-sonar), ``boresight`` (E×3) (NaN when unknown; see
   :mod:`hil_bridge.recording.export.common` for how it is found);
 - ``gliders``: struct with a field ``glider_<id>`` per glider: columns ``t`` (s), ``stamp_ns``,
-  ``x, y, z`` (m ENU), ``heading, bank`` (rad), ``airspeed, vz`` (m/s), ``alive``, ``quat`` (K×4);
+  ``x, y, z`` (m ENU), ``heading, bank`` (rad), ``airspeed, vz`` (m/s), ``alive``, ``quat`` (K×4,
+  :func:`hil_bridge.bus.messages.state_quaternions`);
 - ``commands``: struct ``glider_<id>`` with ``t``, ``bank_cmd`` (rad), ``airspeed_cmd`` (m/s);
 - ``thermals``: the last ``/thermals``: ``x, y, radius`` (m), ``w_max`` (m/s);
 - ``info``: the source file, frames and units.
@@ -26,14 +27,20 @@ from typing import Any
 
 import numpy as np
 
-from hil_bridge.bus.messages import GliderCmd, GliderState, SonarEcho, SonarPing, ThermalMarkers
+from hil_bridge.bus.messages import (
+    GliderCmd,
+    GliderState,
+    SonarEcho,
+    SonarPing,
+    ThermalMarkers,
+    state_quaternions,
+)
 from hil_bridge.outputs import atomic_output
 from hil_bridge.recording.export.common import (
     STATE_TOPIC,
     ExportCounts,
     batches,
     decoded,
-    glider_attitudes,
     mount_id,
     sonar_pose,
 )
@@ -64,8 +71,8 @@ def export_mat(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
     echo_rows: list[dict[str, Any]] = []
     thermals: Any = None
     for batch in batches(decoded(src, counts)):
-        batch_quats = iter(glider_attitudes([d.msg for d in batch
-                                             if isinstance(d.msg, GliderState)]))
+        batch_quats = iter(state_quaternions([d.msg for d in batch
+                                              if isinstance(d.msg, GliderState)]))
         for d in batch:
             msg = d.msg
             if isinstance(msg, GliderState):

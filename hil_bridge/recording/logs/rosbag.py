@@ -4,7 +4,9 @@ Pose topics: ``nav_msgs/msg/Odometry`` (speed = |twist.linear|), ``geometry_msgs
 and ``geometry_msgs/msg/PoseWithCovarianceStamped``; positions and orientations are taken as
 REP 103 (world ENU, body FLU), as ROS publishes them. Time: ``header.stamp``, or the bag's
 receive time where a stamp is zero. ``topic`` names the pose topic when the bag has several.
-Bags without embedded message definitions are decoded with the ROS 2 Humble type store.
+Bags without embedded message definitions are decoded with the ROS 2 type store the ROS 2 export
+writes (:data:`hil_bridge.recording.export.ros2.STORE`, Jazzy; the pose types are the same in
+rosbags' Humble, Jazzy, Kilted and Lyrical stores).
 """
 
 from __future__ import annotations
@@ -36,10 +38,12 @@ def read_ros2_bag(
 ) -> PoseLog:
     """The poses on one topic of a ROS 2 bag (module docstring)."""
     from rosbags.highlevel import AnyReader, AnyReaderError
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import get_typestore
+
+    from hil_bridge.recording.export.ros2 import STORE
 
     try:
-        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader = AnyReader([path], default_typestore=get_typestore(STORE))
         reader.open()
     except (AnyReaderError, OSError, ValueError, KeyError) as exc:
         raise ValueError(f"{path}: cannot read ROS 2 bag ({type(exc).__name__}: {exc})") from None

@@ -1,9 +1,12 @@
-"""Write small echoloop recordings from message lists (for reader, plot and export tests)."""
+"""Write small echoloop recordings from message lists (for reader, plot and export tests), and
+read a Foxglove export back."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -71,4 +74,26 @@ def demo_messages(steps: int = 20, gliders: tuple[int, ...] = (0, 1), sonar_moun
                 stamp_ns=t + 20_000_000, ping_seq=seq, fs=400e3, samples=x,
                 leaves_in_beam=100 + seq, fidelity="fast", error_bound=3e-4,
                 compute_ns=1_000_000), f"glider/{sonar_mount}"))
+    return out
+
+
+def read_foxglove(path: Path) -> dict[str, list[tuple[str, Any]]]:
+    """A Foxglove export's messages per topic as ``(schema name, decoded value)``: protobuf
+    through the schemas embedded in the file (mcap-protobuf-support), JSON parsed."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    factory = DecoderFactory()
+    out: dict[str, list[tuple[str, Any]]] = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        for schema, channel, message in reader.iter_messages():
+            if channel.message_encoding == "json":
+                assert schema.encoding == "jsonschema"
+                value = json.loads(message.data)
+            else:
+                assert (channel.message_encoding, schema.encoding) == ("protobuf", "protobuf")
+                decode = factory.decoder_for("protobuf", schema)
+                value = decode(message.data)
+            out.setdefault(channel.topic, []).append((schema.name, value))
     return out

@@ -4,18 +4,16 @@ schemas in the file (mcap-protobuf-support), and scipy."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hil_bridge.bus.messages import GliderState
+from hil_bridge.bus.messages import state_quaternion
 from hil_bridge.cli import main as echoloop
-from hil_bridge.recording.export.common import glider_attitude
-from sim_core.pose import quat_from_euler, quat_rotate
-from tests.hil_bridge.recording.bagmaker import demo_messages, write_bag
+from sim_core.pose import quat_rotate
+from tests.hil_bridge.recording.bagmaker import demo_messages, read_foxglove, write_bag
 
 
 @pytest.fixture
@@ -26,19 +24,6 @@ def recording(tmp_path: Path) -> tuple[Path, list]:
 
 def _of(msgs: list, topic: str) -> list:
     return [m for t, m, _ in msgs if t == topic]
-
-
-def test_derived_attitude_is_a_coordinated_left_turn_with_roll_minus_bank() -> None:
-    st = GliderState(stamp_ns=0, x=0, y=0, z=0, heading=math.pi / 2, bank=0.3, airspeed=10.0,
-                     vz=-1.0)
-    q = glider_attitude(st)
-    # heading north: the nose points +y, and it is lowered by the glide angle atan(1/10)
-    nose = quat_rotate(q, [1.0, 0.0, 0.0])
-    np.testing.assert_allclose(nose, [0.0, math.cos(math.atan(0.1)), -math.sin(math.atan(0.1))],
-                               atol=1e-12)
-    # a left turn (positive bank) raises the right wing: body +y (left wing) points down
-    left = quat_rotate(q, [0.0, 1.0, 0.0])
-    assert left[2] == pytest.approx(-math.sin(0.3) * math.cos(math.atan(0.1)), abs=1e-12)
 
 
 def test_ros2_export_read_back_by_rosbags(recording: tuple[Path, list], tmp_path: Path) -> None:
@@ -68,8 +53,7 @@ def test_ros2_export_read_back_by_rosbags(recording: tuple[Path, list], tmp_path
         assert (odo.header.frame_id, odo.child_frame_id) == ("map", "glider_1")
         p, q = odo.pose.pose.position, odo.pose.pose.orientation
         assert (p.x, p.y, p.z) == (st.x, st.y, st.z)
-        expected = quat_from_euler(-st.bank, -math.atan2(st.vz, st.airspeed), st.heading)
-        np.testing.assert_allclose([q.w, q.x, q.y, q.z], expected, atol=1e-12)
+        np.testing.assert_allclose([q.w, q.x, q.y, q.z], state_quaternion(st), atol=1e-12)
         # body-frame twist: airspeed along the heading plus vz, seen from the glider
         v = odo.twist.twist.linear
         assert math.hypot(v.x, v.y, v.z) == pytest.approx(math.hypot(st.airspeed, st.vz))
@@ -110,33 +94,13 @@ def test_ros2_export_read_back_by_rosbags(recording: tuple[Path, list], tmp_path
                                                           rec_cmd.airspeed_cmd, rec_cmd.step)
 
 
-def _read_foxglove(path: Path) -> dict[str, list]:
-    from mcap.reader import make_reader
-    from mcap_protobuf.decoder import DecoderFactory
-
-    factory = DecoderFactory()
-    out: dict[str, list] = {}
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        for schema, channel, message in reader.iter_messages():
-            if channel.message_encoding == "json":
-                assert schema.encoding == "jsonschema"
-                value = json.loads(message.data)
-            else:
-                assert (channel.message_encoding, schema.encoding) == ("protobuf", "protobuf")
-                decode = factory.decoder_for("protobuf", schema)
-                value = decode(message.data)
-            out.setdefault(channel.topic, []).append((schema.name, value))
-    return out
-
-
 def test_foxglove_export_read_back_with_the_embedded_schemas(
     recording: tuple[Path, list], tmp_path: Path
 ) -> None:
     src, msgs = recording
     out = tmp_path / "run_fox.mcap"
     assert echoloop(["bag", "export", str(src), "--foxglove", str(out)]) == 0
-    got = _read_foxglove(out)
+    got = read_foxglove(out)
     assert {name for name, _ in got["/tf"]} == {"foxglove.FrameTransforms"}
     assert {name for name, _ in got["/gliders"]} == {"foxglove.SceneUpdate"}
     assert got["/forest/points"][0][0] == "foxglove.PointCloud"
@@ -149,7 +113,7 @@ def test_foxglove_export_read_back_with_the_embedded_schemas(
         assert (tf.translation.x, tf.translation.y, tf.translation.z) == (st.x, st.y, st.z)
         assert tf.timestamp.seconds * 10**9 + tf.timestamp.nanos == st.stamp_ns
         r = tf.rotation
-        np.testing.assert_allclose([r.w, r.x, r.y, r.z], glider_attitude(st), atol=1e-12)
+        np.testing.assert_allclose([r.w, r.x, r.y, r.z], state_quaternion(st), atol=1e-12)
     last = got["/gliders"][-1][1]
     assert sorted(e.id for e in last.entities) == ["glider_0", "glider_1", "glider_9"]
     th = _of(msgs, "/thermals")[0]
@@ -206,7 +170,7 @@ def test_mat_export_read_by_scipy(recording: tuple[Path, list], tmp_path: Path) 
     states = _of(msgs, "/glider/1/state")
     np.testing.assert_array_equal(g["x"][:, 0], [s.x for s in states])
     np.testing.assert_array_equal(g["t"][:, 0], [s.stamp_ns * 1e-9 for s in states])
-    np.testing.assert_allclose(g["quat"], [glider_attitude(s) for s in states], atol=1e-15)
+    np.testing.assert_allclose(g["quat"], [state_quaternion(s) for s in states], atol=1e-15)
     c = m["commands"][0, 0]["glider_0"][0, 0]
     assert c["bank_cmd"].shape == (20, 1)
     np.testing.assert_array_equal(m["thermals"][0, 0]["radius"][:, 0],

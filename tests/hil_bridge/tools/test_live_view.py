@@ -16,6 +16,7 @@ from hil_bridge.bus.messages import Clock, GliderState, SonarEcho, SonarPing, st
 from hil_bridge.bus.transport import open_transport
 from hil_bridge.server.sim_server import SimServer
 from hil_bridge.tools.live import LiveView, beam_cone
+from sim_core.flight import glide_attitude
 from sim_core.pose import quat_from_euler, quat_rotate
 from tests.hil_bridge.bus.bus_test_util import poll_until
 
@@ -102,15 +103,19 @@ def test_beam_cone_has_its_apex_at_the_sonar_and_its_axis_on_the_boresight() -> 
     np.testing.assert_allclose(size, [6 * math.tan(math.radians(20.0))] * 2 + [3.0])
 
 
-def test_state_attitude_is_the_quaternion_or_the_level_turn_of_the_seed_fields() -> None:
+def test_state_attitude_is_the_quaternion_or_the_flight_models_glide() -> None:
     q = quat_from_euler(-0.3, 0.05, 1.0)
     state = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=1.0, bank=0.3, airspeed=9.0,
                         vz=0.0, qw=q[0], qx=q[1], qy=q[2], qz=q[3])
     np.testing.assert_array_equal(state_quaternion(state), q)
     old = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=1.0, bank=0.3, airspeed=9.0,
                       vz=0.0)
-    # a left turn (bank > 0) lowers the left wing: roll = -bank (the old view had +bank)
-    np.testing.assert_allclose(state_quaternion(old), quat_from_euler(-0.3, 0.0, 1.0))
+    # no attitude given: the flight model's glide at that heading, bank and airspeed. A left
+    # turn (bank > 0) lowers the left wing: roll = -bank; the nose is down by the SB-XC's glide
+    # angle through the air (vz, here 0, is not used: an updraft does not tilt the glider)
+    att = glide_attitude(1.0, 0.3, 9.0)
+    np.testing.assert_allclose(state_quaternion(old), att.quat, atol=1e-12)
+    assert float(att.roll) == -0.3 and 0.04 < float(att.pitch) < 0.06
 
 
 def test_live_view_draws_the_beam_of_an_echo_from_its_ping() -> None:
