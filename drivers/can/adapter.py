@@ -476,12 +476,16 @@ class AutopilotAdapter(Node):
 
     def _send_attitude(self, g: _Glider, st: GliderState, counter: int) -> bool:
         """GLIDER_STATE_QUAT and GLIDER_STATE_RATES of a state that carries an attitude (sent
-        before its MOTION, which completes the sample); nothing for one that does not."""
+        before its MOTION, which completes the sample; both carry its ``counter``); nothing for
+        one that does not. The quaternion goes out with ``qw >= 0`` (-q is the same rotation)."""
         if not _has_attitude(st):
             self._inc("attitude_missing")
             return True
+        sign = -1.0 if st.qw < 0 else 1.0
         ok = self._send(
-            "GLIDER_STATE_QUAT", g.node, {"qw": st.qw, "qx": st.qx, "qy": st.qy, "qz": st.qz},
+            "GLIDER_STATE_QUAT", g.node,
+            {"qw": sign * st.qw, "qx": sign * st.qx, "qy": sign * st.qy, "qz": sign * st.qz,
+             "state_counter": counter},
         )
         return ok & self._send(
             "GLIDER_STATE_RATES", g.node,

@@ -12,6 +12,10 @@ Contracts:
    ``[min|max]`` (including ``±inf``) is clamped to the nearer limit and counted per signal in
    the ``tx`` saturation counters; it never wraps. NaN is refused with ``ValueError``.
    Angle signals (``heading_rad``, ``nb_heading_rad``) are first normalised to ``[-pi, pi)``.
+   Rolling counters (:data:`COUNTER_SIGNALS`) are sequence numbers, not physical values: any
+   integer is taken modulo the field's width (a frame whose field is narrower than the counter,
+   as GLIDER_STATE_QUAT's one-bit ``state_counter``, carries its low bits); a non-integer is
+   refused with ``ValueError``.
 2. ``decode`` takes a received frame and returns physical values. A raw value that decodes
    outside ``[min|max]`` (the field has spare codes beyond the range) is clamped and counted in
    the ``rx`` saturation counters.
@@ -33,13 +37,14 @@ from typing import cast
 
 import can
 import cantools
-from cantools.database.can import Database
+from cantools.database.can import Database, Signal
 from cantools.database.can import Message as DbcMessage
 
 from hil_bridge.errors import CodecError
 
 __all__ = [
     "ANGLE_SIGNALS",
+    "COUNTER_SIGNALS",
     "DBC_PATH",
     "MAX_NODE_ID",
     "OPTIONAL_SIGNALS",
@@ -56,6 +61,11 @@ DBC_PATH = Path(__file__).resolve().with_name("glider.dbc")
 MAX_NODE_ID = 15
 #: Signals that are angles and are normalised to [-pi, pi) before encoding.
 ANGLE_SIGNALS = frozenset({"heading_rad", "nb_heading_rad"})
+
+#: Rolling counters: taken modulo their field width on encode, never saturated.
+COUNTER_SIGNALS = frozenset(
+    {"state_counter", "cmd_counter", "answer_counter", "ap_counter", "bridge_counter", "nb_set"}
+)
 
 #: Signals of profile revision 2 (lockstep) that default to 0 when a caller leaves them out.
 OPTIONAL_SIGNALS = frozenset({"lockstep", "answer", "answer_counter"})
@@ -128,6 +138,11 @@ class _MessageSpec:
     signals: tuple[SignalSpec, ...]
 
 
+def _is_counter_field(sig: Signal) -> bool:
+    return (not sig.is_signed and sig.scale == 1 and sig.offset == 0 and sig.minimum == 0
+            and sig.maximum == (1 << sig.length) - 1)
+
+
 def _normalise_angle(value: float) -> float:
     wrapped = (value + math.pi) % _TWO_PI - math.pi
     return -math.pi if wrapped >= math.pi else wrapped
@@ -145,6 +160,11 @@ class GliderCanCodec:
             for sig in msg.signals:
                 if sig.minimum is None or sig.maximum is None:
                     raise ValueError(f"{dbc_path}: signal {sig.name} needs a [min|max] range")
+                if sig.name in COUNTER_SIGNALS and not _is_counter_field(sig):
+                    raise ValueError(
+                        f"{dbc_path}: {msg.name}.{sig.name} is a rolling counter: expected an "
+                        f"unsigned field, scale 1, offset 0, range [0|2^bits-1]"
+                    )
                 specs.append(
                     SignalSpec(
                         name=sig.name,
@@ -205,6 +225,13 @@ class GliderCanCodec:
             value = float(raw)
             if math.isnan(value):
                 raise ValueError(f"{name}: signal {sig.name!r} is NaN")
+            if sig.name in COUNTER_SIGNALS:
+                if not value.is_integer():
+                    raise ValueError(
+                        f"{name}: counter {sig.name!r} must be an integer, got {raw!r}"
+                    )
+                clamped[sig.name] = int(value) % (1 << sig.bits)
+                continue
             if sig.name in ANGLE_SIGNALS and math.isfinite(value):
                 value = _normalise_angle(value)
             clamped[sig.name] = sig.clamp(value)

@@ -27,7 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from drivers.mocks.sonar_head import SerialDevicePort
+from drivers.mocks.device_port import SerialDevicePort
 from drivers.serial.ptyport import PtyPort
 from sim_core.config import from_dict
 from sim_core.rng import derive_rng

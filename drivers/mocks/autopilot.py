@@ -2,9 +2,11 @@
 
 It is the other end of :class:`drivers.can.adapter.AutopilotAdapter` and speaks only the CAN
 profile (``drivers/can/glider.dbc``, docs/can.md): for each node id it flies it assembles the
-glider's state (GLIDER_STATE_POS + GLIDER_STATE_MOTION) and its neighbour list (NEIGHBOR_POS +
-NEIGHBOR_MOTION, positions relative to the glider), runs a controller at its control rate and
-sends AUTOPILOT_CMD; it sends AUTOPILOT_HEARTBEAT at ``heartbeat_hz`` for every node.
+glider's state samples (GLIDER_STATE_POS, QUAT, RATES, MOTION: only frames of one sample, by
+:class:`drivers.can.samples.SampleAssembler`; a torn sample is dropped and counted) and its
+neighbour list (NEIGHBOR_POS + NEIGHBOR_MOTION, positions relative to the glider), runs a
+controller at its control rate and sends AUTOPILOT_CMD; it sends AUTOPILOT_HEARTBEAT at
+``heartbeat_hz`` for every node.
 
 Controllers:
 
@@ -47,6 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from drivers.can.bus import CanBusConfig, CanLink
 from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
+from drivers.can.samples import STATE_FRAMES, SampleAssembler
 from hil_bridge.errors import CodecError
 from hil_bridge.outputs import check_output
 from sim_core.soaring.boids import GliderObs, controller_command
@@ -198,10 +201,12 @@ class NodeView:
 class ProfileReceiver:
     """Assembles bridge → autopilot frames into one :class:`NodeView` per node (thread-safe).
 
-    State: GLIDER_STATE_POS gives the position; the following GLIDER_STATE_MOTION completes the
-    sample; GLIDER_STATE_QUAT and GLIDER_STATE_RATES, when sent, give its attitude and body
-    rates. Neighbours: NEIGHBOR_POS/NEIGHBOR_MOTION pairs of slots 0..nb_count-1 sharing one
-    ``nb_set`` form a list; positions are made absolute with the glider's latest position. A
+    State: the frames of one sample (GLIDER_STATE_POS, QUAT and RATES when sent, MOTION) go
+    through a :class:`SampleAssembler`; a whole sample replaces the view's state, attitude and
+    body rates at once (NaN attitude for a sample sent without one), a torn one leaves the view
+    as it was (``samples_torn``, ``samples_unverified``). Neighbours: NEIGHBOR_POS/
+    NEIGHBOR_MOTION pairs of slots 0..nb_count-1 sharing one ``nb_set`` form a list; positions
+    are made absolute with the glider's latest position (its latest POS frame). A
     list with a missing or foreign frame is discarded and counted (``nb_incomplete``); the
     previous list stays.
     """
@@ -210,7 +215,7 @@ class ProfileReceiver:
         self._lock = threading.Lock()
         self._views = {int(n): NodeView() for n in nodes}
         self._pos: dict[int, tuple[float, float, float]] = {}
-        self._pos_lockstep: dict[int, bool] = {}
+        self._samples = SampleAssembler()
         self._nb_pos: dict[int, dict[int, tuple[float, float, float]]] = {n: {} for n in nodes}
         self._nb_rows: dict[int, dict[int, list[float]]] = {n: {} for n in nodes}
         self._nb_set: dict[int, int] = {}
@@ -224,28 +229,18 @@ class ProfileReceiver:
         s = frame.signals
         with self._lock:
             view = self._views[node]
-            if frame.name == "GLIDER_STATE_POS":
-                self._pos[node] = (s["x_m"], s["y_m"], s["z_m"])
-                self._pos_lockstep[node] = bool(s.get("lockstep", 0))
-            elif frame.name == "GLIDER_STATE_MOTION":
-                pos = self._pos.get(node)
-                if pos is None:
-                    self.counters["state_incomplete"] += 1
-                    return True
-                view.own = GliderObs(
-                    x=pos[0], y=pos[1], z=pos[2], heading=s["heading_rad"],
-                    speed=s["airspeed_mps"], vz=s["vz_mps"],
-                )
-                view.alive = bool(s["alive"])
-                view.state_counter = int(s["state_counter"])
-                view.lockstep = self._pos_lockstep.get(node, False)
-                view.state_time = now
-                self.counters["states"] += 1
-            elif frame.name == "GLIDER_STATE_QUAT":
-                view.attitude = np.array([s["qw"], s["qx"], s["qy"], s["qz"]])
-            elif frame.name == "GLIDER_STATE_RATES":
-                view.body_rates = np.array(
-                    [s["roll_rate_rps"], s["pitch_rate_rps"], s["yaw_rate_rps"]])
+            if frame.name in STATE_FRAMES:
+                if frame.name == "GLIDER_STATE_POS":  # the reference of neighbour positions
+                    self._pos[node] = (s["x_m"], s["y_m"], s["z_m"])
+                sample = self._samples.feed(frame)
+                if sample is not None:
+                    view.own = GliderObs(x=sample.x, y=sample.y, z=sample.z,
+                                         heading=sample.heading, speed=sample.airspeed,
+                                         vz=sample.vz)
+                    view.alive, view.lockstep = sample.alive, sample.lockstep
+                    view.state_counter, view.state_time = sample.counter, now
+                    view.attitude = np.array(sample.attitude or (np.nan,) * 4)
+                    view.body_rates = np.array(sample.body_rates or (np.nan,) * 3)
             elif frame.name == "NEIGHBOR_POS":
                 slot = int(s["nb_slot"])
                 if slot == 0:
@@ -295,9 +290,9 @@ class ProfileReceiver:
             rows.clear()
 
     def counts(self) -> dict[str, int]:
-        """Snapshot of the assembly counters."""
+        """Snapshot of the assembly counters (the state samples' too)."""
         with self._lock:
-            return dict(self.counters)
+            return dict(self.counters) | dict(self._samples.counters)
 
     def view(self, node: int) -> NodeView:
         """A copy of the current view of ``node``."""
@@ -482,10 +477,12 @@ replaces an existing one), ``faults``.
                 self._inc("rx_decode_errors")
                 continue
             try:
-                if self.receiver.feed(frame, time.monotonic()):
+                now = time.monotonic()
+                if self.receiver.feed(frame, now):
                     self._inc("rx_frames_used")
                     if frame.name == "GLIDER_STATE_MOTION":
-                        self._answer_lockstep(frame.node_id, int(frame.signals["state_counter"]))
+                        self._answer_lockstep(
+                            frame.node_id, int(frame.signals["state_counter"]), now)
             except Exception:
                 self._inc("loop_errors")
                 log.exception("%s: assembling CAN frame %s failed", self.name, frame.name)
@@ -521,11 +518,13 @@ replaces an existing one), ``faults``.
             for node, (bank, speed) in self._commands(views, fresh).items():
                 self._send_cmd(node, bank, speed)
 
-    def _answer_lockstep(self, node: int, counter: int) -> None:
-        """Answer the lockstep sample ``counter`` of ``node`` just completed (module doc)."""
+    def _answer_lockstep(self, node: int, counter: int, at: float) -> None:
+        """Answer the lockstep sample ``counter`` of ``node`` whose MOTION arrived ``at``
+        (module doc); a torn sample never reached the view and is not answered."""
         views = {n: self.receiver.view(n) for n in self.nodes}
         view = views.get(node)
-        if view is None or not view.lockstep or view.state_counter != counter:
+        if (view is None or not view.lockstep or view.state_counter != counter
+                or view.state_time != at):
             return
         if view.own is None or not view.alive:
             self._inc("lockstep_dead_samples")

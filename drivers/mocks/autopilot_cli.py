@@ -18,8 +18,8 @@ from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
 
 __all__ = ["main"]
 
-_STATUS_KEYS = ("commands_sent", "heartbeats_sent", "rx_states", "rx_nb_sets",
-                "rx_bridge_heartbeats", "rx_decode_errors", "can_state")
+_STATUS_KEYS = ("commands_sent", "heartbeats_sent", "rx_states", "rx_samples_torn",
+                "rx_nb_sets", "rx_bridge_heartbeats", "rx_decode_errors", "can_state")
 
 
 def _fmt(value: Any) -> str:

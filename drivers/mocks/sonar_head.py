@@ -26,23 +26,26 @@
 
 The ``bus`` argument is accepted for the launch contract only: a device speaks serial, never
 the bus. Its counters are available through ``stats()`` (the launch run summary).
+
+This module holds the device's protocol state machine; its parameters are
+:class:`~drivers.mocks.sonar_head_config.SonarHeadConfig`, its port and UART pacing are in
+:mod:`drivers.mocks.device_port`, its range estimate in :mod:`drivers.mocks.echo_range`.
 """
 
 from __future__ import annotations
 
 import collections
-import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
-import serial
 
+from drivers.mocks.device_port import DevicePort, SerialDevicePort, UartPacer
+from drivers.mocks.echo_range import first_return_range
+from drivers.mocks.sonar_head_config import BEAMWIDTH_RANGE_DEG, SonarHeadConfig
 from drivers.serial.framing import FrameDecoder, MsgType, frame_bytes
-from drivers.serial.link import PORT_ERRORS, check_url
 from drivers.serial.protocol import (
     AssembledEcho,
     ConfigPayload,
@@ -61,184 +64,9 @@ from hil_bridge.bus.domain import current as current_domain
 from sim_core.config import from_dict
 from sim_core.rng import make_rng
 
-__all__ = ["BEAMWIDTH_RANGE_DEG", "DevicePort", "MockSonarHead", "SerialDevicePort",
-           "SonarHeadConfig", "first_return_range"]
+__all__ = ["MockSonarHead"]
 
-log = logging.getLogger(__name__)
-
-#: seed 000, scenario II: beamwidth drawn from this interval (degrees) per ping
-BEAMWIDTH_RANGE_DEG = (30.0, 65.0)
 _LATENCY_WINDOW = 4096
-
-
-class DevicePort(Protocol):
-    """The device side of a serial link as the mock uses it."""
-
-    def read(self, max_bytes: int, timeout: float) -> bytes: ...
-
-    def write(self, data: bytes, timeout: float = 0.5) -> int: ...
-
-    def wake(self) -> None: ...
-
-    def close(self) -> None: ...
-
-
-class SerialDevicePort:
-    """A pyserial URL/device used as the device side; re-opened with back-off when it fails."""
-
-    def __init__(self, url: str, baudrate: int) -> None:
-        self.url = check_url(url)
-        self.baudrate = baudrate
-        self._ser: Any = serial.serial_for_url(url, baudrate=baudrate, timeout=0.05)
-        self._lock = threading.Lock()
-        self._closed = False
-        self._retry_at = 0.0
-        self.errors = 0
-
-    def _port(self) -> Any:
-        with self._lock:
-            if self._closed:
-                return None
-            if self._ser is None and time.monotonic() >= self._retry_at:
-                try:
-                    self._ser = serial.serial_for_url(self.url, baudrate=self.baudrate,
-                                                      timeout=0.05)
-                except (OSError, ValueError):
-                    self._retry_at = time.monotonic() + 0.2
-            return self._ser
-
-    def _fail(self, ser: Any) -> None:
-        self.errors += 1
-        with self._lock:
-            if self._ser is ser and ser is not None:
-                ser.close()
-                self._ser = None
-                self._retry_at = time.monotonic() + 0.2
-
-    def read(self, max_bytes: int, timeout: float) -> bytes:
-        ser = self._port()
-        if ser is None:
-            time.sleep(min(timeout, 0.05))  # nothing to wait on while the device is away
-            return b""
-        try:
-            data: bytes = ser.read(max(1, min(max_bytes, ser.in_waiting or 1)))
-        except PORT_ERRORS:
-            self._fail(ser)
-            return b""
-        return data
-
-    def write(self, data: bytes, timeout: float = 0.5) -> int:
-        ser = self._port()
-        if ser is None:
-            return 0
-        try:
-            n = ser.write(data)
-        except PORT_ERRORS:
-            self._fail(ser)
-            return 0
-        return len(data) if n is None else int(n)
-
-    def wake(self) -> None:
-        ser = self._ser
-        if ser is not None and hasattr(ser, "cancel_read"):
-            ser.cancel_read()
-
-    def close(self) -> None:
-        with self._lock:
-            self._closed = True
-            if self._ser is not None:
-                self._ser.close()
-                self._ser = None
-
-
-@dataclass(frozen=True, slots=True)
-class SonarHeadConfig:
-    """Mock sonar-head parameters (launch ``params`` / CLI flags).
-
-    ``beamwidth``: full one-way -3 dB beamwidth in degrees, or ``"random"`` (uniform in
-    [30, 65] per ping). ``encoding``: ``int16`` | ``iq16`` | ``float32`` (or 0/1/2), requested
-    in every PING. ``threshold``: absolute first-return threshold in echo units; ``None`` uses
-    ``threshold_rel`` x the echo's peak magnitude.
-    """
-
-    rate_hz: float = 10.0
-    beamwidth: float | str = "random"
-    encoding: int | str = "int16"
-    baudrate: int = 921600
-    channels: int = 1
-    az_deg: float = 0.0
-    el_deg: float = 0.0
-    f_center_hz: int = 70000
-    decimation: int = 20
-    threshold: float | None = None
-    threshold_rel: float = 0.1
-    sound_speed: float = 340.0
-    seed: int = 0
-    throttle: bool = True
-    echo_timeout_s: float = 1.0
-
-    def __post_init__(self) -> None:
-        if not 0 < self.rate_hz <= 1000:
-            raise ValueError(f"rate_hz {self.rate_hz!r} must be in (0, 1000]")
-        if isinstance(self.beamwidth, str):
-            if self.beamwidth != "random":
-                raise ValueError(f"beamwidth {self.beamwidth!r}: expected degrees or 'random'")
-        elif not 0 < self.beamwidth < 180:
-            raise ValueError(f"beamwidth {self.beamwidth!r} must be in (0, 180) degrees")
-        Encoding.parse(self.encoding)
-        if self.baudrate <= 0:
-            raise ValueError(f"baudrate {self.baudrate!r} must be > 0")
-        if not 1 <= self.channels <= 255:
-            raise ValueError(f"channels {self.channels!r} must be in 1..255")
-        if not 0 <= self.f_center_hz < 1 << 32 or not 0 <= self.decimation <= 0xFFFF:
-            raise ValueError(f"f_center_hz {self.f_center_hz!r} / decimation "
-                             f"{self.decimation!r} out of range (u32 / u16)")
-        if self.threshold is not None and self.threshold <= 0:
-            raise ValueError(f"threshold {self.threshold!r} must be > 0")
-        if not 0 < self.threshold_rel <= 1:
-            raise ValueError(f"threshold_rel {self.threshold_rel!r} must be in (0, 1]")
-        if self.sound_speed <= 0 or self.echo_timeout_s <= 0:
-            raise ValueError("sound_speed and echo_timeout_s must be > 0")
-
-
-def first_return_range(
-    samples: np.ndarray, fs_hz: float, *, sound_speed: float = 340.0,
-    threshold: float | None = None, threshold_rel: float = 0.1,
-) -> float | None:
-    """Range (m) of the first sample whose magnitude reaches the threshold, or None.
-
-    ``samples``: (C, N) or (N,), real or complex, at ``fs_hz`` with t = 0 at emission; the
-    magnitude is the maximum over channels. Range = sound_speed * t / 2.
-    """
-    mag = np.abs(np.asarray(samples))
-    if mag.ndim == 2:
-        mag = mag.max(axis=0)
-    if mag.size == 0:
-        return None
-    peak = float(mag.max())
-    level = threshold if threshold is not None else threshold_rel * peak
-    if peak <= 0.0 or level <= 0.0:
-        return None
-    hits = np.flatnonzero(mag >= level)
-    if hits.size == 0:
-        return None
-    return float(sound_speed * (hits[0] / fs_hz) / 2.0)
-
-
-class _Uart:
-    """Pacing of one direction at ``baudrate`` (10 bit times per byte)."""
-
-    def __init__(self, baudrate: int, enabled: bool) -> None:
-        self.byte_s = 10.0 / baudrate
-        self.enabled = enabled
-        self.free_at = 0.0
-
-    def done_at(self, n: int, now: float) -> float:
-        """When ``n`` bytes starting no earlier than ``now`` have crossed the wire."""
-        if not self.enabled:
-            return now
-        self.free_at = max(now, self.free_at) + n * self.byte_s
-        return self.free_at
 
 
 class MockSonarHead:
@@ -283,8 +111,8 @@ class MockSonarHead:
         self._lock = threading.Lock()
         self._decoder = FrameDecoder()
         self._assembler = EchoAssembler()
-        self._tx_uart = _Uart(self.cfg.baudrate, self.cfg.throttle)
-        self._rx_uart = _Uart(self.cfg.baudrate, self.cfg.throttle)
+        self._tx_uart = UartPacer(self.cfg.baudrate, self.cfg.throttle)
+        self._rx_uart = UartPacer(self.cfg.baudrate, self.cfg.throttle)
         self._pending: dict[int, tuple[float, Encoding]] = {}
         #: ping_seqs that timed out lately (an echo of one arriving afterwards is late)
         self._expired: collections.deque[int] = collections.deque(maxlen=256)

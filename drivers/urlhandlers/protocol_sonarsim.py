@@ -3,7 +3,7 @@
 ``serial.serial_for_url("sonarsim://?seed=3&rate_hz=20&encoding=iq16")`` (after
 :func:`drivers.urlhandlers.register`) returns a port whose far end is a mock sonar head running
 on its own threads, so driver code is byte-identical against the mock and a real head. Query
-options are :class:`~drivers.mocks.sonar_head.SonarHeadConfig` fields (``rate_hz``,
+options are :class:`~drivers.mocks.sonar_head_config.SonarHeadConfig` fields (``rate_hz``,
 ``beamwidth`` (deg or ``random``), ``encoding``, ``channels``, ``seed``, ``throttle``, ...);
 ``baudrate`` defaults to the port's. An unknown option raises ``ValueError`` naming it.
 
@@ -21,7 +21,8 @@ from typing import Any
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, SerialTimeoutException
 
-from drivers.mocks.sonar_head import MockSonarHead, SonarHeadConfig
+from drivers.mocks.sonar_head import MockSonarHead
+from drivers.mocks.sonar_head_config import SonarHeadConfig
 
 __all__ = ["BytePipe", "Serial", "parse_sonarsim_url"]
 

@@ -1,4 +1,5 @@
-"""The glider CAN profile: DBC rules, every signal at its limits, saturation, node offsets."""
+"""The glider CAN profile: DBC rules, every signal at its limits, saturation, counters that
+wrap, node offsets."""
 
 from __future__ import annotations
 
@@ -12,8 +13,10 @@ from hypothesis import strategies as st
 
 from drivers.can.codec import (
     ANGLE_SIGNALS,
+    COUNTER_SIGNALS,
     DBC_PATH,
     GliderCanCodec,
+    SignalSpec,
     load_database,
     node_database,
 )
@@ -41,8 +44,10 @@ REQUIRED = {
         "airspeed_cmd_mps": (0.01, 0.0, 100.0),
     },
     # the attitude frames (issue 10): a quaternion to better than 1e-4 rad of rotation
-    # (|error| <= 2 * sqrt(3) * scale / 2), body rates to 1e-4 rad/s over +-50 rad/s
-    "GLIDER_STATE_QUAT": {q: (5e-5, -1.0, 1.0) for q in ("qw", "qx", "qy", "qz")},
+    # (|error| <= 2 * sqrt(3) * scale / 2), body rates to 1e-4 rad/s over +-50 rad/s;
+    # qw >= 0 (the one sign of the two quaternions of a rotation that is sent)
+    "GLIDER_STATE_QUAT": {"qw": (5e-5, 0.0, 1.0)} | {
+        q: (5e-5, -1.0, 1.0) for q in ("qx", "qy", "qz")},
     "GLIDER_STATE_RATES": {
         f"{axis}_rate_rps": (1e-4, -50.0, 50.0) for axis in ("roll", "pitch", "yaw")
     },
@@ -50,7 +55,8 @@ REQUIRED = {
 
 
 def _midpoints(message: str) -> dict[str, float]:
-    return {s.name: 0.5 * (s.minimum + s.maximum) for s in CODEC.signals(message)}
+    return {s.name: (s.minimum + s.maximum) // 2 if s.name in COUNTER_SIGNALS
+            else 0.5 * (s.minimum + s.maximum) for s in CODEC.signals(message)}
 
 
 def _tol(sig_scale: float) -> float:
@@ -96,8 +102,8 @@ def test_every_signal_at_its_limits(message: str, sig) -> None:  # type: ignore[
             err = (err + math.pi) % (2 * math.pi) - math.pi
         assert abs(err) <= _tol(sig.scale), (value, out[sig.name])
     assert codec.saturation_counts() == {"tx": {}, "rx": {}}
-    if sig.name in ANGLE_SIGNALS:
-        return  # angles normalise instead of saturating: see test_angles_normalise
+    if sig.name in ANGLE_SIGNALS or sig.name in COUNTER_SIGNALS:
+        return  # angles normalise, counters wrap: see test_angles_normalise, test_counters_wrap
     step = sig.scale  # one code outside the range: just outside
     for value, limit in ((sig.minimum - step, sig.minimum), (sig.maximum + step, sig.maximum)):
         values = _midpoints(message) | {sig.name: value}
@@ -192,7 +198,8 @@ finite = st.floats(allow_nan=False, allow_infinity=True, width=64)
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.sampled_from([(m, s) for m, s in ALL_SIGNALS if s.name not in ANGLE_SIGNALS]), finite)
+@given(st.sampled_from([(m, s) for m, s in ALL_SIGNALS
+                        if s.name not in ANGLE_SIGNALS | COUNTER_SIGNALS]), finite)
 def test_saturation_never_wraps(pair, value: float) -> None:  # type: ignore[no-untyped-def]
     message, sig = pair
     codec = GliderCanCodec()
@@ -203,6 +210,68 @@ def test_saturation_never_wraps(pair, value: float) -> None:  # type: ignore[no-
     assert abs(got - clamped) <= _tol(sig.scale)
     outside = value < sig.minimum or value > sig.maximum
     assert codec.saturation_counts()["tx"].get(sig.name, 0) == int(outside)
+
+
+COUNTERS = [(m, s) for m, s in ALL_SIGNALS if s.name in COUNTER_SIGNALS]
+
+
+def test_the_state_frames_carry_the_sample_counter_where_a_bit_is_free() -> None:
+    widths = {m: s.bits for m, s in COUNTERS if s.name == "state_counter"}
+    assert widths == {"GLIDER_STATE_MOTION": 4, "GLIDER_STATE_QUAT": 1, "GLIDER_STATE_RATES": 4}
+    # POS: x, y, z at the contract's resolution (63 bits) and the lockstep flag fill the frame
+    assert [(s.name, s.bits) for s in CODEC.signals("GLIDER_STATE_POS")] == [
+        ("x_m", 22), ("y_m", 22), ("z_m", 19), ("lockstep", 1)]
+
+
+def test_quat_hand_computed_vector() -> None:
+    # qw = 1 -> raw 20000 unsigned in bits 0..14; counter 7 -> its lowest bit, 1, in bit 15;
+    # qx = -5e-5 -> raw -1 (16 ones) in bits 16..31; qy = qz = 0
+    msg = CODEC.encode("GLIDER_STATE_QUAT", 2,
+                       {"qw": 1.0, "qx": -5e-5, "qy": 0.0, "qz": 0.0, "state_counter": 7})
+    assert bytes(msg.data) == (20000 | 1 << 15 | 0xFFFF << 16).to_bytes(8, "little")
+    assert dict(CODEC.decode(msg).signals) == pytest.approx(
+        {"qw": 1.0, "state_counter": 1.0, "qx": -5e-5, "qy": 0.0, "qz": 0.0})
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(COUNTERS), st.integers(-(2**40), 2**40))
+def test_counters_round_trip_modulo_their_width(
+    pair: tuple[str, SignalSpec], counter: int
+) -> None:
+    message, sig = pair
+    codec = GliderCanCodec()
+    values = _midpoints(message) | {sig.name: counter}
+    out = codec.decode(codec.encode(message, 2, values)).signals
+    assert out[sig.name] == counter % (1 << sig.bits)
+    # a counter wraps, it never saturates, and it leaves the other signals alone
+    assert codec.saturated_total == 0
+    for other in CODEC.signals(message):
+        if other.name != sig.name:
+            assert abs(out[other.name] - values[other.name]) <= _tol(other.scale)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**20), st.integers(1, 40))
+def test_sample_counter_wraps_alike_in_every_frame(start: int, n: int) -> None:
+    """A sender counting on past 15 (and past any start): each frame carries the same counter
+    modulo its width, so the frames of one sample agree and neighbouring samples differ."""
+    got = []
+    for counter in range(start, start + n):
+        quat = CODEC.decode(CODEC.encode("GLIDER_STATE_QUAT", 1, _midpoints("GLIDER_STATE_QUAT")
+                                         | {"state_counter": counter})).signals
+        motion = CODEC.decode(CODEC.encode("GLIDER_STATE_MOTION", 1,
+                                           _midpoints("GLIDER_STATE_MOTION")
+                                           | {"state_counter": counter})).signals
+        got.append((int(quat["state_counter"]), int(motion["state_counter"])))
+        assert got[-1] == (counter % 2, counter % 16)
+    assert all(a[0] != b[0] and (b[1] - a[1]) % 16 == 1 for a, b in itertools.pairwise(got))
+
+
+@pytest.mark.parametrize("bad", [0.5, 2.25, math.inf, -math.inf])
+def test_a_counter_must_be_an_integer(bad: float) -> None:
+    with pytest.raises(ValueError, match="state_counter"):
+        CODEC.encode_payload("GLIDER_STATE_RATES", _midpoints("GLIDER_STATE_RATES")
+                             | {"state_counter": bad})
 
 
 @settings(max_examples=200, deadline=None)

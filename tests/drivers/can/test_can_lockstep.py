@@ -66,6 +66,9 @@ def test_mock_answers_every_lockstep_sample_once_with_its_neighbours(
     bridge_mock: tuple[Bridge, MockAutopilot]
 ) -> None:
     bridge, mock = bridge_mock
+    # the first sample cannot be bound to a counter yet (no previous one): dropped, unanswered
+    bridge.sample(3, 15, lockstep=1)
+    assert wait_until(lambda: mock.stats().get("rx_samples_unverified") == 1)
     for counter in range(6):
         bridge.sample(3, counter, lockstep=1, x=5.0 + counter, neighbours=[30.0, -15.0])
         assert wait_until(lambda n=counter: len(bridge.commands()) == n + 1)
@@ -95,6 +98,7 @@ def test_mock_leaves_lockstep_nodes_to_the_samples(
     mock = MockAutopilot("mock", channel=channel, gliders=[1], controller="path", rate_hz=50.0)
     mock.start()
     try:
+        bridge.sample(1, 15, lockstep=1)  # binds the counter, unanswered (see above)
         bridge.sample(1, 0, lockstep=1)
         assert wait_until(lambda: len(bridge.commands()) == 1)
         threading.Event().wait(0.3)

@@ -125,12 +125,15 @@ def _nb(slot: int, count: int, nb_set: int, dx: float) -> list[DecodedFrame]:
 
 def test_receiver_assembles_state_and_neighbour_lists() -> None:
     rx = ProfileReceiver([2])
-    motion = _frame("GLIDER_STATE_MOTION", 2, heading_rad=0.1, bank_rad=0.0, airspeed_mps=10.0,
-                    vz_mps=0.5, alive=1, state_counter=1)
-    rx.feed(motion, 1.0)
-    assert rx.view(2).own is None and rx.counts()["state_incomplete"] == 1
+
+    def motion(counter: int) -> DecodedFrame:
+        return _frame("GLIDER_STATE_MOTION", 2, heading_rad=0.1, bank_rad=0.0, airspeed_mps=10.0,
+                      vz_mps=0.5, alive=1, state_counter=counter)
+
+    rx.feed(motion(1), 1.0)  # a sample without its POS
+    assert rx.view(2).own is None and rx.counts()["samples_torn"] == 1
     rx.feed(_frame("GLIDER_STATE_POS", 2, x_m=10.0, y_m=20.0, z_m=300.0), 1.0)
-    rx.feed(motion, 1.0)
+    rx.feed(motion(2), 1.0)
     view = rx.view(2)
     assert view.own is not None and (view.own.x, view.own.z, view.alive) == (10.0, 300.0, True)
     for f in _nb(0, 2, 5, 50.0) + _nb(1, 2, 5, -30.0):
@@ -154,13 +157,16 @@ class Bridge:
     def __init__(self, channel: str) -> None:
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.frames: list[DecodedFrame] = []
+        self.counter = 0
 
     def state(self, node: int) -> None:
+        """One state sample (POS, MOTION), the counter one up from the last."""
+        self.counter += 1
         self.bus.send(CODEC.encode("GLIDER_STATE_POS", node, {"x_m": 5.0, "y_m": 0.0,
                                                               "z_m": 40.0}))
         self.bus.send(CODEC.encode("GLIDER_STATE_MOTION", node, {
             "heading_rad": math.pi / 2, "bank_rad": 0.0, "airspeed_mps": 10.0, "vz_mps": 0.0,
-            "alive": 1, "state_counter": 0}))
+            "alive": 1, "state_counter": self.counter}))
 
     def drain(self) -> list[DecodedFrame]:
         while (msg := self.bus.recv(0.0)) is not None:
@@ -191,6 +197,7 @@ def test_mock_commands_only_with_fresh_state(
 
     assert wait_until(lambda: AP_MODES["INIT"] in modes())
     assert not any(f.name == "AUTOPILOT_CMD" for f in bridge.drain())
+    bridge.state(4)  # the first sample only gives the mock a counter to bind the next one to
     bridge.state(4)
     assert wait_until(lambda: any(f.name == "AUTOPILOT_CMD" and f.node_id == 4
                                   for f in bridge.drain()))

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.mocks.sonar_head import BEAMWIDTH_RANGE_DEG, MockSonarHead
+from drivers.mocks.sonar_head import MockSonarHead
+from drivers.mocks.sonar_head_config import BEAMWIDTH_RANGE_DEG
 from drivers.serial.adapter import SonarHeadAdapter
 from drivers.serial.framing import Frame
 from drivers.serial.host import SonarHeadHost

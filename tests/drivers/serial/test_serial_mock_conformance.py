@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from drivers import cli
-from drivers.mocks.sonar_head import BEAMWIDTH_RANGE_DEG, MockSonarHead, first_return_range
+from drivers.mocks.echo_range import first_return_range
+from drivers.mocks.sonar_head import MockSonarHead
+from drivers.mocks.sonar_head_config import BEAMWIDTH_RANGE_DEG
 from drivers.serial.framing import Frame, FrameDecoder, MsgType
 from drivers.serial.host import SonarHeadHost
 from drivers.serial.link import open_link
