@@ -58,7 +58,8 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim_core.config import ConfigError, from_dict, load_yaml
+from hil_bridge.files.config import load_yaml
+from sim_core.config import ConfigError, from_dict
 from sim_core.flight import FlightParams
 from sim_core.pose import quat_normalize, quat_slerp
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from hil_bridge.outputs import atomic_output, check_output
-from sim_core.config import parse_override
+from hil_bridge.files.config import parse_override
 
 __all__ = ["main"]
 
@@ -211,7 +211,7 @@ def _plot(args: argparse.Namespace) -> int:
 def _read_plot_table(path: str, columns: list[str]) -> list[dict[str, Any]]:
     """Rows of a sweep table with finite numbers in ``columns``; errors name the file."""
     from hil_bridge.tools.sweep import read_table
-    from sim_core.config import read_text
+    from hil_bridge.files.config import read_text
 
     if not path.lower().endswith(".parquet"):
         text = read_text(path)  # not UTF-8 text: one clear line, not a decode error

@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from sim_core.config import ConfigError, from_dict, load_yaml
+from hil_bridge.files.config import load_yaml
+from sim_core.config import ConfigError, from_dict
 from sim_core.rng import derive_rng, make_rng
 from sim_core.scene import SceneSpec
 

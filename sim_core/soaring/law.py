@@ -31,7 +31,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
-from sim_core.config import ConfigError, apply_overrides, from_dict, load_yaml
+from hil_bridge.files.config import load_yaml
+from sim_core.config import ConfigError, apply_overrides, from_dict
 
 __all__ = [
     "DEFAULT_LAW",

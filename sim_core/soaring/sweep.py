@@ -20,7 +20,8 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
-from sim_core.config import ConfigError, load_yaml
+from hil_bridge.files.config import load_yaml
+from sim_core.config import ConfigError
 from sim_core.soaring.law import Law
 
 __all__ = ["check_grid", "expand_grid", "load_grid", "run_key"]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_core.config import load_npz
+from hil_bridge.files.config import load_npz
 
 __all__ = ["CSV_COLUMNS", "Trace"]
 

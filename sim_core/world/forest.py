@@ -294,7 +294,7 @@ def load_forest_spec(path: str | Path) -> ForestSpec:
     scene file whose ``forest:`` section names a ``preset`` or gives ForestSpec fields as
     ``spec`` (:mod:`sim_core.scene`). Relative paths resolve against the file's directory.
     """
-    from sim_core.config import load_yaml
+    from hil_bridge.files.config import load_yaml
     from sim_core.world.presets import get_preset
 
     data = load_yaml(path)

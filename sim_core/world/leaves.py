@@ -171,7 +171,7 @@ class Leaves:
     @classmethod
     def load_npz(cls, path: str | Path) -> Leaves:
         """Read the four leaf arrays written by :meth:`save_npz` (extra arrays are ignored)."""
-        from sim_core.config import load_npz
+        from hil_bridge.files.config import load_npz
 
         p = Path(path)
         data = load_npz(p)

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil_bridge.recording.logs.track import PoseLog
-from sim_core.config import load_npz, read_text
+from hil_bridge.files.config import load_npz, read_text
 
 __all__ = ["LOCAL_COLUMNS", "read_csv", "read_npz"]
 
