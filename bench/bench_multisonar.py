@@ -26,8 +26,8 @@ from typing import Any
 
 from bench._util import table
 from hil_bridge.bus.domain import claim_first_free
-from hil_bridge.launch.runner import run as launch_run
 from hil_bridge.files.config import load_yaml
+from hil_bridge.launch.runner import run as launch_run
 
 TITLE = "Eight sonar vehicles × 20 Hz: one echo worker and the pool"
 

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hil_bridge.outputs import atomic_output, check_output
 from hil_bridge.files.config import parse_override
+from hil_bridge.outputs import atomic_output, check_output
 
 __all__ = ["main"]
 
@@ -210,8 +210,8 @@ def _plot(args: argparse.Namespace) -> int:
 
 def _read_plot_table(path: str, columns: list[str]) -> list[dict[str, Any]]:
     """Rows of a sweep table with finite numbers in ``columns``; errors name the file."""
-    from hil_bridge.tools.sweep import read_table
     from hil_bridge.files.config import read_text
+    from hil_bridge.tools.sweep import read_table
 
     if not path.lower().endswith(".parquet"):
         text = read_text(path)  # not UTF-8 text: one clear line, not a decode error

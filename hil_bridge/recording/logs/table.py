@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from hil_bridge.recording.logs.track import PoseLog
 from hil_bridge.files.config import load_npz, read_text
+from hil_bridge.recording.logs.track import PoseLog
 
 __all__ = ["LOCAL_COLUMNS", "read_csv", "read_npz"]
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hil_bridge.recording.logs import load_trajectory
-from sim_core.scene import Trajectory
+from sim_core.trajectory import Trajectory
 
 
 def _square() -> Trajectory:
@@ -184,7 +184,7 @@ def test_a_scene_reads_logged_paths_only_through_its_reader(tmp_path: Path) -> N
 def test_sampling_many_paths_at_once_is_np_interp_value_for_value(
     k: int, loop: bool, seed: int
 ) -> None:
-    from sim_core.scene import sample_paths
+    from sim_core.trajectory import sample_paths
 
     rng = np.random.default_rng(seed)
     trajs = []
