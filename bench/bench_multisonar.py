@@ -131,8 +131,8 @@ def cost_rows() -> list[dict[str, Any]]:
 
     import numpy as np
 
+    from hil_bridge.files.scene import load_scene
     from sim_core.pose import quat_from_euler
-    from sim_core.scene import load_scene
     from sim_core.sonar import synthesize
     from sim_core.sonar.cost import COST
     from sim_core.sonar.model import precull_half_angle

@@ -148,7 +148,7 @@ def main(argv: list[str]) -> int:
                              wav_format=args.wav_format)
     if args.plot is not None:
         from hil_bridge.outputs import atomic_output
-        from sim_core.sonar.plots import plot_echo
+        from hil_bridge.plots.sonar import plot_echo
 
         with (atomic_output(args.plot, overwrite=args.overwrite, inputs=[args.leaves]) as tmp,
               open(tmp, "wb") as fh):
