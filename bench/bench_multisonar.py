@@ -26,8 +26,8 @@ from typing import Any
 
 from bench._util import table
 from hil_bridge.bus.domain import claim_first_free
+from hil_bridge.files.config import load_yaml
 from hil_bridge.launch.runner import run as launch_run
-from sim_core.config import load_yaml
 
 TITLE = "Eight sonar vehicles × 20 Hz: one echo worker and the pool"
 
@@ -131,8 +131,8 @@ def cost_rows() -> list[dict[str, Any]]:
 
     import numpy as np
 
+    from hil_bridge.files.scene import load_scene
     from sim_core.pose import quat_from_euler
-    from sim_core.scene import load_scene
     from sim_core.sonar import synthesize
     from sim_core.sonar.cost import COST
     from sim_core.sonar.model import precull_half_angle

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from bench._util import table
+from hil_bridge.files.soaring import load_law
 from sim_core.soaring import Law
 from sim_core.soaring import run as run_swarm
 from sim_core.sonar import EchoParams, synthesize
@@ -182,7 +183,7 @@ def _seed002() -> tuple[list[str], list[str]]:
         got, strength, on_time = g002.fly(path, steps)
         diffs = {name: float(np.abs(got[name] - seed[key][:, :steps]).max())
                  for name, key in g002.STATE.items()}
-        result = run_swarm(Law.from_yaml(path))
+        result = run_swarm(load_law(path))
         m = result.metrics
         same = on_time and bool(np.array_equal(got["alive"], seed["aliveData"]))
         if "thermalStrength" in seed:

@@ -28,9 +28,9 @@ import numpy as np
 
 from bench._util import table
 from hil_bridge.bus.domain import claim_first_free
+from hil_bridge.files.config import load_yaml
 from hil_bridge.launch.runner import run as launch_run
 from hil_bridge.replay.trajectory import build_replay_launch
-from sim_core.config import load_yaml
 
 TITLE = "Replay at the asked rate"
 

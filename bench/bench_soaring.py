@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 
 from bench._util import fmt_s, table
+from hil_bridge.plots.soaring import plot_survival_histograms, plot_trends
 from sim_core.soaring import Law, run_batch
 from sim_core.soaring import run as run_one
-from sim_core.soaring.plots import plot_survival_histograms, plot_trends
 from sim_core.soaring.sweep import expand_grid
 
 TITLE = "Thermal-soaring swarm (sim_core.soaring)"
@@ -43,8 +43,8 @@ import json, statistics, sys, time
 sys.path.insert(0, sys.argv[1])
 import numpy as np
 from sim_core.soaring import Law, run, run_batch
-from sim_core.soaring.law import default_grid_path
-from sim_core.soaring.sweep import expand_grid, load_grid
+from hil_bridge.files.soaring import default_grid_path, load_grid
+from sim_core.soaring.sweep import expand_grid
 
 def cpu(fn):
     c0 = time.process_time()

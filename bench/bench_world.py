@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from bench._util import fmt_s, median, peak_bytes, table, time_it
+from hil_bridge.files.world import load_forest_files, load_grammar, packaged_grammar
+from hil_bridge.plots.world import write_gallery
 from sim_core.world import ForestSpec, SpeciesSpec, TiledForest, build_forest, get_preset
 from sim_core.world.leaves import BYTES_PER_LEAF
-from sim_core.world.lpp import expand, interpret, load_grammar
-from sim_core.world.plots import write_gallery
-from sim_core.world.trees import packaged_grammar
+from sim_core.world.lpp import expand, interpret
 
 TITLE = "Forest world (sim_core.world)"
 
@@ -65,7 +65,7 @@ def run(out_dir: Path) -> str:
               ("seed000-fig5d (4 maples + bush)", get_preset("seed000-fig5d")),
               ("58 maples (~1e6 leaves)", _million_leaf_spec())]
     for label, spec in scenes:
-        build = functools.partial(build_forest, spec, seed=1)
+        build = functools.partial(build_forest, spec, seed=1, files=load_forest_files(spec))
         times = time_it(build, repeat=3, warmup=0)
         forest, peak = peak_bytes(build)
         m = len(forest.leaves)
@@ -94,7 +94,8 @@ def run(out_dir: Path) -> str:
     )
 
     spec = get_preset("seed001-ipp")
-    world = TiledForest(spec, seed=1, tile_size_m=50.0, max_cache_bytes=128 * 2**20)
+    world = TiledForest(spec, seed=1, files=load_forest_files(spec), tile_size_m=50.0,
+                        max_cache_bytes=128 * 2**20)
     p = np.array([100.0, 120.0, 10.0])
     cold = time_it(lambda: world.leaves_near(p, 30.0), repeat=1, warmup=0)
     warm = time_it(lambda: world.leaves_near(p, 30.0), repeat=7)

@@ -10,6 +10,9 @@ Sub-packages, each a layer that imports only the layers below it (``importlinter
 - ``recording`` — MCAP bags, the recorder, scan and recovery, flight-log readers, exports;
 - ``bus`` — messages, codec, QoS, sequences, node API, transports, proxy, clock, security,
   domains;
+- ``files`` — the file formats of the world (YAML configs, scene, forest, law and grid files,
+  ``.npz`` leaves and forests, tree maps, L++ grammars, CAD meshes, traces) and the package data
+  behind presets: every reader and writer ``sim_core`` does not have;
 - ``errors`` and ``outputs`` — the error types and the never-clobber output files every layer uses.
 
 Everything here may import ``sim_core`` (the pure world); nothing here imports ``drivers``.

@@ -1,4 +1,4 @@
-"""Plain-data configuration: YAML -> ``dict`` -> frozen dataclass, validated once.
+"""Plain-data configuration: ``dict`` -> frozen dataclass, validated once.
 
 :func:`from_dict` builds a (nested) frozen dataclass from a mapping, rejecting unknown keys and
 values of the wrong type with a :class:`ConfigError` (a ``ValueError``) that names the dotted key
@@ -8,6 +8,8 @@ path and the expected form. Supported field types: ``int``, ``float`` (ints acce
 
 Precedence wherever several sources meet (CLI > environment > file) is applied by the caller
 *before* validation with :func:`apply_overrides`, so validation happens once, on the merged dict.
+Reading the files (YAML, ``.npz``) and parsing ``KEY=VALUE`` overrides is
+:mod:`hil_bridge.files.config`.
 """
 
 from __future__ import annotations
@@ -18,20 +20,12 @@ import math
 import types
 import typing
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
 
-import yaml
-
 __all__ = [
-    "NPZ_MAX_BYTES",
     "ConfigError",
     "apply_overrides",
     "from_dict",
-    "load_npz",
-    "load_yaml",
-    "parse_override",
-    "read_text",
 ]
 
 T = TypeVar("T")
@@ -164,117 +158,6 @@ def from_dict(cls: type[T], data: Any, *, path: str = "") -> T:
         raise
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
-
-
-def read_text(path: str | Path) -> str:
-    """A UTF-8 text file; ``ConfigError`` naming the file when it cannot be read or is not
-    text (binary data, another encoding)."""
-    p = Path(path)
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{p}: not UTF-8 text (byte {data[exc.start]:#04x} at offset "
-                          f"{exc.start}): a binary or damaged file?") from None
-
-
-def load_yaml(path: str | Path) -> Any:
-    """Read a YAML file; ``ConfigError`` naming the file (and line) when it cannot be read, is
-    not UTF-8 text, is not valid YAML, or holds no document at all (empty or only comments:
-    a configuration file that says nothing is taken for a mistake, not for the defaults)."""
-    p = Path(path)
-    text = read_text(p)
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{p}:{mark.line + 1}" if mark is not None else str(p)
-        raise ConfigError(f"{where}: invalid YAML ({getattr(exc, 'problem', exc)})") from None
-    if data is None:
-        raise ConfigError(f"{p}: empty, no YAML document (write '{{}}' for all defaults)")
-    return data
-
-
-#: the most bytes :func:`load_npz` reads from one file
-NPZ_MAX_BYTES = 4 << 30
-
-
-def _npy_headers() -> dict[tuple[int, int], Any]:
-    import numpy as np
-
-    return {(1, 0): np.lib.format.read_array_header_1_0,
-            (2, 0): np.lib.format.read_array_header_2_0}
-
-
-def load_npz(path: str | Path, *, max_bytes: int = NPZ_MAX_BYTES) -> dict[str, Any]:
-    """Every array of an ``.npz`` file, checked before it is read: ``ConfigError`` naming the
-    file when it is empty, not a zip archive, damaged (CRC), holds pickled objects, an array
-    whose header declares more data than the archive holds (a truncated file or a forged
-    shape), or more than ``max_bytes`` in all."""
-    import zipfile
-
-    import numpy as np
-
-    p = Path(path)
-    arrays: dict[str, Any] = {}
-    total = 0
-    headers = _npy_headers()
-    try:
-        with zipfile.ZipFile(p) as zf:
-            for info in zf.infolist():
-                name = info.filename.removesuffix(".npy")
-                with zf.open(info) as member:
-                    version = np.lib.format.read_magic(member)
-                    read_header = headers.get(version)
-                    if read_header is None:
-                        raise ConfigError(f"{p}: array {name!r} has .npy format {version}; "
-                                          "expected 1.0 or 2.0")
-                    shape, fortran, dtype = read_header(member)
-                    if dtype.hasobject:
-                        raise ConfigError(f"{p}: array {name!r} holds Python objects "
-                                          "(pickled data is never loaded)")
-                    need = math.prod(shape) * dtype.itemsize
-                    header = member.tell()
-                    if header + need != info.file_size:
-                        raise ConfigError(
-                            f"{p}: array {name!r} declares shape {tuple(shape)} of {dtype} "
-                            f"({need} bytes) but the file holds {info.file_size - header}: "
-                            "truncated or forged")
-                    total += need
-                    if total > max_bytes:
-                        raise ConfigError(f"{p}: more than {max_bytes} bytes of arrays")
-                    data = np.frombuffer(member.read(need), dtype=dtype)
-                    arrays[name] = data.reshape(shape, order="F" if fortran else "C").copy()
-    except ConfigError:
-        raise
-    except zipfile.BadZipFile as exc:
-        raise ConfigError(f"{p}: not a readable .npz archive ({exc})") from None
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    except (ValueError, EOFError, KeyError, TypeError) as exc:
-        raise ConfigError(f"{p}: damaged .npz archive ({type(exc).__name__}: {exc})") from None
-    return arrays
-
-
-def parse_override(text: str) -> tuple[str, Any]:
-    """Parse ``KEY=VALUE`` (VALUE in YAML syntax: ``3``, ``1e-3``, ``true``, ``[1, 2]``)."""
-    key, sep, raw = text.partition("=")
-    if not sep or not key.strip():
-        raise ConfigError(f"override {text!r}: expected KEY=VALUE")
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
-    except yaml.YAMLError:
-        value = raw
-    if isinstance(value, str):
-        # YAML 1.1 reads "1e-3" (no dot) as a string; numbers are what users mean
-        try:
-            value = float(value)
-        except ValueError:
-            pass
-    return key.strip(), value
 
 
 def apply_overrides(data: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:

@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -59,9 +59,7 @@ from sim_core.pose import (
 from sim_core.soaring import kernels
 from sim_core.soaring.glider import sink_rate
 from sim_core.soaring.law import Law
-
-if TYPE_CHECKING:
-    from sim_core.scene import Trajectory
+from sim_core.trajectory import Trajectory, sample_paths
 
 __all__ = [
     "BANK",
@@ -415,8 +413,6 @@ def path_states(trajs: Sequence[Trajectory], t: float, dt: float = 1e-3) -> Path
     bank; for a timed geometric path the coordinated-turn bank), pitch = −asin(vz / speed)
     (the climb of the path; 0 when level): :func:`attitude` with the path's climb. Velocity,
     turn rate and body rates are central differences over ``dt`` s."""
-    from sim_core.scene import sample_paths
-
     times = np.array([t - dt / 2, t, t + dt / 2])
     s = sample_paths(trajs, np.broadcast_to(times, (len(trajs), 3)))
     xyz = np.stack([s["x"], s["y"], s["z"]], axis=-1)  # (V, 3 times, 3)

@@ -12,7 +12,7 @@ pytest_plugins = ["pytester"]
 INNER = '''
 import threading, time
 from hil_bridge.server.echo_pool import ProcessPool
-from sim_core.scene import load_scene
+from hil_bridge.files.scene import load_scene
 
 SCENE = {"forest": {"preset": "seed000-fig5d", "tiled": True, "tile_size_m": 10.0},
          "sonars": [{"id": 0, "mount": 1}],

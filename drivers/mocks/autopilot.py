@@ -51,6 +51,7 @@ from drivers.can.bus import CanBusConfig, CanLink
 from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
 from drivers.can.samples import STATE_FRAMES, SampleAssembler
 from hil_bridge.errors import CodecError
+from hil_bridge.files.soaring import load_law
 from hil_bridge.outputs import check_output
 from sim_core.soaring.boids import GliderObs, controller_command
 from sim_core.soaring.law import Law
@@ -333,7 +334,7 @@ def _load_law(law: str | Path | Mapping[str, Any] | Law | None) -> Law:
         return law
     if isinstance(law, Mapping):
         return Law.from_dict(law)
-    return Law.from_yaml(law)
+    return load_law(law)
 
 
 class MockAutopilot:

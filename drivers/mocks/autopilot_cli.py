@@ -64,7 +64,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
 
     from drivers.mocks.autopilot import MockAutopilot
-    from sim_core.config import read_text
+    from hil_bridge.files.config import read_text
 
     waypoints = None
     if args.waypoints is not None:

@@ -32,8 +32,8 @@ from urllib.parse import urlsplit
 import zmq
 
 from hil_bridge.errors import SecurityError
+from hil_bridge.files.config import read_text
 from hil_bridge.outputs import atomic_output, check_output
-from sim_core.config import read_text
 
 __all__ = [
     "CurveKeys",

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from hil_bridge.cli._echo_physics import add_physics_arguments, physics_meta, physics_params
+from hil_bridge.files.config import load_npz
 from hil_bridge.outputs import check_output
 from hil_bridge.recording.export.echo_file import WAV_FORMATS, check_echo_output, write_echo
-from sim_core.config import load_npz
 from sim_core.sonar import FIDELITIES, Beam, EchoParams, synthesize
 
 __all__ = ["load_leaves", "main", "parse_floats"]
@@ -148,7 +148,7 @@ def main(argv: list[str]) -> int:
                              wav_format=args.wav_format)
     if args.plot is not None:
         from hil_bridge.outputs import atomic_output
-        from sim_core.sonar.plots import plot_echo
+        from hil_bridge.plots.sonar import plot_echo
 
         with (atomic_output(args.plot, overwrite=args.overwrite, inputs=[args.leaves]) as tmp,
               open(tmp, "wb") as fh):

@@ -42,7 +42,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
-    from sim_core.world import build_forest, get_preset, load_forest_spec, preset_names
+    from hil_bridge.files.world import load_forest_files, load_forest_spec, save_forest
+    from sim_core.world import build_forest, get_preset, preset_names
 
     if args.action == "presets":
         for name in preset_names():
@@ -59,16 +60,16 @@ def main(argv: list[str]) -> int:
     spec = get_preset(args.preset) if args.preset else load_forest_spec(args.scene)
     t0 = time.perf_counter()
     try:
-        forest = build_forest(spec, seed=args.seed)
+        forest = build_forest(spec, seed=args.seed, files=load_forest_files(spec))
     except ValueError as exc:  # the spec cannot be built (e.g. a huge intensity): name its file
         if args.scene is None:
             raise
         raise ValueError(f"{args.scene}: {exc}") from None
     seconds = time.perf_counter() - t0
     with atomic_output(args.out, overwrite=args.overwrite, inputs=inputs) as tmp:
-        forest.save_npz(tmp)
+        save_forest(forest, tmp)
     if args.plot is not None:
-        from sim_core.world.plots import plot_forest
+        from hil_bridge.plots.world import plot_forest
 
         with atomic_output(args.plot, overwrite=args.overwrite, inputs=inputs) as tmp:
             plot_forest(forest, tmp, title=args.preset or args.scene.name)

@@ -125,7 +125,7 @@ def main(argv: list[str]) -> int:
     names = {"fig6": ["fig6.png"], "fig7": ["fig7.png"], "table1": ["table1.png", "table1.md"]}
     for name in names[args.name]:  # refuse before computing anything
         check_output(args.out / name, overwrite=args.overwrite)
-    from sim_core.sonar import plots
+    from hil_bridge.plots import sonar as plots
 
     params = EchoParams()
     result: dict[str, Any] = {"scenario": args.name, "fidelity": args.fidelity}

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hil_bridge.files.config import parse_override
 from hil_bridge.outputs import atomic_output, check_output
-from sim_core.config import parse_override
 
 __all__ = ["main"]
 
@@ -98,15 +98,16 @@ def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     if args.action == "plot":
         return _plot(args)
-    from sim_core.soaring.law import Law
+    from hil_bridge.files.soaring import load_law
 
-    law = Law.from_yaml(args.law, _overrides(args.overrides))
+    law = load_law(args.law, _overrides(args.overrides))
     if args.action == "run":
         return _run(law, args)
     return _sweep(law, args)
 
 
 def _run(law: Any, args: argparse.Namespace) -> int:
+    from hil_bridge.files.soaring import save_trace
     from sim_core.soaring.swarm import run
 
     if args.trace and Path(args.trace).suffix.lower() not in (".npz", ".csv"):
@@ -136,9 +137,9 @@ def _run(law: Any, args: argparse.Namespace) -> int:
     if result.trace is not None:
         if args.trace:
             with atomic_output(args.trace, overwrite=args.overwrite, inputs=inputs) as tmp:
-                result.trace.save(tmp)
+                save_trace(result.trace, tmp)
         if args.plot:
-            from sim_core.soaring.plots import plot_paths
+            from hil_bridge.plots.soaring import plot_paths
 
             with atomic_output(args.plot, overwrite=args.overwrite, inputs=inputs) as tmp:
                 plot_paths(result.trace, tmp)
@@ -156,8 +157,9 @@ def _run(law: Any, args: argparse.Namespace) -> int:
 
 
 def _sweep(law: Any, args: argparse.Namespace) -> int:
+    from hil_bridge.files.soaring import load_grid
     from hil_bridge.tools.sweep import sweep
-    from sim_core.soaring.sweep import expand_grid, load_grid
+    from sim_core.soaring.sweep import expand_grid
 
     grid = load_grid(args.grid)
     try:  # every grid point is a valid law before the first run
@@ -177,7 +179,7 @@ def _sweep(law: Any, args: argparse.Namespace) -> int:
 
 
 def _plot(args: argparse.Namespace) -> int:
-    from sim_core.soaring import plots
+    from hil_bridge.plots import soaring as plots
 
     if args.table is not None and not args.by:
         raise ValueError("--table needs --by PARAM (the column to split the histograms by)")
@@ -194,9 +196,9 @@ def _plot(args: argparse.Namespace) -> int:
         with atomic_output(args.out, overwrite=args.overwrite, inputs=[source]) as tmp:
             plots.plot_survival_histograms(table, args.by, tmp, metric=args.metric)
     else:
-        from sim_core.soaring.trace import Trace
+        from hil_bridge.files.soaring import load_trace
 
-        trace = Trace.load_npz(args.trace)
+        trace = load_trace(args.trace)
         with atomic_output(args.out, overwrite=args.overwrite, inputs=[source]) as tmp:
             if ids is not None:
                 lo = -math.inf if args.t0 is None else args.t0
@@ -210,8 +212,8 @@ def _plot(args: argparse.Namespace) -> int:
 
 def _read_plot_table(path: str, columns: list[str]) -> list[dict[str, Any]]:
     """Rows of a sweep table with finite numbers in ``columns``; errors name the file."""
+    from hil_bridge.files.config import read_text
     from hil_bridge.tools.sweep import read_table
-    from sim_core.config import read_text
 
     if not path.lower().endswith(".parquet"):
         text = read_text(path)  # not UTF-8 text: one clear line, not a decode error

@@ -63,9 +63,10 @@ from types import FrameType
 from typing import Any, Protocol, runtime_checkable
 
 from hil_bridge.bus.domain import Domain, resolve, use
+from hil_bridge.files.config import load_yaml, parse_override
 from hil_bridge.launch.expect import Expectation, parse_expectations
 from hil_bridge.launch.monitor import BusMonitor
-from sim_core.config import ConfigError, apply_overrides, from_dict, load_yaml, parse_override
+from sim_core.config import ConfigError, apply_overrides, from_dict
 
 __all__ = [
     "EXIT_DISCONNECTED",

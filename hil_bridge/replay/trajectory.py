@@ -2,11 +2,11 @@
 
 ``echoloop replay FILE`` builds a launch description in code (plain data, the same runner as
 ``echoloop launch``): a :class:`~hil_bridge.server.sim_server.SimServer` whose scene has one path
-vehicle
-following ``FILE`` (:func:`sim_core.scene.load_trajectory`: linear position, shortest-arc
-heading), a sonar mounted on it, and optionally a :class:`Pinger` node that pings at a fixed
-rate. External pingers (a sonar-head adapter with a real head) can ping ``/sonar/<id>/ping``
-instead; the server answers each at the vehicle's pose when the ping was emitted (its stamp).
+vehicle following ``FILE`` (:func:`hil_bridge.recording.logs.load_trajectory`: linear position,
+shortest-arc heading), a sonar mounted on it, and optionally a :class:`Pinger` node that pings at
+a fixed rate. External pingers (a sonar-head adapter with a real head) can ping
+``/sonar/<id>/ping`` instead; the server answers each at the vehicle's pose when the ping was
+emitted (its stamp).
 
 File formats (:mod:`hil_bridge.recording.logs`, ``docs/server.md``): CSV/NPZ columns in local ENU or
 geodetic, PX4 ULog, ArduPilot DataFlash, MAVLink tlog, ROS 2 bags and echoloop recordings.
@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from sim_core.config import ConfigError, from_dict, load_yaml
+from hil_bridge.files.config import load_yaml
+from sim_core.config import ConfigError, from_dict
 from sim_core.rng import derive_rng, make_rng
 from sim_core.scene import SceneSpec
 

@@ -151,12 +151,13 @@ def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
                  cost: EchoCost) -> None:
     """Body of a worker process: its own Scene, tiles through the shared store, one job at a
     time; exits on ``None`` or when the server's end of the pipe closes."""
+    from hil_bridge.files.scene import load_scene
     from hil_bridge.recording.logs import load_trajectory
     from hil_bridge.server.shared_tiles import SharedTiles
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _lower_priority(nice)
-    scene = Scene(spec, trajectory_reader=load_trajectory)
+    scene = load_scene(spec, trajectory_reader=load_trajectory)
     built: list[tuple[Tile, int]] = []
     forest = None
     if store_dir is not None:
@@ -220,14 +221,14 @@ class ProcessPool:
         self._stop = stop
         self._ctx = multiprocessing.get_context("spawn")
         forest = scene.spec.forest
+        fs = scene.forest_spec()
         self.geometry: TiledForest | None = None
         self.store: SharedTiles | None = None
         self.max_bytes = 0
-        if forest is not None and forest.tiled and scene.spec.sonars:
+        if forest is not None and fs is not None and forest.tiled and scene.spec.sonars:
             # geometry only: which tiles a region needs (no tile is built in this process)
-            fs = scene._forest_spec()
-            self.geometry = TiledForest(fs, seed=scene.spec.seed if forest.seed is None
-                                        else forest.seed, tile_size_m=forest.tile_size_m)
+            self.geometry = TiledForest(fs, seed=scene.forest_seed, files=scene.forest_files,
+                                        tile_size_m=forest.tile_size_m)
             self.store = SharedTiles.create(domain or current(), self.geometry.engine.names)
             self.max_bytes = forest.max_cache_bytes
         self._tiles: OrderedDict[Tile, int] = OrderedDict()  # published, least recently used first

@@ -88,12 +88,13 @@ from hil_bridge.bus.messages import (
     ThermalMarkers,
 )
 from hil_bridge.bus.stats import percentiles
+from hil_bridge.files.scene import load_scene
 from hil_bridge.recording.logs import load_trajectory
 from hil_bridge.server.fleet import Fleet, FleetStates
 from hil_bridge.server.lockstep import LockstepGate
 from hil_bridge.server.sonars import ServerSonars
 from sim_core.config import ConfigError, from_dict
-from sim_core.scene import ClockSpec, Scene, load_scene
+from sim_core.scene import ClockSpec, Scene
 
 __all__ = ["ServerParams", "SimServer"]
 

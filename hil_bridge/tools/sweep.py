@@ -29,10 +29,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hil_bridge.files.soaring import run_key
 from sim_core.config import ConfigError
 from sim_core.soaring.law import Law
 from sim_core.soaring.swarm import METRIC_NAMES, batch_key, run_batch
-from sim_core.soaring.sweep import check_grid, expand_grid, run_key
+from sim_core.soaring.sweep import check_grid, expand_grid
 
 __all__ = ["SweepSummary", "read_table", "run_task", "sweep"]
 

@@ -17,13 +17,7 @@ from sim_core.soaring.boids import (
     law_params,
 )
 from sim_core.soaring.glider import accel_to_command, glider_step, sink_rate
-from sim_core.soaring.law import (
-    Law,
-    PinnedAgent,
-    PinnedThermal,
-    default_grid_path,
-    default_law_path,
-)
+from sim_core.soaring.law import Law, PinnedAgent, PinnedThermal
 from sim_core.soaring.swarm import (
     METRIC_NAMES,
     Commands,
@@ -35,11 +29,10 @@ from sim_core.soaring.swarm import (
     run_batch,
 )
 from sim_core.soaring.thermals import Thermals, fade_step, spawn_thermals, updraft
-from sim_core.soaring.trace import CSV_COLUMNS, Trace
+from sim_core.soaring.trace import Trace
 
 __all__ = [
     "CONTROLLERS",
-    "CSV_COLUMNS",
     "METRIC_NAMES",
     "Commands",
     "GliderObs",
@@ -55,8 +48,6 @@ __all__ = [
     "accel_to_command",
     "boids_accel",
     "controller_command",
-    "default_grid_path",
-    "default_law_path",
     "find_neighbors",
     "glider_step",
     "law_params",

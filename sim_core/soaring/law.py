@@ -1,7 +1,8 @@
 """The simulation law: seed 002's parameter set as one frozen dataclass.
 
 Field names are the seed's (``Law_40SurvivorsExample.xlsx`` sheet 1, see
-``docs/spec/seed_models.md`` §3.9); defaults are that law, shipped as ``data/law_40survivors.yaml``.
+``docs/spec/seed_models.md`` §3.9); defaults are that law (also shipped as the law file
+``law_40survivors.yaml``, read by :func:`hil_bridge.files.soaring.load_law`).
 Units are SI (m, s, rad). A law file may omit keys (they take the defaults) but may not contain
 unknown keys. Extensions beyond the seed (all defaulting to the seed's behaviour):
 
@@ -18,7 +19,8 @@ unknown keys. Extensions beyond the seed (all defaulting to the seed's behaviour
 * ``agents``: pinned gliders ``[{x, y, z, heading, speed}]`` that replace the random spawn
   (``numAgents`` is then ignored; heading in rad from +x).
 
-Precedence: ``--set`` overrides > law file > packaged defaults, merged before validation.
+Precedence: ``--set`` overrides > law file > packaged defaults, merged before validation
+(:func:`sim_core.config.apply_overrides`, then :meth:`Law.from_dict`).
 """
 
 from __future__ import annotations
@@ -27,32 +29,19 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from importlib import resources
-from pathlib import Path
 from typing import Any, Literal
 
-from sim_core.config import ConfigError, apply_overrides, from_dict, load_yaml
+from sim_core.config import ConfigError, from_dict
 
 __all__ = [
     "DEFAULT_LAW",
     "Law",
     "PinnedAgent",
     "PinnedThermal",
-    "default_grid_path",
-    "default_law_path",
 ]
 
+#: the name of the packaged seed law where a law file is named
 DEFAULT_LAW = "default"
-
-
-def default_law_path() -> Path:
-    """Path of the packaged seed law ``law_40survivors.yaml``."""
-    return Path(str(resources.files("sim_core.soaring") / "data" / "law_40survivors.yaml"))
-
-
-def default_grid_path() -> Path:
-    """Path of the packaged Megarun 7 grid ``megarun7_grid.yaml`` (18,000 runs)."""
-    return Path(str(resources.files("sim_core.soaring") / "data" / "megarun7_grid.yaml"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -272,27 +261,6 @@ class Law:
                 for i, it in enumerate(items)
             )
         return from_dict(cls, d)
-
-    @classmethod
-    def from_yaml(
-        cls, path: str | Path, overrides: Mapping[str, Any] | None = None
-    ) -> Law:
-        """Load a law file (``"default"`` = the packaged seed law) and apply overrides.
-
-        ``overrides`` maps parameter names to values (already parsed, e.g. by
-        :func:`sim_core.config.parse_override` from ``--set KEY=VALUE``).
-        """
-        p = default_law_path() if str(path) == DEFAULT_LAW else Path(path)
-        data = load_yaml(p)
-        if data is None:
-            data = {}
-        if not isinstance(data, Mapping):
-            raise ConfigError(f"{p}: expected a mapping of law parameters, got {data!r}")
-        merged = apply_overrides(data, dict(overrides or {}))
-        try:
-            return cls.from_dict(merged)
-        except ConfigError as exc:
-            raise ConfigError(f"{p}: {exc}") from None
 
     def replace(self, **changes: Any) -> Law:
         """A copy with ``changes`` applied and validated (via :meth:`from_dict`)."""

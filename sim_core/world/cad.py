@@ -1,11 +1,12 @@
-"""CAD-template dressing of a GMT3 skeleton (seed 000 §2A.3), with trimesh for OBJ/STL.
+"""CAD-template dressing of a GMT3 skeleton (seed 000 §2A.3).
 
 The L-system gives the first-level branch positions on the trunk; a user-supplied template (a
 leaf cluster, optionally a branch mesh) is placed on every non-vertical skeleton branch of level
 ``on_level``:
 
-* template frame: +x along the branch (outwards), up = ``up_axis`` (Blender OBJ: ``"y"``), the
-  branch root at the template origin;
+* template: a leaf cluster mesh (OBJ/STL read by ``hil_bridge.files.world``, here as a
+  :class:`Mesh` of arrays) in its frame: +x along the branch (outwards), up = ``up_axis``
+  (Blender OBJ: ``"y"``), the branch root at the template origin;
 * rotation about z to the branch azimuth plus a random twist ``U(0, twist_max_deg)`` (the seed's
   ``rand_a``);
 * scale by level: the template's x-extent is scaled to the branch length, which shrinks by the
@@ -19,10 +20,8 @@ leaf cluster, optionally a branch mesh) is placed on every non-vertical skeleton
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,14 +29,36 @@ from numpy.typing import NDArray
 from sim_core.world.geometry import rotz
 from sim_core.world.trees import GMT3Tree, TreeGeometry, _leaf_radii
 
-__all__ = ["CadTree", "Template", "load_template"]
+__all__ = ["CadTree", "Mesh", "Template", "make_template"]
 
 F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh as the arrays a template uses (read from OBJ/STL by
+    ``hil_bridge.files.world.load_mesh``), in the file's own axes.
+
+    Attributes:
+        vertices: (V, 3) vertex positions.
+        vertex_normals: (V, 3) vertex normals.
+        face_centers: (F, 3) triangle centroids.
+        face_normals: (F, 3) triangle normals.
+        face_areas: (F,) triangle areas.
+        edges: (E, 2) vertex indices of the unique edges.
+    """
+
+    vertices: F64
+    vertex_normals: F64
+    face_centers: F64
+    face_normals: F64
+    face_areas: F64
+    edges: NDArray[np.int64]
+
+
+@dataclass(frozen=True, eq=False)
 class Template:
-    """A loaded template in its own frame converted to z up (arrays read-only by convention).
+    """A template in its own frame converted to z up (arrays read-only by convention).
 
     Attributes:
         points: (K, 3) leaf centres (face centroids or vertices).
@@ -45,6 +66,7 @@ class Template:
         areas: (K,) face areas (zeros for vertex leaves).
         edges: (E, 2, 3) branch-mesh edges (empty without a branch template).
         length: x-extent of the template (the branch length it represents).
+        leaf_from: whether the leaves are the leaf mesh's ``faces`` or its ``vertices``.
     """
 
     points: F64
@@ -52,21 +74,7 @@ class Template:
     areas: F64
     edges: F64
     length: float
-
-
-def _load_mesh(path: str) -> Any:
-    import trimesh
-
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"template {path}: cannot read (no such file)")
-    try:
-        mesh = trimesh.load(str(p), force="mesh")
-    except Exception as exc:  # trimesh raises many types for corrupt files
-        raise ValueError(f"template {path}: cannot load as OBJ/STL mesh ({exc})") from None
-    if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
-        raise ValueError(f"template {path}: no faces found (not a readable OBJ/STL mesh)")
-    return mesh
+    leaf_from: Literal["faces", "vertices"] = "faces"
 
 
 def _to_z_up(v: F64, up_axis: str) -> F64:
@@ -75,51 +83,48 @@ def _to_z_up(v: F64, up_axis: str) -> F64:
     return np.stack([v[:, 0], -v[:, 2], v[:, 1]], axis=1)  # y up -> z up
 
 
-@functools.lru_cache(maxsize=32)
-def load_template(
-    leaf: str,
-    branch: str | None = None,
+def make_template(
+    leaf: Mesh,
+    branch: Mesh | None = None,
     *,
     leaf_from: Literal["faces", "vertices"] = "faces",
     up_axis: Literal["y", "z"] = "y",
+    source: str = "<mesh>",
 ) -> Template:
-    """Load leaf (and branch) meshes; unreadable files raise ``ValueError`` naming the path."""
-    mesh = _load_mesh(leaf)
+    """The template of a leaf (and branch) mesh; ``ValueError`` naming ``source`` (the leaf
+    mesh's file) when it has no usable leaves or no extent along +x."""
     if leaf_from == "faces":
-        pts = np.asarray(mesh.triangles_center, dtype=np.float64)
-        nrm = np.asarray(mesh.face_normals, dtype=np.float64)
-        areas = np.asarray(mesh.area_faces, dtype=np.float64)
+        pts = np.asarray(leaf.face_centers, dtype=np.float64)
+        nrm = np.asarray(leaf.face_normals, dtype=np.float64)
+        areas = np.asarray(leaf.face_areas, dtype=np.float64)
     else:
-        pts = np.asarray(mesh.vertices, dtype=np.float64)
-        nrm = np.asarray(mesh.vertex_normals, dtype=np.float64)
+        pts = np.asarray(leaf.vertices, dtype=np.float64)
+        nrm = np.asarray(leaf.vertex_normals, dtype=np.float64)
         areas = np.zeros(pts.shape[0])
     good = np.all(np.isfinite(nrm), axis=1) & (np.linalg.norm(nrm, axis=1) > 0.5)
     pts, nrm, areas = _to_z_up(pts[good], up_axis), _to_z_up(nrm[good], up_axis), areas[good]
     if pts.shape[0] == 0:
-        raise ValueError(f"template {leaf}: no usable leaf faces/vertices")
+        raise ValueError(f"template {source}: no usable leaf faces/vertices")
     edges = np.zeros((0, 2, 3))
     all_x = [pts[:, 0]]
     if branch is not None:
-        bm = _load_mesh(branch)
-        verts = _to_z_up(np.asarray(bm.vertices, dtype=np.float64), up_axis)
-        edges = verts[np.asarray(bm.edges_unique)]
+        verts = _to_z_up(np.asarray(branch.vertices, dtype=np.float64), up_axis)
+        edges = verts[np.asarray(branch.edges)]
         all_x.append(verts[:, 0])
     xs = np.concatenate(all_x)
     length = float(xs.max() - min(xs.min(), 0.0))
     if not length > 0:
-        raise ValueError(f"template {leaf}: needs a positive extent along +x (the branch axis)")
-    return Template(pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), areas, edges, length)
+        raise ValueError(f"template {source}: needs a positive extent along +x (the branch axis)")
+    return Template(pts, nrm / np.linalg.norm(nrm, axis=1, keepdims=True), areas, edges, length,
+                    leaf_from)
 
 
 @dataclass(frozen=True)
 class CadTree:
-    """A GMT3 skeleton dressed with CAD templates (see module docstring)."""
+    """A GMT3 skeleton dressed with a CAD template (see module docstring)."""
 
     skeleton: GMT3Tree
-    leaf: str
-    branch: str | None = None
-    leaf_from: Literal["faces", "vertices"] = "faces"
-    up_axis: Literal["y", "z"] = "y"
+    template: Template
     on_level: int = 1
     twist_max_deg: float = 15.0
 
@@ -134,11 +139,8 @@ class CadTree:
     def with_growth_level(self, level: int) -> CadTree:
         return dataclasses.replace(self, skeleton=self.skeleton.with_growth_level(level))
 
-    def template(self) -> Template:
-        return load_template(self.leaf, self.branch, leaf_from=self.leaf_from, up_axis=self.up_axis)
-
     def grow(self, rng: np.random.Generator, *, branches: bool = False) -> TreeGeometry:
-        tpl = self.template()
+        tpl = self.template
         skel, scale = self.skeleton.skeleton(rng)
         use = (skel.level == self.on_level) & ~skel.main_axis
         use &= np.hypot(skel.vec[:, 0], skel.vec[:, 1]) > 1e-9
@@ -152,7 +154,7 @@ class CadTree:
         k = tpl.points.shape[0]
         centers = (start[:, None, :] + s[:, None, None] * np.einsum("bij,kj->bki", R, tpl.points))
         normals = np.einsum("bij,kj->bki", R, tpl.normals)
-        if self.leaf_from == "faces":
+        if tpl.leaf_from == "faces":
             radii = np.sqrt(tpl.areas[None, :] * s[:, None] ** 2 / np.pi)
             radii = np.maximum(radii, 1e-3).reshape(-1)
         else:

@@ -1,9 +1,9 @@
-"""Forests: a spec (plain data), tree placement per species, minimum-distance merge, growth.
+"""Forests built from a spec: tree placement per species, minimum-distance merge, growth.
 
 Placement (seed 000 §2A.5, seed 001 §2B.6): one process per species — an IPP by thinning with
 an intensity (squared-exponential mixture, homogeneous rate, a KDE of a real tree map, or any
 Python callable), optionally conditioned on an exact ``count``; or fixed positions (inline or a
-tree-map CSV). The species are merged by greedy minimum-distance thinning in a fixed order:
+tree map). The species are merged by greedy minimum-distance thinning in a fixed order:
 species in spec order, within a species by a uniform random mark (for fixed positions, file
 order) — the seed's "first come, first kept" rule with its order made explicit.
 
@@ -12,6 +12,9 @@ stream ``derive_rng(seed, "cell", species, ix, iy)`` and every tree grows from i
 ``derive_rng(seed, "tree", species, ...)``, so a tree never depends on how many others exist, and
 any region can be built alone (:class:`sim_core.world.TiledForest`) with exactly the trees a
 one-shot build has there.
+
+The spec is :mod:`sim_core.world.spec`; the grammars, tree maps and CAD templates it names come
+in read, as a :class:`~sim_core.world.spec.ForestFiles`.
 """
 
 from __future__ import annotations
@@ -19,18 +22,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import OrderedDict
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Literal
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from sim_core.config import from_dict as _from_dict
 from sim_core.rng import derive_rng
-from sim_core.world.cad import CadTree
+from sim_core.world.cad import CadTree, make_template
 from sim_core.world.ipp import (
     Box,
     Homogeneous,
@@ -39,278 +40,16 @@ from sim_core.world.ipp import (
     SEMixture,
     grid_upper_bound,
     min_distance_thin,
-    read_tree_map,
     sample_ipp,
+    tree_map_positions,
 )
 from sim_core.world.leaves import Leaves
+from sim_core.world.spec import ForestFiles, ForestSpec, SpeciesSpec
 from sim_core.world.trees import TREE_MODELS, GMT3Tree, LppTree, TreeGeometry, TreeModel
 
-__all__ = [
-    "Forest",
-    "ForestSpec",
-    "KDESpec",
-    "KernelSpec",
-    "SpeciesSpec",
-    "TemplateSpec",
-    "build_forest",
-    "load_forest_spec",
-]
+__all__ = ["CROWN_BOUND_M", "Forest", "ForestEngine", "build_forest"]
 
 F64 = NDArray[np.float64]
-
-
-# --- spec ------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class KernelSpec:
-    """One squared-exponential bump ``peak·exp(−(x−cx)²/div_x − (y−cy)²/div_y)`` (trees/m²)."""
-
-    peak: float
-    center: tuple[float, float]
-    div: tuple[float, float]
-
-    def __post_init__(self) -> None:
-        if not self.peak >= 0:
-            raise ValueError(f"peak must be an intensity >= 0 (trees/m²), got {self.peak}")
-        if not (self.div[0] > 0 and self.div[1] > 0):
-            raise ValueError(f"div must be two divisors > 0 (m²), got {self.div}")
-
-
-@dataclass(frozen=True)
-class KDESpec:
-    """Intensity from a real tree map: Gaussian KDE of the CSV's points × ``scale``.
-
-    ``csv`` rows ``x, y[, species]`` in file units (× ``map_scale`` metres); ``species`` keeps only
-    rows with that label (name or 1-based index as written); ``bandwidth`` is the KDE factor
-    (``None``: Scott's rule).
-    """
-
-    csv: str
-    bandwidth: float | None = None
-    scale: float = 1.0
-    map_scale: float = 1.0
-    species: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.bandwidth is not None and not self.bandwidth > 0:
-            raise ValueError(f"bandwidth must be > 0, got {self.bandwidth}")
-        if not self.scale >= 0:
-            raise ValueError(f"scale must be >= 0, got {self.scale}")
-        if not self.map_scale > 0:
-            raise ValueError(f"map_scale must be > 0, got {self.map_scale}")
-
-
-@dataclass(frozen=True)
-class TemplateSpec:
-    """CAD dressing of a GMT3 species (:mod:`sim_core.world.cad`): OBJ/STL template files.
-
-    ``leaf`` mesh (faces or vertices become leaves), optional ``branch`` mesh (drawn only),
-    template frame +x along the branch with ``up_axis`` up, placed on the skeleton branches of
-    level ``on_level`` with a random twist ``U(0, twist_max_deg)``.
-    """
-
-    leaf: str
-    branch: str | None = None
-    leaf_from: Literal["faces", "vertices"] = "faces"
-    up_axis: Literal["y", "z"] = "y"
-    on_level: int = 1
-    twist_max_deg: float = 15.0
-
-    def __post_init__(self) -> None:
-        if self.on_level < 1:
-            raise ValueError(f"on_level must be >= 1, got {self.on_level}")
-        if not 0 <= self.twist_max_deg <= 360:
-            raise ValueError(f"twist_max_deg must be in [0, 360], got {self.twist_max_deg}")
-
-
-@dataclass(frozen=True)
-class SpeciesSpec:
-    """One species: its tree model and how its trees are placed.
-
-    Tree: ``tree`` names a model of :data:`sim_core.world.trees.TREE_MODELS`; ``grammar`` swaps in
-    an ``.l++`` file (an L++ model), ``growth_level`` fixes the growth level, ``scale`` multiplies
-    the metre scale, ``leaf_size`` picks an L++ model's leaf-size rule (``metres`` or ``seed``,
-    see :class:`~sim_core.world.trees.LppTree`), ``template`` dresses a GMT3 skeleton with CAD
-    templates.
-
-    Placement (exactly one, unless the forest's ``tree_map`` places this species):
-    ``kernels`` (SE mixture), ``rate`` (homogeneous, trees/m²), ``kde`` (from a tree map),
-    ``positions`` (fixed ``[x, y]`` list), or ``intensity_fn`` (Python only: vectorised callable
-    ``λ(x, y)``; give ``intensity_max`` on an unbounded domain). ``count`` conditions an intensity
-    on exactly that many trees (needs a bounded domain).
-    """
-
-    name: str
-    tree: str = "maple"
-    grammar: str | None = None
-    growth_level: int | None = None
-    scale: float = 1.0
-    leaf_size: Literal["metres", "seed"] | None = None
-    template: TemplateSpec | None = None
-    kernels: tuple[KernelSpec, ...] = ()
-    rate: float | None = None
-    kde: KDESpec | None = None
-    positions: tuple[tuple[float, float], ...] = ()
-    count: int | None = None
-    intensity_max: float | None = None
-    intensity_fn: Any = field(default=None, compare=False)
-
-    def __post_init__(self) -> None:
-        if not self.name:
-            raise ValueError("species name must be non-empty")
-        if self.tree not in TREE_MODELS:
-            raise ValueError(
-                f"species {self.name!r}: unknown tree model {self.tree!r}; "
-                f"expected one of {sorted(TREE_MODELS)}"
-            )
-        if self.growth_level is not None and self.growth_level < 0:
-            raise ValueError(f"species {self.name!r}: growth_level must be >= 0")
-        lpp = self.grammar is not None or isinstance(TREE_MODELS[self.tree], LppTree)
-        if self.leaf_size is not None and not lpp:
-            raise ValueError(
-                f"species {self.name!r}: leaf_size applies to L++ models (tree4..tree7 or a "
-                f"grammar), not {self.tree!r}"
-            )
-        if not (math.isfinite(self.scale) and self.scale > 0):
-            raise ValueError(f"species {self.name!r}: scale must be > 0, got {self.scale}")
-        if self.rate is not None and not (math.isfinite(self.rate) and self.rate >= 0):
-            raise ValueError(
-                f"species {self.name!r}: rate must be an intensity >= 0 (trees/m²), got {self.rate}"
-            )
-        if self.count is not None and self.count < 0:
-            raise ValueError(f"species {self.name!r}: count must be >= 0, got {self.count}")
-        if self.intensity_max is not None and not self.intensity_max >= 0:
-            raise ValueError(f"species {self.name!r}: intensity_max must be >= 0")
-        if self.intensity_fn is not None and not callable(self.intensity_fn):
-            raise ValueError(f"species {self.name!r}: intensity_fn must be callable λ(x, y)")
-        if len(self._placements()) > 1:
-            raise ValueError(
-                f"species {self.name!r}: give one placement, got {self._placements()}"
-            )
-        if self.count is not None and (self.positions or not self._placements()):
-            raise ValueError(f"species {self.name!r}: count needs an intensity to condition")
-        if self.template is not None and self.grammar is not None:
-            raise ValueError(f"species {self.name!r}: template dresses GMT3 trees, not grammars")
-
-    def _placements(self) -> list[str]:
-        given = {
-            "kernels": bool(self.kernels),
-            "rate": self.rate is not None,
-            "kde": self.kde is not None,
-            "positions": bool(self.positions),
-            "intensity_fn": self.intensity_fn is not None,
-        }
-        return [k for k, v in given.items() if v]
-
-
-@dataclass(frozen=True)
-class ForestSpec:
-    """A forest: species, domain and merge rule (YAML schema in ``docs/world.md``).
-
-    Attributes:
-        species: the species, in merge order (earlier species win minimum-distance conflicts).
-        domain: ``[xmin, ymin, xmax, ymax]`` metres; ``None`` is the unbounded plane (tiled
-            worlds only).
-        min_distance_m: minimum distance between tree bases after the merge (0: no thinning).
-        tree_map: CSV of fixed trees ``x, y, species`` (name or 1-based index into ``species``).
-        tree_map_scale: metres per tree-map unit.
-        cell_size_m: side of the square cells in which IPP candidates are drawn.
-        max_expected_trees: cap on λ*·area per species; above it building fails ("huge
-            intensity") instead of running out of memory.
-        max_crown_radius_m: horizontal reach of a crown from its base (tiled worlds look this
-            far into neighbouring tiles); ``None``: the models' bounds.
-    """
-
-    species: tuple[SpeciesSpec, ...]
-    domain: tuple[float, float, float, float] | None = None
-    min_distance_m: float = 0.0
-    tree_map: str | None = None
-    tree_map_scale: float = 1.0
-    cell_size_m: float = 50.0
-    max_expected_trees: float = 1e5
-    max_crown_radius_m: float | None = None
-
-    def __post_init__(self) -> None:
-        names = [s.name for s in self.species]
-        if len(set(names)) != len(names):
-            raise ValueError(f"species names must be unique, got {names}")
-        if self.domain is not None:
-            x0, y0, x1, y1 = self.domain
-            if not (x1 >= x0 and y1 >= y0):
-                raise ValueError(f"domain must be [xmin, ymin, xmax, ymax], got {self.domain}")
-        if not self.min_distance_m >= 0:
-            raise ValueError(f"min_distance_m must be >= 0, got {self.min_distance_m}")
-        if not self.cell_size_m > 0:
-            raise ValueError(f"cell_size_m must be > 0, got {self.cell_size_m}")
-        if not self.tree_map_scale > 0:
-            raise ValueError(f"tree_map_scale must be > 0, got {self.tree_map_scale}")
-        if not self.max_expected_trees > 0:
-            raise ValueError(f"max_expected_trees must be > 0, got {self.max_expected_trees}")
-        if self.max_crown_radius_m is not None and not self.max_crown_radius_m >= 0:
-            raise ValueError("max_crown_radius_m must be >= 0")
-        for s in self.species:
-            if self.tree_map is None and not s._placements():
-                raise ValueError(
-                    f"species {s.name!r}: no placement (kernels, rate, kde, positions, "
-                    "intensity_fn) and no tree_map"
-                )
-            if s.count is not None and self.domain is None:
-                raise ValueError(f"species {s.name!r}: count needs a bounded domain")
-
-    @classmethod
-    def from_dict(
-        cls, data: Mapping[str, Any], *, base_dir: str | Path | None = None
-    ) -> ForestSpec:
-        """Validate a plain mapping (YAML); relative file paths resolve against ``base_dir``."""
-        spec = _from_dict(cls, data)
-        return spec.resolve_paths(base_dir) if base_dir is not None else spec
-
-    def resolve_paths(self, base_dir: str | Path) -> ForestSpec:
-        """Copy with relative ``tree_map``/``kde.csv``/``grammar``/template paths under base."""
-        base = Path(base_dir)
-
-        def fix(p: str | None) -> str | None:
-            if p is None or Path(p).is_absolute() or not (base / p).exists():
-                return p
-            return str(base / p)
-
-        species = []
-        for s in self.species:
-            kde = dataclasses.replace(s.kde, csv=fix(s.kde.csv) or s.kde.csv) if s.kde else None
-            tpl = s.template
-            if tpl is not None:
-                tpl = dataclasses.replace(
-                    tpl, leaf=fix(tpl.leaf) or tpl.leaf, branch=fix(tpl.branch)
-                )
-            species.append(dataclasses.replace(s, kde=kde, grammar=fix(s.grammar), template=tpl))
-        return dataclasses.replace(self, species=tuple(species), tree_map=fix(self.tree_map))
-
-
-def load_forest_spec(path: str | Path) -> ForestSpec:
-    """Read a ForestSpec from YAML.
-
-    Accepted: a ForestSpec mapping; the same under a top-level ``forest:`` key; or a server
-    scene file whose ``forest:`` section names a ``preset`` or gives ForestSpec fields as
-    ``spec`` (:mod:`sim_core.scene`). Relative paths resolve against the file's directory.
-    """
-    from sim_core.config import load_yaml
-    from sim_core.world.presets import get_preset
-
-    data = load_yaml(path)
-    if isinstance(data, Mapping) and "forest" in data and "species" not in data:
-        data = data["forest"]
-        if isinstance(data, Mapping) and "species" not in data:
-            if data.get("preset") is not None:
-                return get_preset(str(data["preset"]))
-            if data.get("spec") is not None:
-                data = data["spec"]
-    if not isinstance(data, Mapping):
-        raise ValueError(f"{path}: expected a mapping with a 'species' list")
-    try:
-        return ForestSpec.from_dict(data, base_dir=Path(path).resolve().parent)
-    except ValueError as exc:
-        raise type(exc)(f"{path}: {exc}") from None
 
 
 # --- forest ----------------------------------------------------------------------------------
@@ -342,26 +81,6 @@ class Forest:
         """Species name -> number of trees (every species of the spec, zeros included)."""
         return {s: int(np.count_nonzero(self.tree_species == s)) for s in self.species}
 
-    def save_npz(self, path: str | Path) -> None:
-        """Write ``centers normals radii tree_id tree_xy tree_species`` (+ ``tree_height``)."""
-        self.leaves.save_npz(
-            path,
-            tree_xy=self.tree_xy,
-            tree_species=np.asarray(self.tree_species, dtype=np.str_),
-            tree_height=self.tree_height,
-        )
-
-    @classmethod
-    def load_npz(cls, path: str | Path) -> Forest:
-        leaves = Leaves.load_npz(path)
-        with np.load(Path(path), allow_pickle=False) as data:
-            if "tree_xy" not in data or "tree_species" not in data:
-                raise ValueError(f"{path}: not a forest file (no tree_xy/tree_species)")
-            xy = np.asarray(data["tree_xy"], dtype=np.float64)
-            sp = np.asarray(data["tree_species"], dtype=np.str_)
-            h = np.asarray(data["tree_height"]) if "tree_height" in data else np.zeros(len(xy))
-        return cls(leaves, xy, sp, h, tuple(dict.fromkeys(sp.tolist())))
-
 
 # --- the engine shared by build_forest and TiledForest ---------------------------------------
 
@@ -386,11 +105,13 @@ class Candidate:
         return (self.species, self.mark, self.key)
 
 
-def _model_for(s: SpeciesSpec) -> TreeModel | CadTree:
+def _model_for(s: SpeciesSpec, files: ForestFiles) -> TreeModel | CadTree:
     model: TreeModel = TREE_MODELS[s.tree]
     if s.grammar is not None:
         base = model if isinstance(model, LppTree) else LppTree(s.grammar)
         model = dataclasses.replace(base, grammar=s.grammar)
+    if isinstance(model, LppTree):  # a malformed grammar failed when it was parsed
+        model = model.with_grammar(files.grammar(model.grammar))
     if s.growth_level is not None:
         model = model.with_growth_level(s.growth_level)
     if s.scale != 1.0:
@@ -402,10 +123,10 @@ def _model_for(s: SpeciesSpec) -> TreeModel | CadTree:
     if not isinstance(model, GMT3Tree):
         raise ValueError(f"species {s.name!r}: a CAD template needs a GMT3 tree model")
     t = s.template
-    cad = CadTree(model, t.leaf, t.branch, leaf_from=t.leaf_from, up_axis=t.up_axis,
-                  on_level=t.on_level, twist_max_deg=t.twist_max_deg)
-    cad.template()  # an unreadable template fails here, before anything is built
-    return cad
+    branch = None if t.branch is None else files.mesh(t.branch)
+    template = make_template(files.mesh(t.leaf), branch, leaf_from=t.leaf_from,
+                             up_axis=t.up_axis, source=t.leaf)
+    return CadTree(model, template, on_level=t.on_level, twist_max_deg=t.twist_max_deg)
 
 
 #: bound on the horizontal crown reach of the named models (metres, before species ``scale``)
@@ -421,16 +142,23 @@ CROWN_BOUND_M: dict[str, float] = {
 
 
 class ForestEngine:
-    """Candidates, merge and growth for one (spec, seed); used by build_forest and TiledForest."""
+    """Candidates, merge and growth for one (spec, seed); used by build_forest and TiledForest.
 
-    def __init__(self, spec: ForestSpec, *, seed: int, cell_cache: int = 4096) -> None:
+    ``files``: what the files the spec names hold (:class:`~sim_core.world.spec.ForestFiles`;
+    a name missing from it fails here, before anything is built).
+    """
+
+    def __init__(
+        self, spec: ForestSpec, *, seed: int, files: ForestFiles | None = None,
+        cell_cache: int = 4096,
+    ) -> None:
         self.spec = spec
         self.seed = seed
+        self.files = ForestFiles() if files is None else files
         self.names = [s.name for s in spec.species]
-        self.models: list[TreeModel | CadTree] = [_model_for(s) for s in spec.species]
-        for m in self.models:
-            if isinstance(m, LppTree):
-                m.load()  # a malformed grammar fails here, before anything is built
+        self.models: list[TreeModel | CadTree] = [
+            _model_for(s, self.files) for s in spec.species
+        ]
         self.intensities: list[Callable[[F64, F64], Any] | None] = []
         self.bounds: list[float] = []
         for s in spec.species:
@@ -454,7 +182,7 @@ class ForestEngine:
         elif s.rate is not None:
             fn = Homogeneous(s.rate)
         elif s.kde is not None:
-            xy, labels = read_tree_map(s.kde.csv, scale=s.kde.map_scale)
+            xy, labels = tree_map_positions(self.files.table(s.kde.csv), scale=s.kde.map_scale)
             if s.kde.species is not None:
                 xy = xy[np.asarray([lab == s.kde.species for lab in labels], dtype=bool)]
             fn = KDEIntensity(xy, bandwidth=s.kde.bandwidth, scale=s.kde.scale)
@@ -504,8 +232,9 @@ class ForestEngine:
         out: list[Candidate] = []
         spec = self.spec
         if spec.tree_map is not None:
-            xy, labels = read_tree_map(
-                spec.tree_map, scale=spec.tree_map_scale, species_names=self.names
+            xy, labels = tree_map_positions(
+                self.files.table(spec.tree_map), scale=spec.tree_map_scale,
+                species_names=self.names,
             )
             for j, ((x, y), lab) in enumerate(zip(xy, labels, strict=True)):
                 if lab is None:
@@ -687,8 +416,8 @@ class ForestEngine:
         if self.spec.max_crown_radius_m is not None:
             return self.spec.max_crown_radius_m
         out = 0.0
-        for s in self.spec.species:
-            base = CROWN_BOUND_M[s.tree] if s.grammar is None else 40.0 * _model_for(s).unit_m
+        for s, model in zip(self.spec.species, self.models, strict=True):
+            base = CROWN_BOUND_M[s.tree] if s.grammar is None else 40.0 * model.unit_m
             if s.template is not None:
                 base *= 2.0  # a template may be wider than the branch it is scaled to
             out = max(out, base * s.scale)
@@ -711,7 +440,8 @@ class ForestEngine:
         )
 
 
-def build_forest(spec: ForestSpec, *, seed: int) -> Forest:
-    """Build every tree of a bounded forest (or of fixed positions only) with all leaves."""
-    engine = ForestEngine(spec, seed=seed)
+def build_forest(spec: ForestSpec, *, seed: int, files: ForestFiles | None = None) -> Forest:
+    """Build every tree of a bounded forest (or of fixed positions only) with all leaves;
+    ``files``: what the files ``spec`` names hold (none needed when it names none)."""
+    engine = ForestEngine(spec, seed=seed, files=files)
     return engine.assemble(engine.all_kept())

@@ -13,11 +13,9 @@ map, scaled to its number of trees, so a real site can be mimicked).
 
 from __future__ import annotations
 
-import csv
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -29,11 +27,12 @@ __all__ = [
     "Intensity",
     "KDEIntensity",
     "SEMixture",
+    "TreeMap",
     "expected_count",
     "grid_upper_bound",
     "min_distance_thin",
-    "read_tree_map",
     "sample_ipp",
+    "tree_map_positions",
 ]
 
 F64 = NDArray[np.float64]
@@ -260,50 +259,44 @@ def min_distance_thin(points: ArrayLike, d_min: float) -> NDArray[np.bool_]:
     return keep
 
 
-def read_tree_map(
-    path: str | Path, *, scale: float = 1.0, species_names: Sequence[str] = ()
-) -> tuple[F64, list[str | None]]:
-    """Read a tree map CSV: rows ``x, y[, species]`` (no header, or a header row of names).
+@dataclass(frozen=True, eq=False)
+class TreeMap:
+    """The rows of a tree map (a CSV ``x, y[, species]``, read by ``hil_bridge.files.world``):
+    ``xy`` (T, 2) finite positions in file units, ``labels`` the species column as written (a
+    name, a 1-based index, or None) and ``lines`` the file line of each row, so that messages
+    name ``source:line``."""
 
-    Coordinates are multiplied by ``scale`` (metres per file unit). ``species`` may be a name or
-    a 1-based index into ``species_names``; returns ``(xy (T, 2), species per row or None)``.
+    xy: F64
+    labels: tuple[str | None, ...]
+    lines: tuple[int, ...]
+    source: str = "<tree map>"
+
+
+def tree_map_positions(
+    tree_map: TreeMap, *, scale: float = 1.0, species_names: Sequence[str] = ()
+) -> tuple[F64, list[str | None]]:
+    """Positions and species of a tree map's rows.
+
+    Coordinates are multiplied by ``scale`` (metres per file unit). A label may be a name or a
+    1-based index into ``species_names`` (checked when names are given; errors name
+    ``source:line``); returns ``(xy (T, 2) m, species per row or None)``.
     """
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        raise ValueError(f"{p}: cannot read tree map ({reason})") from None
-    xy: list[tuple[float, float]] = []
     species: list[str | None] = []
-    for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
-        cells = [c.strip() for c in row]
-        if not cells or not any(cells) or cells[0].startswith("#"):
-            continue
-        try:
-            x, y = float(cells[0]), float(cells[1])
-        except (ValueError, IndexError):
-            if lineno == 1:
-                continue  # header row
-            raise ValueError(
-                f"{p}:{lineno}: expected 'x, y[, species]' numbers, got {row}"
-            ) from None
-        if not (np.isfinite(x) and np.isfinite(y)):
-            raise ValueError(f"{p}:{lineno}: coordinates must be finite, got {row}")
-        label: str | None = cells[2] if len(cells) > 2 and cells[2] else None
+    for lineno, label in zip(tree_map.lines, tree_map.labels, strict=True):
+        where = f"{tree_map.source}:{lineno}"
         if label is not None and species_names:
             if label.isdigit():
                 k = int(label)
                 if not 1 <= k <= len(species_names):
                     raise ValueError(
-                        f"{p}:{lineno}: species index {k} out of range 1..{len(species_names)}"
+                        f"{where}: species index {k} out of range 1..{len(species_names)}"
                     )
                 label = species_names[k - 1]
             elif label not in species_names:
                 raise ValueError(
-                    f"{p}:{lineno}: unknown species {label!r}; expected one of "
+                    f"{where}: unknown species {label!r}; expected one of "
                     f"{list(species_names)} or a 1-based index"
                 )
-        xy.append((x * scale, y * scale))
         species.append(label)
-    return np.asarray(xy, dtype=np.float64).reshape(-1, 2), species
+    xy = np.asarray(tree_map.xy, dtype=np.float64).reshape(-1, 2)
+    return np.column_stack([xy[:, 0] * scale, xy[:, 1] * scale]).reshape(-1, 2), species

@@ -3,14 +3,13 @@
 Every leaf is an acoustic disc: a centre (metres, world ENU), a unit normal and a radius (metres),
 plus the index of the tree it belongs to. Storage is exactly those four arrays
 (float64 centres 24 B + normals 24 B + radii 8 B + int32 tree id 4 B = 60 B per leaf); the
-:class:`scipy.spatial.cKDTree` used by the queries is built on first use and not saved.
+:class:`scipy.spatial.cKDTree` used by the queries is built on first use and not saved (the
+``.npz`` file of those arrays is ``hil_bridge.files.world``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -155,33 +154,6 @@ class Leaves:
         cos_angle = (d @ (ax / norm)) / np.where(dist > 0, dist, 1.0)
         inside = (dist == 0) | (cos_angle >= np.cos(half_angle_rad))
         return idx[inside]
-
-    # --- persistence --------------------------------------------------------------------------
-    def save_npz(self, path: str | Path, **extra: Any) -> None:
-        """Write ``centers``, ``normals``, ``radii``, ``tree_id`` (and ``extra`` arrays) to npz."""
-        np.savez(
-            Path(path),
-            centers=self.centers,
-            normals=self.normals,
-            radii=self.radii,
-            tree_id=self.tree_id,
-            **extra,
-        )
-
-    @classmethod
-    def load_npz(cls, path: str | Path) -> Leaves:
-        """Read the four leaf arrays written by :meth:`save_npz` (extra arrays are ignored)."""
-        from sim_core.config import load_npz
-
-        p = Path(path)
-        data = load_npz(p)
-        missing = [k for k in ("centers", "normals", "radii", "tree_id") if k not in data]
-        if missing:
-            raise ValueError(f"{p}: not a leaves file, missing arrays {missing}")
-        try:
-            return cls(data["centers"], data["normals"], data["radii"], data["tree_id"])
-        except ValueError as exc:
-            raise ValueError(f"{p}: {exc}") from None
 
 
 def _point(value: ArrayLike, name: str) -> NDArray[np.float64]:

@@ -1,11 +1,11 @@
 """Seed 001 stochastic L++ grammars: parser, rewriting and a vectorised turtle (spec §2B).
 
-File format (``*.l++``, FG ``lsystem.cpp``): ``#`` starts a comment line (a ``#`` after a header
-number starts an inline comment); then three numbers — iterations, default angle (degrees),
-thickness percentage; then the axiom; then rules ``S=replacement`` (several rules for one symbol
-are a random choice); ``@`` ends the file. A command takes a parameter when ``(`` follows it
-immediately; a parameter of exactly 1 (or none) means "the default angle" for the angle and
-thickness commands.
+Text format (``*.l++`` files, FG ``lsystem.cpp``; reading them is ``hil_bridge.files.world``):
+``#`` starts a comment line (a ``#`` after a header number starts an inline comment); then three
+numbers — iterations, default angle (degrees), thickness percentage; then the axiom; then rules
+``S=replacement`` (several rules for one symbol are a random choice); ``@`` ends the text. A
+command takes a parameter when ``(`` follows it immediately; a parameter of exactly 1 (or none)
+means "the default angle" for the angle and thickness commands.
 
 Semantics (spec §2B.3-2B.5), all randomness from the ``rng`` argument:
 
@@ -28,7 +28,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -189,17 +188,6 @@ def parse_grammar(text: str, source: str = "<string>") -> Grammar:
         rules={k: tuple(rules[k]) for k in sorted(rules)},
         source=source,
     )
-
-
-def load_grammar(path: str | Path) -> Grammar:
-    """Read and parse an ``.l++`` file (an unreadable file raises ``GrammarError``)."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        raise GrammarError(f"{p}: cannot read L++ grammar ({reason})") from None
-    return parse_grammar(text, source=str(p))
 
 
 # --- rewriting -------------------------------------------------------------------------------

@@ -6,24 +6,25 @@
   (y−15)²/6) (bush), each IPP conditioned on the figure's count. The hazelnut CAD file is missing
   from the seed, so the bush is the GMT3 ``hazelnut-bush`` shrub.
 * ``seed001-fig9`` — seed 001 Figs 8-10: the 31-tree, 4-species map after 16 m thinning
-  (``forest_points.csv``, 1 unit = 1 m), species tree4..tree7.
+  (the packaged tree map :data:`SEED001_TREE_MAP`, 1 unit = 1 m), species tree4..tree7.
 * ``seed001-ipp`` — the same species drawn afresh: one IPP per species with the code's effective
   intensity λ*²·exp(−‖s−μ‖²/4000) on [0, 300]² m, merged with 16 m minimum distance.
 * ``seed001-species`` — one tree of each seed 001 species in a row, 25 m apart (Fig 7).
+
+The tree4..tree7 species grow from packaged grammars and ``seed001-fig9`` reads a packaged tree
+map: their files are named here and read by the I/O layer
+(``hil_bridge.files.world.load_forest_files``).
 """
 
 from __future__ import annotations
 
-from importlib import resources
-from pathlib import Path
+from sim_core.world.spec import ForestSpec, KernelSpec, SpeciesSpec
 
-from sim_core.world.forest import ForestSpec, KernelSpec, SpeciesSpec
+__all__ = ["PRESETS", "SEED001_TREE_MAP", "get_preset", "preset_names"]
 
-__all__ = ["PRESETS", "get_preset", "preset_names"]
-
-
-def _data(name: str) -> str:
-    return str(Path(str(resources.files("sim_core.world") / "data" / name)))
+#: the packaged seed 001 tree map (``x, y, species``), named as a packaged table: a name with
+#: no suffix and no directory
+SEED001_TREE_MAP = "seed001_forest_points"
 
 
 def _single_maple() -> ForestSpec:
@@ -53,7 +54,7 @@ def _seed001_fig9() -> ForestSpec:
     return ForestSpec(
         domain=(0.0, 0.0, 300.0, 300.0),
         species=tuple(SpeciesSpec(name, tree=name) for name in _FG_SPECIES),
-        tree_map=_data("seed001_forest_points.csv"),
+        tree_map=SEED001_TREE_MAP,
     )
 
 

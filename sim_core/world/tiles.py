@@ -23,9 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim_core.world.forest import Forest, ForestEngine, ForestSpec
+from sim_core.world.forest import Forest, ForestEngine
 from sim_core.world.ipp import Box
 from sim_core.world.leaves import Leaves
+from sim_core.world.spec import ForestFiles, ForestSpec
 
 __all__ = ["Tile", "TileKey", "TileSource", "TiledForest"]
 
@@ -61,6 +62,8 @@ class TiledForest:
     Args:
         spec: the forest; ``domain`` may be ``None`` (unbounded) or a box (tiles outside empty).
         seed: the forest seed (the same trees as ``build_forest(spec, seed=seed)``).
+        files: what the files ``spec`` names hold (:class:`~sim_core.world.spec.ForestFiles`;
+            none needed when it names none).
         tile_size_m: tile side, metres.
         max_cache_bytes: LRU bound on the bytes of cached tiles (a single query may still touch
             more; the tiles it needs are built, used and then evicted oldest-first).
@@ -73,6 +76,7 @@ class TiledForest:
         spec: ForestSpec,
         *,
         seed: int,
+        files: ForestFiles | None = None,
         tile_size_m: float = 50.0,
         max_cache_bytes: int = 256 * 1024 * 1024,
         source: TileSource | None = None,
@@ -81,7 +85,7 @@ class TiledForest:
             raise ValueError(f"tile_size_m must be > 0, got {tile_size_m}")
         if max_cache_bytes < 0:
             raise ValueError(f"max_cache_bytes must be >= 0, got {max_cache_bytes}")
-        self.engine = ForestEngine(spec, seed=seed)
+        self.engine = ForestEngine(spec, seed=seed, files=files)
         self.tile_size_m = float(tile_size_m)
         self.max_cache_bytes = int(max_cache_bytes)
         self.reach_m = self.engine.crown_bound()

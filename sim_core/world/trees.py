@@ -17,10 +17,7 @@ realistically sized 8-gon. Leaf normal = the minimal rotation +Y → heading app
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass, field
-from importlib import resources
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -34,7 +31,6 @@ from sim_core.world.lpp import (
     expand,
     growth_level,
     interpret,
-    load_grammar,
 )
 
 __all__ = [
@@ -45,7 +41,6 @@ __all__ = [
     "TreeGeometry",
     "TreeModel",
     "get_tree_model",
-    "packaged_grammar",
 ]
 
 F64 = NDArray[np.float64]
@@ -184,20 +179,11 @@ class GMT3Tree:
         return geo
 
 
-def packaged_grammar(name: str) -> Path:
-    """Path of a grammar shipped in ``sim_core/world/data/lplusplus`` (e.g. ``"tree4"``)."""
-    base = resources.files("sim_core.world") / "data" / "lplusplus" / f"{name}.l++"
-    return Path(str(base))
-
-
-@functools.lru_cache(maxsize=64)
-def _grammar(path: str) -> Grammar:
-    return load_grammar(path)
-
-
 @dataclass(frozen=True)
 class LppTree:
-    """A seed 001 L++ tree: ``grammar`` is a packaged name (``"tree4"``) or a file path.
+    """A seed 001 L++ tree: ``grammar`` names its grammar, a packaged name (``"tree4"``) or a
+    file path; ``parsed`` is that grammar once read (:meth:`with_grammar`; reading it is
+    ``hil_bridge.files.world``), which growing needs.
 
     Attributes:
         unit_m: metres per grammar unit (segment length 1).
@@ -229,6 +215,7 @@ class LppTree:
     leaf_radius_sd_m: float = 0.005
     leaf_size: Literal["metres", "seed"] = "metres"
     seed_leaf_size: float = 1.4
+    parsed: Grammar | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if not self.unit_m > 0:
@@ -245,22 +232,24 @@ class LppTree:
         if not (self.seed_leaf_size > 0 and np.isfinite(self.seed_leaf_size)):
             raise ValueError(f"seed_leaf_size must be > 0, got {self.seed_leaf_size}")
 
-    @property
-    def path(self) -> Path:
-        p = Path(self.grammar)
-        if p.suffix == ".l++" or p.parent != Path("."):
-            return p
-        return packaged_grammar(self.grammar)
+    def with_grammar(self, grammar: Grammar) -> LppTree:
+        """This tree with its grammar read (``grammar``: the parsed text of :attr:`grammar`)."""
+        return dataclasses.replace(self, parsed=grammar)
 
-    def load(self) -> Grammar:
-        """The parsed grammar (cached per path; a malformed file raises ``GrammarError``)."""
-        return _grammar(str(self.path))
+    def rules(self) -> Grammar:
+        """The parsed grammar; ``ValueError`` when it has not been read."""
+        if self.parsed is None:
+            raise ValueError(
+                f"L++ grammar {self.grammar}: not read; give the tree its grammar "
+                "(with_grammar, or hil_bridge.files.world.load_tree_model)"
+            )
+        return self.parsed
 
     def with_growth_level(self, level: int) -> LppTree:
         return dataclasses.replace(self, iterations=level, growth_jitter=False)
 
     def grow(self, rng: np.random.Generator, *, branches: bool = False) -> TreeGeometry:
-        g = self.load()
+        g = self.rules()
         nominal = g.iterations if self.iterations is None else self.iterations
         level = growth_level(nominal, rng, jitter=self.growth_jitter)
         seq, table = expand(g, level, rng)

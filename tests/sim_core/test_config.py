@@ -3,20 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Literal
 
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
-from sim_core.config import (
-    ConfigError,
-    apply_overrides,
-    from_dict,
-    load_yaml,
-    parse_override,
-)
+from sim_core.config import ConfigError, apply_overrides, from_dict
 
 
 @dataclass(frozen=True)
@@ -78,15 +69,6 @@ def test_config_error_is_value_error() -> None:
     assert issubclass(ConfigError, ValueError)
 
 
-def test_load_yaml_reports_line(tmp_path: Path) -> None:
-    p = tmp_path / "bad.yaml"
-    p.write_text("a: 1\nb: [1, 2\n")
-    with pytest.raises(ConfigError, match=r"bad.yaml:\d+: invalid YAML"):
-        load_yaml(p)
-    with pytest.raises(ConfigError, match="cannot read"):
-        load_yaml(tmp_path / "missing.yaml")
-
-
 def test_overrides() -> None:
     base = {"a": {"b": 1}, "c": 2}
     out = apply_overrides(base, {"a.b": 5, "a.d.e": [1], "c": 3})
@@ -94,17 +76,3 @@ def test_overrides() -> None:
     assert base == {"a": {"b": 1}, "c": 2}
     with pytest.raises(ConfigError, match="not a mapping"):
         apply_overrides({"c": 2}, {"c.x": 1})
-
-
-@given(st.one_of(st.integers(), st.booleans(), st.text(alphabet="abc", min_size=1)))
-def test_parse_override_yaml_values(value: object) -> None:
-    text = f"k={str(value).lower() if isinstance(value, bool) else value}"
-    key, parsed = parse_override(text)
-    assert key == "k"
-    assert parsed == value
-
-
-def test_parse_override_errors() -> None:
-    with pytest.raises(ConfigError, match="KEY=VALUE"):
-        parse_override("novalue")
-    assert parse_override("x=1e-3") == ("x", 1e-3)

@@ -252,7 +252,7 @@ def test_params_are_validated_and_long_steps_are_refined() -> None:
 
 def test_a_path_flies_the_attitude_it_implies_or_the_one_it_logged() -> None:
     from sim_core.flight import path_state
-    from sim_core.scene import Trajectory
+    from sim_core.trajectory import Trajectory
 
     speed, radius = 4.0, 4.0**2 / (9.81 * math.tan(math.radians(30.0)))
     a = np.linspace(0.0, 2 * np.pi, 361)
@@ -275,7 +275,7 @@ def test_a_path_flies_the_attitude_it_implies_or_the_one_it_logged() -> None:
 
 def test_vehicles_on_paths_at_once_are_each_vehicle_alone() -> None:
     from sim_core.flight import path_state, path_states
-    from sim_core.scene import Trajectory
+    from sim_core.trajectory import Trajectory
 
     a = np.linspace(0.0, 2 * np.pi, 181)
     circle = Trajectory.from_path(np.stack([5 * np.cos(a), 5 * np.sin(a), 2 + 0.1 * a], axis=1),

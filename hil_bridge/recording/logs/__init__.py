@@ -1,4 +1,4 @@
-"""Flight logs in: the trajectories people have, read into :class:`sim_core.scene.Trajectory`.
+"""Flight logs in: the trajectories people have, read into :class:`sim_core.trajectory.Trajectory`.
 
 Formats, chosen by the file's content first and its extension second (:func:`detect_format`);
 :data:`READERS` maps each name to ``"module:function"``, imported lazily:
@@ -30,7 +30,7 @@ from functools import lru_cache
 from pathlib import Path
 
 from hil_bridge.recording.logs.track import LogReport, NoPoseError, PoseLog, to_trajectory
-from sim_core.scene import Trajectory
+from sim_core.trajectory import Trajectory
 
 __all__ = [
     "READERS",

@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from hil_bridge.files.config import load_npz, read_text
 from hil_bridge.recording.logs.track import PoseLog
-from sim_core.config import load_npz, read_text
 
 __all__ = ["LOCAL_COLUMNS", "read_csv", "read_npz"]
 
@@ -104,7 +104,7 @@ def _wide_columns(
     p: Path, cols: dict[str, NDArray[Any]], vehicle_id: int | None
 ) -> dict[str, NDArray[Any]]:
     """Column ``vehicle_id`` of a wide NPZ trace (``t`` (T,), the others (T, N), as written by
-    ``sim_core.soaring.Trace.save_npz``)."""
+    ``hil_bridge.files.soaring.save_trace_npz``)."""
     n = np.asarray(cols["x" if "x" in cols else "lat"]).shape[1]
     if vehicle_id is None:
         if n > 1:

@@ -1,4 +1,5 @@
-"""From what a log holds to a :class:`sim_core.scene.Trajectory`, with a report of what was used.
+"""From what a log holds to a :class:`sim_core.trajectory.Trajectory`, with a report of what
+was used.
 
 Every reader returns a :class:`PoseLog`: position samples in the log's own frame (local ENU,
 local NED, or geodetic latitude/longitude/altitude), optionally an attitude stream at its
@@ -36,7 +37,7 @@ from numpy.typing import NDArray
 
 from hil_bridge.errors import HilError
 from sim_core.pose import enu_from_ned, euler_from_quat, quat_normalize, quat_slerp
-from sim_core.scene import Trajectory
+from sim_core.trajectory import Trajectory
 
 __all__ = ["LogReport", "NoPoseError", "PoseLog", "describe", "parser_chatter", "to_trajectory"]
 

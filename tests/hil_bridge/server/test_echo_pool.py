@@ -19,6 +19,7 @@ import pytest
 
 from hil_bridge.bus.domain import Domain, shared_root
 from hil_bridge.bus.messages import SonarPing
+from hil_bridge.files.scene import load_scene
 from hil_bridge.server.echo_pool import WORKER_NAME
 from hil_bridge.server.echo_service import (
     EchoRequest,
@@ -29,7 +30,7 @@ from hil_bridge.server.echo_service import (
 )
 from hil_bridge.server.shared_tiles import SharedTiles, stores_of
 from sim_core.pose import quat_from_euler
-from sim_core.scene import Scene, load_scene
+from sim_core.scene import Scene
 from sim_core.sonar.cost import EchoCost
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -9,8 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hil_bridge.files.soaring import load_law, save_trace_npz, write_trace_csv
 from hil_bridge.recording.logs import load_trajectory
-from sim_core.scene import Trajectory
+from sim_core.trajectory import Trajectory
 
 
 def _square() -> Trajectory:
@@ -129,15 +130,15 @@ def test_sampling_hits_the_samples_and_heading_stays_on_the_short_arc(
 
 
 def test_swarm_trace_csv_and_npz_replay_the_same_glider(tmp_path: Path) -> None:
-    from sim_core.soaring import Law, SwarmSim
+    from sim_core.soaring import SwarmSim
 
-    sim = SwarmSim(Law.from_yaml("default", {"numAgents": 3, "totalTime": 10}), seed=1,
+    sim = SwarmSim(load_law("default", {"numAgents": 3, "totalTime": 10}), seed=1,
                    trace=True)
     while not sim.done:
         sim.step()
     trace = sim.trace()
-    trace.to_csv(tmp_path / "trace.csv")
-    trace.save_npz(tmp_path / "trace.npz")
+    write_trace_csv(trace, tmp_path / "trace.csv")
+    save_trace_npz(trace, tmp_path / "trace.npz")
     from_csv = load_trajectory(tmp_path / "trace.csv", vehicle_id=2)
     from_npz = load_trajectory(tmp_path / "trace.npz", vehicle_id=2)
     np.testing.assert_allclose(from_csv.xyz, from_npz.xyz, rtol=1e-12)
@@ -166,8 +167,8 @@ def test_logged_attitude_is_carried_and_slerped() -> None:
 
 
 def test_a_scene_reads_logged_paths_only_through_its_reader(tmp_path: Path) -> None:
+    from hil_bridge.files.scene import load_scene
     from sim_core.config import ConfigError
-    from sim_core.scene import load_scene
 
     path = tmp_path / "one.csv"
     path.write_text("t,x,y,z\n0,0,0,5\n2,20,0,5\n", encoding="utf-8")
@@ -184,7 +185,7 @@ def test_a_scene_reads_logged_paths_only_through_its_reader(tmp_path: Path) -> N
 def test_sampling_many_paths_at_once_is_np_interp_value_for_value(
     k: int, loop: bool, seed: int
 ) -> None:
-    from sim_core.scene import sample_paths
+    from sim_core.trajectory import sample_paths
 
     rng = np.random.default_rng(seed)
     trajs = []

@@ -11,8 +11,8 @@ import pytest
 
 from hil_bridge.bus.messages import GliderState, SonarEcho, SonarPing
 from hil_bridge.bus.node import Node
+from hil_bridge.files.scene import load_scene
 from hil_bridge.server.sim_server import SimServer
-from sim_core.scene import load_scene
 from sim_core.sonar import Beam, synthesize
 
 ECHO = {"samples": 8000}  # 20 ms at 400 kHz: leaves up to 3.4 m, keeps the test quick

@@ -15,11 +15,11 @@ import pytest
 from hil_bridge.bus.messages import GliderCmd, GliderState
 from hil_bridge.bus.node import Node
 from hil_bridge.bus.qos import COMMAND, QoSProfile
+from hil_bridge.files.scene import load_scene
 from hil_bridge.server.fleet import Fleet
 from hil_bridge.server.sim_server import SimServer
 from sim_core.config import ConfigError
 from sim_core.pose import euler_from_quat, quat_from_euler
-from sim_core.scene import load_scene
 
 KEEP_ALL = QoSProfile("keep_all", depth=100_000)
 LINE = {"kind": "points", "speed_mps": 5.0, "points": [[0.0, 0.0, 30.0], [500.0, 0.0, 30.0]]}

@@ -13,9 +13,9 @@ import pytest
 
 from hil_bridge.bus.messages import GliderState, SonarEcho, SonarPing
 from hil_bridge.bus.node import Node
+from hil_bridge.files.scene import load_scene
 from hil_bridge.server.sim_server import SimServer
 from sim_core.pose import direction_from_az_el, quat_from_euler, quat_rotate
-from sim_core.scene import load_scene
 from sim_core.sonar import synthesize
 from sim_core.sonar.mount import ears_for_ping, ping_beam
 

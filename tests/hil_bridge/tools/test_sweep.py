@@ -9,10 +9,10 @@ from typing import Any
 
 import pytest
 
+from hil_bridge.files.soaring import run_key
 from hil_bridge.tools.sweep import read_table, sweep
 from sim_core.config import ConfigError
 from sim_core.soaring import Law, run
-from sim_core.soaring.sweep import run_key
 
 BASE = Law().replace(totalTime=60.0, numAgents=6)
 GRID: dict[str, list[Any]] = {"numThermals": [3, 6], "rngSeed": [1, 2],

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from hil_bridge.cli import main
-from sim_core.soaring import CSV_COLUMNS, Law, Trace, run
+from hil_bridge.files.soaring import TRACE_CSV_COLUMNS, load_trace
+from sim_core.soaring import Law, run
 
 KEYS = ["surviving", "survivingPercent", "flightTime", "heightScore", "thermalUseScore",
         "explorationPercent", "collisionDeaths", "groundDeaths", "finalHeightMax",
@@ -27,7 +28,7 @@ def test_run_json_keys_and_values(capsys: pytest.CaptureFixture[str], tmp_path: 
     m = run(Law().replace(totalTime=60.0, numAgents=5), seed=3).metrics
     assert out["heightScore"] == m.heightScore and out["surviving"] == m.surviving
     assert 0 <= out["survivingPercent"] <= 100 and out["seconds"] >= 0
-    tr = Trace.load_npz(npz)
+    tr = load_trace(npz)
     assert tr.x.shape == (121, 5)
     assert png.stat().st_size > 10_000
 
@@ -39,7 +40,7 @@ def test_run_csv_trace_columns(capsys: pytest.CaptureFixture[str], tmp_path: Pat
     assert main(["swarm", "run", "--law", str(law), "--trace", str(csv)]) == 0
     assert "surviving" in capsys.readouterr().out
     lines = csv.read_text().splitlines()
-    assert lines[0].split(",") == list(CSV_COLUMNS)
+    assert lines[0].split(",") == list(TRACE_CSV_COLUMNS)
     data = np.loadtxt(csv, delimiter=",", skiprows=1)
     assert data.shape == (11 * 3, 10)
     assert np.all(data[:3, 0] == 0.0) and data[-1, 0] == 5.0 and data[-1, 1] == 2

@@ -1,30 +1,11 @@
-"""Law loading and validation: clear errors naming the key, at load."""
+"""Law validation: clear errors naming the key (law files: tests/hil_bridge/files)."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import pytest
 
 from sim_core.config import ConfigError
-from sim_core.soaring import Law, default_law_path
-
-
-def test_packaged_default_is_the_seed_law(data_dir: Path) -> None:
-    assert Law.from_yaml("default") == Law()
-    assert Law.from_yaml(data_dir / "seed002" / "law_40survivors.yaml") == Law()
-    assert default_law_path().read_text() == (
-        data_dir / "seed002" / "law_40survivors.yaml"
-    ).read_text()
-    assert Law().steps == 14400 and Law().n_agents == 40
-
-
-def test_overrides_take_precedence(tmp_path: Path) -> None:
-    p = tmp_path / "law.yaml"
-    p.write_text("numAgents: 20\ncohesion: 3000\n")
-    law = Law.from_yaml(p, {"cohesion": 1e4, "controller": "baseline"})
-    assert law.numAgents == 20 and law.cohesion == 1e4 and law.controller == "baseline"
-    assert law.separation == Law().separation
+from sim_core.soaring import Law
 
 
 @pytest.mark.parametrize(
@@ -56,16 +37,8 @@ def test_bad_values_name_the_key(data: dict[str, object], key: str) -> None:
         Law.from_dict(data)
 
 
-def test_bad_file_is_named(tmp_path: Path) -> None:
-    p = tmp_path / "bad.yaml"
-    p.write_text("dt: -1\n")
-    with pytest.raises(ConfigError, match=r"bad\.yaml.*dt"):
-        Law.from_yaml(p)
-    p.write_text("- 1\n- 2\n")
-    with pytest.raises(ConfigError, match="mapping"):
-        Law.from_yaml(p)
-    with pytest.raises(ConfigError, match="cannot read"):
-        Law.from_yaml(tmp_path / "missing.yaml")
+def test_defaults_are_the_seed_law() -> None:
+    assert Law().steps == 14400 and Law().n_agents == 40
 
 
 def test_round_trip_through_dict() -> None:

@@ -36,7 +36,8 @@ import numpy as np
 import pytest
 
 from hil_bridge.cli import main as echoloop
-from sim_core.soaring import Law, SwarmSim, Trace
+from hil_bridge.files.soaring import load_law, load_trace
+from sim_core.soaring import Law, SwarmSim
 
 CASES = ("glide_a", "thermal_cross", "swarm5")
 EXACT_CASES = ("glide_a", "thermal_cross")
@@ -75,7 +76,7 @@ def atol(case: str, name: str) -> float:
 def test_packaged_law_holds_the_seed_spreadsheets_exact_values() -> None:
     """fov 330° and the bank limits ±15° in radians unrounded, as the spreadsheet stores them
     (5.7595865315812871, ±0.26179938779914941); rounding them changed a 40-glider outcome."""
-    law = Law.from_yaml("default")
+    law = load_law("default")
     assert law == Law()
     assert law.fov == math.radians(330.0) == 5.759586531581287
     assert law.bankMax == math.pi / 12 == 0.2617993877991494
@@ -88,7 +89,7 @@ def test_each_case_is_the_packaged_law_plus_its_stated_overrides(data_dir: Path,
     """Every other value the seed harness ran with (the spreadsheet, exact) is the packaged
     law's: the case files differ from ``Law()`` only by the overrides the README names."""
     path, _ = case_files(data_dir, case)
-    law = Law.from_yaml(path)
+    law = load_law(path)
     pinned = {key: [dataclasses.asdict(p) for p in getattr(law, key)]
               for key in ("agents", "thermals") if getattr(law, key) is not None}
     assert law == Law().replace(**OVERRIDES[case], **pinned)
@@ -104,7 +105,7 @@ def test_cli_run_matches_the_seed_trace_and_metrics(data_dir: Path, tmp_path: Pa
                      "--json"]) == 0
     got = json.loads(capsys.readouterr().out)
     steps = seed["aliveData"].shape[1]
-    trace = Trace.load_npz(trace_path)
+    trace = load_trace(trace_path)
     assert trace.n_steps == steps + 1  # row 0 is the initial state
     np.testing.assert_array_equal(trace.alive[1:].T, seed["aliveData"].astype(bool))
     if "thermalStrength" in seed:
@@ -129,7 +130,7 @@ def fly(path: Path, steps: int) -> tuple[dict[str, np.ndarray], np.ndarray, bool
     """Step ``SwarmSim`` on the case law ``steps`` times: each STATE field and ``alive`` as
     (N, steps) arrays (column k after step k + 1, as the seed records), the thermal strengths
     (T, steps), and whether the run was done exactly after the last step."""
-    sim = SwarmSim(Law.from_yaml(path))
+    sim = SwarmSim(load_law(path))
     n = sim.state.x.shape[1]
     got = {name: np.empty((n, steps)) for name in (*STATE, "alive")}
     strength = np.empty((sim.thermals.strength.shape[1], steps))

@@ -11,13 +11,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.distance import pdist
 
+from hil_bridge.files.world import read_tree_map
 from sim_core.world.ipp import (
     Homogeneous,
     KDEIntensity,
     SEMixture,
+    TreeMap,
     min_distance_thin,
-    read_tree_map,
     sample_ipp,
+    tree_map_positions,
 )
 
 BOX = (-40.0, -40.0, 60.0, 60.0)
@@ -129,16 +131,14 @@ def test_kde_intensity_integrates_to_map_size(data_dir: Path) -> None:
     assert np.mean(counts) == pytest.approx(31, abs=5 * math.sqrt(31 / 100))
 
 
-def test_tree_map_errors(tmp_path: Path) -> None:
-    bad = tmp_path / "m.csv"
-    bad.write_text("x,y,species\n1,2,oak\n")
-    with pytest.raises(ValueError, match="unknown species 'oak'"):
-        read_tree_map(bad, species_names=["maple"])
-    bad.write_text("1,2,1\n3,abc,1\n")
-    with pytest.raises(ValueError, match=r"m.csv:2: expected 'x, y\[, species\]'"):
-        read_tree_map(bad)
-    bad.write_text("1,2,3\n")
-    with pytest.raises(ValueError, match="species index 3 out of range"):
-        read_tree_map(bad, species_names=["a", "b"])
-    with pytest.raises(ValueError, match="cannot read tree map"):
-        read_tree_map(tmp_path / "missing.csv")
+def test_tree_map_positions_scale_and_name_species() -> None:
+    rows = TreeMap(np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]]), ("2", "b", None), (1, 2, 4),
+                   "m.csv")
+    xy, species = tree_map_positions(rows, scale=2.0, species_names=["a", "b"])
+    np.testing.assert_array_equal(xy, [[2.0, 4.0], [6.0, 8.0], [10.0, 12.0]])
+    assert species == ["b", "b", None]
+    assert tree_map_positions(rows)[1] == ["2", "b", None]
+    with pytest.raises(ValueError, match=r"m\.csv:1: species index 2 out of range 1\.\.1"):
+        tree_map_positions(rows, species_names=["a"])
+    with pytest.raises(ValueError, match=r"m\.csv:2: unknown species 'b'"):
+        tree_map_positions(rows, species_names=["a", "c"])

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -48,16 +46,6 @@ def test_empty_concat_select() -> None:
     assert both.select(mask) == a
     with pytest.raises(ValueError, match="mask"):
         both.select(np.ones(3, dtype=bool))
-
-
-def test_npz_round_trip(tmp_path: Path) -> None:
-    leaves = _random_leaves(50)
-    path = tmp_path / "l.npz"
-    leaves.save_npz(path)
-    assert Leaves.load_npz(path) == leaves
-    np.savez(tmp_path / "bad.npz", x=np.zeros(3))
-    with pytest.raises(ValueError, match="missing"):
-        Leaves.load_npz(tmp_path / "bad.npz")
 
 
 @settings(max_examples=40, deadline=None)

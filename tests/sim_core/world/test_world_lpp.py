@@ -1,38 +1,24 @@
-"""L++ grammars: parser errors, rewriting semantics, growth level, turtle vs a sequential turtle."""
+"""L++ grammars: parser errors, rewriting semantics, growth level, turtle vs a sequential turtle
+(grammar files: tests/hil_bridge/files/test_world.py)."""
 
 from __future__ import annotations
 
 import math
-import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from hil_bridge.files.world import load_grammar, packaged_grammar
 from sim_core.world.lpp import (
     GrammarError,
     branch_radii,
     expand,
     growth_level,
     interpret,
-    load_grammar,
     parse_grammar,
 )
-from sim_core.world.trees import packaged_grammar
 
 SPECIES = ["tree4", "tree5", "tree6", "tree7"]
-
-
-@pytest.mark.parametrize("name", SPECIES)
-def test_packaged_grammars_match_the_seed_files(name: str, data_dir: Path) -> None:
-    packaged = packaged_grammar(name)
-    original = data_dir / "seed001" / "lplusplus" / f"{name}.l++"
-    assert packaged.read_bytes() == original.read_bytes()
-    g = load_grammar(packaged)
-    header = {
-        "tree4": (7, 15, 60), "tree5": (7, 15, 90), "tree6": (6, 37, 75), "tree7": (6, 37, 75)
-    }
-    assert (g.iterations, g.default_angle_deg, g.thickness_pct) == header[name]
 
 
 def test_tree4_rules_and_alternatives() -> None:
@@ -65,15 +51,6 @@ def test_tree4_rules_and_alternatives() -> None:
 def test_parser_errors_name_line_and_expectation(text: str, match: str) -> None:
     with pytest.raises(GrammarError, match=match):
         parse_grammar(text)
-
-
-def test_unreadable_grammar_file(tmp_path: Path) -> None:
-    with pytest.raises(GrammarError, match="cannot read"):
-        load_grammar(tmp_path / "missing.l++")
-    bad = tmp_path / "bad.l++"
-    bad.write_text("7\n15\n60\nfA\nA=[f\n@\n")
-    with pytest.raises(GrammarError, match=re.escape(f"{bad}:5 (rule 'A')")):
-        load_grammar(bad)
 
 
 def test_inline_header_comment_and_end_marker() -> None:
@@ -254,4 +231,3 @@ def test_branch_radii_match_the_sequential_turtle(name: str) -> None:
     assert got.shape == want.shape == (out.seg_start.shape[0], 2) and got.shape[0] > 10
     assert np.unique(np.round(got[:, 0], 12)).size > 2  # the '>' commands do narrow
     np.testing.assert_allclose(got, want, rtol=1e-12)
-

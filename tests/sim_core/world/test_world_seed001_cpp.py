@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hil_bridge.files.world import load_tree_model
 from sim_core.rng import make_rng
-from sim_core.world.trees import LEAF_DISC_RATIO, LppTree, get_tree_model
+from sim_core.world.trees import LEAF_DISC_RATIO, LppTree
 
 SPECIES = {1: "tree4", 2: "tree5", 3: "tree6", 4: "tree7"}
 LEAF_SIZE = {1: 1.5, 2: 1.6, 3: 1.1, 4: 1.4}
@@ -37,7 +38,7 @@ def seed_trees(data_dir: Path) -> np.ndarray:
 
 
 def echoloop_trees(species: int, count: int) -> dict[str, np.ndarray]:
-    model = get_tree_model(SPECIES[species])
+    model = load_tree_model(SPECIES[species])
     assert isinstance(model, LppTree)
     model = dataclasses.replace(model, unit_m=1.0, leaf_size="seed")
     rows = []
@@ -64,9 +65,9 @@ def test_lpp_trees_are_distributed_like_the_seeds_cpp_trees(data_dir: Path,
     seed = seed_trees(data_dir)
     seed = seed[seed["species"] == species]
     ours = echoloop_trees(species, TREES[species])
-    g = get_tree_model(SPECIES[species])
+    g = load_tree_model(SPECIES[species])
     assert isinstance(g, LppTree)
-    thickness = g.load().thickness_pct / 100.0
+    thickness = g.rules().thickness_pct / 100.0
     np.testing.assert_allclose(seed["trunk_radius"], thickness, atol=1e-3)
     np.testing.assert_allclose(ours["trunk_radius"], thickness, rtol=1e-12)
     size = LEAF_SIZE[species]

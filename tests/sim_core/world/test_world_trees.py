@@ -1,4 +1,5 @@
-"""Tree models: GMT3 structure, leaf normals and radii, metre scale, determinism per stream."""
+"""Tree models: GMT3 structure, leaf normals and radii, metre scale, determinism per stream
+(L++ models grow from their packaged grammars, read by hil_bridge.files.world)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim_core.world.forest import SpeciesSpec
+from hil_bridge.files.world import load_tree_model
 from sim_core.world.gmt3 import grow_skeleton
+from sim_core.world.spec import SpeciesSpec
 from sim_core.world.trees import (
     LEAF_DISC_RATIO,
     TREE_MODELS,
@@ -61,7 +63,7 @@ def test_single_variant_is_doubled() -> None:
 
 @pytest.mark.parametrize("name", sorted(TREE_MODELS))
 def test_leaves_unit_normals_and_radii_bounds(name: str) -> None:
-    model = TREE_MODELS[name]
+    model = load_tree_model(name)
     geo = model.grow(np.random.default_rng(7))
     assert geo.centers.shape[0] > 0
     assert np.all(np.isfinite(geo.centers)) and np.all(np.isfinite(geo.normals))
@@ -74,7 +76,7 @@ def test_leaves_unit_normals_and_radii_bounds(name: str) -> None:
 
 @pytest.mark.parametrize("name", ["tree4", "tree5", "tree6", "tree7", "maple"])
 def test_trees_are_5_to_25_m_tall(name: str) -> None:
-    model = get_tree_model(name)
+    model = load_tree_model(name)
     if isinstance(model, LppTree) and name == "tree6":
         model = dataclasses.replace(model, growth_jitter=False)  # keep the test fast
     heights = [model.grow(np.random.default_rng(s)).height for s in range(6)]
@@ -82,7 +84,7 @@ def test_trees_are_5_to_25_m_tall(name: str) -> None:
 
 
 def test_lpp_leaf_keep_probability_and_frame_reset() -> None:
-    tree4 = get_tree_model("tree4")
+    tree4 = load_tree_model("tree4")
     assert isinstance(tree4, LppTree)
     model = dataclasses.replace(tree4, growth_jitter=False, iterations=4)
     a = model.grow(np.random.default_rng(3))
@@ -100,7 +102,7 @@ def test_lpp_leaf_keep_probability_and_frame_reset() -> None:
 
 
 def test_growth_level_zero_is_the_axiom() -> None:
-    tree4 = get_tree_model("tree4")
+    tree4 = load_tree_model("tree4")
     assert isinstance(tree4, LppTree)
     lpp = dataclasses.replace(tree4, iterations=0, growth_jitter=False)
     geo = lpp.grow(np.random.default_rng(0), branches=True)
@@ -115,10 +117,10 @@ def test_growth_level_zero_is_the_axiom() -> None:
 def test_lpp_seed_leaf_size_is_the_seeds_clipped_normal_in_grammar_units(name: str) -> None:
     """leaf_size 'seed': length N(leafSize, 15 %) clipped at ±2σ in grammar units, radius
     0.3206 × length × unit_m; the default stays N(μ, 20 %) truncated, in metres."""
-    model = get_tree_model(name)
+    model = load_tree_model(name)
     assert isinstance(model, LppTree) and model.seed_leaf_size == SEED_LEAF_SIZE[name]
     seed = dataclasses.replace(model, leaf_size="seed", growth_jitter=False,
-                               iterations=model.load().iterations - 1)
+                               iterations=model.rules().iterations - 1)
     length = np.concatenate([seed.grow(np.random.default_rng(s)).radii for s in range(4)])
     length /= LEAF_DISC_RATIO * model.unit_m
     size = SEED_LEAF_SIZE[name]
@@ -131,7 +133,7 @@ def test_lpp_seed_leaf_size_is_the_seeds_clipped_normal_in_grammar_units(name: s
 
 
 def test_lpp_branches_have_the_seed_radius_and_leave_the_leaves_alone() -> None:
-    tree4 = get_tree_model("tree4")
+    tree4 = load_tree_model("tree4")
     assert isinstance(tree4, LppTree)
     model = dataclasses.replace(tree4, growth_jitter=False, iterations=3)
     bare = model.grow(np.random.default_rng(4))
@@ -160,15 +162,17 @@ def test_unknown_model_and_bad_params() -> None:
         GMT3Tree(leaf_radius_mean_m=0.0)
     with pytest.raises(ValueError, match="keep_prob"):
         LppTree("tree4", keep_prob=2.0)
+    with pytest.raises(ValueError, match="L\\+\\+ grammar tree4: not read"):
+        get_tree_model("tree4").grow(np.random.default_rng(0))
 
 
 @pytest.mark.parametrize("name", sorted(TREE_MODELS))
 def test_crowns_stay_within_the_tiling_bound(name: str) -> None:
     from sim_core.world.forest import CROWN_BOUND_M
 
-    model = TREE_MODELS[name]
+    model = load_tree_model(name)
     if isinstance(model, LppTree):  # the largest growth level the ±1 draw can give
-        model = dataclasses.replace(model, iterations=model.load().iterations + 1,
+        model = dataclasses.replace(model, iterations=model.rules().iterations + 1,
                                     growth_jitter=False)
     reach = max(model.grow(np.random.default_rng(s)).crown_radius for s in range(2))
     assert reach < 0.8 * CROWN_BOUND_M[name]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hil_bridge.recording.logs import NoPoseError, detect_format, read_log
-from sim_core.scene import Trajectory
+from sim_core.trajectory import Trajectory
 from tests.hil_bridge.recording.logs.logmakers import (
     ORIGIN,
     Flight,

@@ -1,4 +1,5 @@
-"""CAD-template dressing: templates built with trimesh primitives, written as OBJ and STL."""
+"""CAD templates from files (hil_bridge.files.world) dressing GMT3 trees (sim_core.world.cad):
+templates built with trimesh primitives, written as OBJ and STL."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
+from hil_bridge.files.world import load_forest_files, load_template
 from sim_core.world import ForestSpec, SpeciesSpec, TemplateSpec, build_forest
-from sim_core.world.cad import CadTree, load_template
+from sim_core.world.cad import CadTree
 from sim_core.world.trees import GMT3Tree
 
 
@@ -32,7 +34,7 @@ def test_template_faces_become_leaves(tmp_path: Path, ext: str) -> None:
     tpl = load_template(str(path), leaf_from="faces", up_axis="z")
     assert tpl.points.shape[0] == 4 * 12
     assert tpl.length == pytest.approx(1.05)
-    model = CadTree(GMT3Tree(levels=3), str(path), up_axis="z")
+    model = CadTree(GMT3Tree(levels=3), tpl)
     geo = model.grow(np.random.default_rng(0), branches=True)
     skel, _ = GMT3Tree(levels=3).skeleton(np.random.default_rng(0))
     n_branches = int(((skel.level == 1) & ~skel.main_axis).sum())
@@ -45,7 +47,8 @@ def test_template_faces_become_leaves(tmp_path: Path, ext: str) -> None:
 
 def test_template_rotates_to_branch_azimuth(tmp_path: Path) -> None:
     path = _leaf_cluster(tmp_path, "obj")
-    model = CadTree(GMT3Tree(levels=1, scale_sd=0.0), str(path), up_axis="z", twist_max_deg=0.0)
+    tpl = load_template(str(path), up_axis="z")
+    model = CadTree(GMT3Tree(levels=1, scale_sd=0.0), tpl, twist_max_deg=0.0)
     geo = model.grow(np.random.default_rng(4))
     skel, scale = GMT3Tree(levels=1, scale_sd=0.0).skeleton(np.random.default_rng(4))
     side = skel.vec[(skel.level == 1) & ~skel.main_axis] * scale
@@ -68,7 +71,7 @@ def test_vertex_leaves_and_forest_with_template(tmp_path: Path) -> None:
             ),
         )
     )
-    f = build_forest(spec, seed=0)
+    f = build_forest(spec, seed=0, files=load_forest_files(spec))
     assert f.n_trees == 2 and len(f.leaves) > 0
     assert np.all((f.leaves.radii > 0.01) & (f.leaves.radii < 0.04))
 
@@ -85,4 +88,4 @@ def test_unreadable_template_fails_clearly(tmp_path: Path) -> None:
                              template=TemplateSpec(leaf=str(junk))),)
     )
     with pytest.raises(ValueError, match="no faces found"):
-        build_forest(spec, seed=0)
+        build_forest(spec, seed=0, files=load_forest_files(spec))

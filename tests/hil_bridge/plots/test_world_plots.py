@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hil_bridge.plots.world import plot_forest_3d, plot_top_view, plot_tree_side
 from sim_core.world import build_forest, get_preset
-from sim_core.world.plots import plot_forest_3d, plot_top_view, plot_tree_side
 from sim_core.world.trees import get_tree_model
 
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -145,15 +145,16 @@ def plot_trees_side(geos: list[tuple[str, TreeGeometry]], path: str | Path) -> N
 
 def write_gallery(out_dir: str | Path, *, seed: int = 1) -> list[Path]:
     """The documentation figures (docs/figures/world): Figs 5, 5d, 7, 8, 9 analogues."""
+    from hil_bridge.files.world import load_forest_files, load_tree_model
     from sim_core.rng import derive_rng
     from sim_core.world.forest import build_forest
     from sim_core.world.presets import get_preset
-    from sim_core.world.trees import get_tree_model
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    fig9 = build_forest(get_preset("seed001-fig9"), seed=seed)
+    spec9 = get_preset("seed001-fig9")
+    fig9 = build_forest(spec9, seed=seed, files=load_forest_files(spec9))
     paths.append(out / "seed001_fig8_top_view.png")
     plot_top_view(fig9, paths[-1])
     paths.append(out / "seed001_fig9_forest_3d.png")
@@ -162,13 +163,13 @@ def write_gallery(out_dir: str | Path, *, seed: int = 1) -> list[Path]:
     paths.append(out / "seed000_fig5d_forest_3d.png")
     plot_forest_3d(fig5d, paths[-1], seed=seed)
     gmt3 = [
-        (name, get_tree_model(name).grow(derive_rng(seed, "gallery", name), branches=True))
+        (name, load_tree_model(name).grow(derive_rng(seed, "gallery", name), branches=True))
         for name in ("maple-single", "maple", "hazelnut-bush")
     ]
     paths.append(out / "seed000_fig5_gmt3_side.png")
     plot_trees_side(gmt3, paths[-1])
     species = [
-        (name, get_tree_model(name).grow(derive_rng(seed, "gallery", name), branches=True))
+        (name, load_tree_model(name).grow(derive_rng(seed, "gallery", name), branches=True))
         for name in ("tree4", "tree5", "tree6", "tree7")
     ]
     paths.append(out / "seed001_fig7_species_side.png")

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from hil_bridge.plots.soaring import plot_agent_series, plot_survival_histograms, plot_trends
 from sim_core.soaring import Law, run
-from sim_core.soaring.plots import plot_agent_series, plot_survival_histograms, plot_trends
 
 
 def test_agent_series_and_histograms(tmp_path: Path) -> None:
