@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 
 from hil_bridge.bus.messages import PointCloud, SonarEcho, SonarPing
-from hil_bridge.server.echo_service import EchoRequest, EchoResult, EchoService, Region, SonarPose
+from hil_bridge.server.echo_compute import EchoRequest, EchoResult, Region, SonarPose
+from hil_bridge.server.echo_service import EchoService
 from hil_bridge.server.fleet import Fleet, FleetStates
 from hil_bridge.server.lockstep import LockstepGate
 from sim_core.pose import pose_compose, quat_from_euler
