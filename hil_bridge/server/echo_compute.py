@@ -58,11 +58,13 @@ PUBLISH_MARGIN_S = 1e-3
 @dataclass(frozen=True, slots=True)
 class SonarPose:
     """Where a sonar is at ``t_ns`` (sim ns): ``position`` (3,) m world ENU, ``orientation``
-    (4,) world-from-sonar ``[w, x, y, z]``."""
+    (4,) world-from-sonar ``[w, x, y, z]``, and how fast it moves: ``velocity`` (3,) m/s world
+    (None: unknown)."""
 
     t_ns: int
     position: F8
     orientation: F8
+    velocity: F8 | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,7 +84,9 @@ class EchoRequest:
 class EchoJob:
     """What a worker computes (plain data): the echo of ``sonar_id`` pinging ``az``, ``el``,
     ``beamwidth`` (rad, sonar frame) from ``position`` (3,) with ``orientation`` (4,), by
-    ``deadline`` (``time.monotonic()``, None: at the scene's fidelity whatever it takes)."""
+    ``deadline`` (``time.monotonic()``, None: at the scene's fidelity whatever it takes);
+    ``velocity`` (3,) m/s world: the sonar's, for an echo model with ``doppler`` (None: the
+    model's own ``platform_velocity``)."""
 
     sonar_id: int
     position: F8
@@ -91,6 +95,7 @@ class EchoJob:
     el: float
     beamwidth: float
     deadline: float | None = None
+    velocity: F8 | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -155,8 +160,10 @@ def answer_echo(
     scene: Scene, job: EchoJob, planner: DeadlinePlanner | None = None
 ) -> EchoResult | None:
     """The echo of ``job`` (see :func:`compute_echo`), within its deadline: at the sonar's
-    fidelity if the predicted time fits, else degraded to ``realtime`` with the time left as
-    its budget, else None (the time is up). ValueError when the scene refuses the ping."""
+    fidelity if the predicted time fits, else degraded to ``realtime`` (without Doppler) with
+    the time left as its budget, else None (the time is up). An echo model with ``doppler``
+    is given the job's ``velocity`` as its ``platform_velocity``. ValueError when the scene
+    refuses the ping."""
     from sim_core.sonar import synthesize
     from sim_core.sonar.model import precull_half_angle
     from sim_core.sonar.mount import ears_for_ping, ping_beam
@@ -168,6 +175,10 @@ def answer_echo(
     q = np.asarray(job.orientation, dtype=np.float64)
     beam = ping_beam(p, q, job.az, job.el, job.beamwidth)
     params = scene.echo_params(job.sonar_id)
+    if params.doppler and job.velocity is not None:
+        v = np.asarray(job.velocity, dtype=np.float64)
+        params = dataclasses.replace(params, platform_velocity=(float(v[0]), float(v[1]),
+                                                                float(v[2])))
     sonar = scene.sonar(job.sonar_id)
     if sonar.ears:
         ears = ears_for_ping(beam, q, [e.position_m for e in sonar.ears],
@@ -187,7 +198,8 @@ def answer_echo(
             if budget <= planner.cost.overhead_s * params.channels:
                 return None
             fidelity, predicted = "realtime", budget
-            params = dataclasses.replace(params, budget_s=budget)
+            # Doppler is the reference fidelity's only: a degraded echo goes without
+            params = dataclasses.replace(params, budget_s=budget, doppler=False)
     t1 = time.monotonic()
     echo = synthesize(leaves, beam, params, fidelity=fidelity)
     t2 = time.monotonic()

@@ -253,7 +253,7 @@ class EchoService:
     def _job(self, req: EchoRequest) -> EchoJob:
         ping = req.ping
         return EchoJob(req.sonar_id, req.pose.position, req.pose.orientation, float(ping.az),
-                       float(ping.el), float(ping.beamwidth), req.deadline)
+                       float(ping.el), float(ping.beamwidth), req.deadline, req.pose.velocity)
 
     def _refresh_wanted(self) -> None:
         """Tiles of the regions the sonars will reach, nearest in time first."""
