@@ -5,14 +5,15 @@ A ping is answered at its vehicle's pose at its emission stamp, from the fleet's
 
 - a stamp the history covers: interpolated between the two ticks around it, at once;
 - a stamp before the history: the oldest pose kept (``ping_stamp_old``);
-- a stamp after the newest tick by at most ``wait_ns`` (the server's ``pose_wait_ticks`` tick
-  periods) while the server ticks: the ping is *held* until the fleet has recorded a tick at
-  or after its stamp, then interpolated (``ping_stamp_waited``; the wall time it waited is in
+- a stamp after the newest tick (by at most ``horizon_ns``, the server's ``pose_history_s``)
+  while the server ticks: the ping is *held* until the fleet has recorded a tick at or after
+  its stamp, then interpolated (``ping_stamp_waited``; the wall time it waited is in
   ``ping_wait_ms``). A held ping whose covering tick has not come ``wait_s`` wall seconds after
-  its arrival, or when the server stops ticking, is *extrapolated* from the newest tick (its
-  velocity, its acceleration since the tick before, its body rates:
-  :func:`sim_core.pose.pose_extrapolate`; ``ping_stamp_extrapolated``); so is such a ping
-  arriving after the ticks ended;
+  its arrival (the server's ``pose_wait_ticks``), or when the server stops ticking, is
+  *extrapolated* from the newest tick (its velocity, its acceleration since the tick before,
+  its body rates: :func:`sim_core.pose.pose_extrapolate`; ``ping_stamp_extrapolated``, the
+  sim time extrapolated in ``ping_extrapolated_ms``); so is such a ping when nothing waits
+  (``wait_s`` 0) or the ticks have ended;
 - a stamp later than that: the newest tick's pose (``ping_stamp_future``): the stamp is not
   on this server's time.
 
@@ -56,20 +57,21 @@ class _Held:
 class EmissionPoses:
     """Poses at the pings' emission (module docstring) of the vehicles of ``fleet``'s history.
 
-    ``wait_ns``: how far (sim ns) after the newest tick a stamp may be and still be waited for
-    (0: never held, a later stamp gets the newest pose); ``wait_s``: how long (wall s after its
-    arrival) a held ping waits for its tick before it is extrapolated. ``on_pose(payload, pose,
-    received)`` gets every ping's pose. ``start()`` starts the thread, ``ticks_ended()`` says
-    the server stopped ticking (held pings are extrapolated now, later ones at once),
-    ``close()`` does the same and joins the thread.
+    ``horizon_ns``: how far (sim ns) after the newest tick a stamp may be and still be this
+    server's time (waited for, or extrapolated); ``wait_s``: how long (wall s after its
+    arrival) a ping stamped after the newest tick waits for its tick before it is
+    extrapolated (0: never held). ``on_pose(payload, pose, received)`` gets every ping's pose.
+    ``start()`` starts the thread, ``ticks_ended()`` says the server stopped ticking (held
+    pings are extrapolated now, later ones at once), ``close()`` does the same and joins the
+    thread.
     """
 
-    def __init__(self, fleet: Fleet, *, wait_ns: int, wait_s: float,
+    def __init__(self, fleet: Fleet, *, horizon_ns: int, wait_s: float,
                  on_pose: Callable[[Any, VehiclePose, float], None]) -> None:
-        if wait_ns < 0 or not wait_s >= 0:
-            raise ValueError(f"wait_ns, wait_s: expected >= 0, got {wait_ns}, {wait_s}")
+        if horizon_ns < 0 or not wait_s >= 0:
+            raise ValueError(f"horizon_ns, wait_s: expected >= 0, got {horizon_ns}, {wait_s}")
         self.fleet = fleet
-        self.wait_ns = int(wait_ns)
+        self.horizon_ns = int(horizon_ns)
         self.wait_s = float(wait_s)
         self._on_pose = on_pose
         self._cond = threading.Condition()
@@ -80,10 +82,11 @@ class EmissionPoses:
         self._thread: threading.Thread | None = None
         self._c = dict.fromkeys(EMISSION_COUNTERS, 0)
         self._wait_ms: deque[float] = deque(maxlen=10000)
+        self._extrapolated_ms: deque[float] = deque(maxlen=10000)
         fleet.add_listener(self.on_tick)
 
     def start(self) -> None:
-        if self._thread is None and self.wait_ns > 0:
+        if self._thread is None and self.wait_s > 0:
             self._thread = threading.Thread(target=self._run, name="emission-poses",
                                             daemon=True)
             self._thread.start()
@@ -114,7 +117,7 @@ class EmissionPoses:
         ``received``, ``time.monotonic()``): at once, or once its tick is recorded."""
         with self._cond:
             hold = (self._ticking and self._thread is not None
-                    and self._newest < t_ns <= self._newest + self.wait_ns)
+                    and self._newest < t_ns <= self._newest + self.horizon_ns)
             if hold:
                 self._held.append(_Held(vid, t_ns, received, payload))
                 self._cond.notify()
@@ -123,15 +126,17 @@ class EmissionPoses:
 
     def stats(self) -> dict[str, Any]:
         """The counters of :data:`EMISSION_COUNTERS`, ``pings_waiting_tick`` (held now) and
-        the raw ``ping_wait_ms`` list (wall ms each held ping waited)."""
+        the raw ``ping_wait_ms`` (wall ms each held ping waited) and ``ping_extrapolated_ms``
+        (sim ms each extrapolated pose lies past the newest tick) lists."""
         with self._cond:
             out: dict[str, Any] = dict(self._c)
             out["pings_waiting_tick"] = len(self._held)
             out["ping_wait_ms"] = list(self._wait_ms)
+            out["ping_extrapolated_ms"] = list(self._extrapolated_ms)
         return out
 
     def _answer(self, h: _Held, *, held: bool) -> None:
-        pose = self.fleet.pose_at(h.vid, h.t_ns, extrapolate_ns=self.wait_ns)
+        pose = self.fleet.pose_at(h.vid, h.t_ns, extrapolate_ns=self.horizon_ns)
         counter = {"oldest": "ping_stamp_old", "newest": "ping_stamp_future",
                    "extrapolated": "ping_stamp_extrapolated",
                    "history": "ping_stamp_waited" if held else ""}[pose.source]
@@ -140,6 +145,8 @@ class EmissionPoses:
                 self._c[counter] += 1
             if held:
                 self._wait_ms.append((time.monotonic() - h.received) * 1e3)
+            if pose.source == "extrapolated":
+                self._extrapolated_ms.append(pose.ahead_ns / 1e6)
         self._on_pose(h.payload, pose, h.received)
 
     def _due(self) -> list[_Held] | None:

@@ -90,7 +90,8 @@ PoseSource = Literal["history", "extrapolated", "newest", "oldest"]
 class VehiclePose:
     """A vehicle's pose at ``t_ns``: ``position`` (3,) m, ``orientation`` (4,) world-from-body,
     ``velocity`` (3,) m/s world, body ``rates`` (3,) rad/s; ``source`` says how it was found
-    (:data:`PoseSource`; for ``newest``/``oldest``, ``t_ns`` is that state's)."""
+    (:data:`PoseSource`; for ``newest``/``oldest``, ``t_ns`` is that state's); ``ahead_ns``:
+    how far past the newest state an extrapolated pose lies."""
 
     t_ns: int
     position: F8
@@ -98,6 +99,7 @@ class VehiclePose:
     velocity: F8
     rates: F8
     source: PoseSource
+    ahead_ns: int = 0
 
 
 class Fleet:
@@ -340,7 +342,7 @@ class Fleet:
                 t0, _, v0, _, _ = hist[-2]
                 accel = (v1 - v0) / ((t1 - t0) / 1e9)
             p, q, v = pose_extrapolate(t1 / 1e9, p1, v1, accel, q1, w1, t_ns / 1e9)
-            return VehiclePose(t_ns, p, q, v, w1, "extrapolated")
+            return VehiclePose(t_ns, p, q, v, w1, "extrapolated", t_ns - t1)
         if t_ns >= times[-1]:
             t, p, v, q, w = hist[-1]
             return VehiclePose(t, p, q, v, w, "history" if t_ns == t else "newest")

@@ -37,11 +37,12 @@ being computed).
 :mod:`hil_bridge.server.echo_service`). A ping is answered at its sonar's world pose at the
 ping's *emission*: the ping's ``stamp_ns`` when the sender gives one (> 0), else its arrival
 (the latest tick), the vehicle's pose interpolated between ticks from a ``pose_history_s``
-history, composed with the sonar's mount. A stamp after the latest tick by at most
-``pose_wait_ticks`` tick periods waits (off the tick loop) for the tick that covers it
+history, composed with the sonar's mount. A stamp after the latest tick waits (off the tick
+loop, at most ``pose_wait_ticks`` tick periods) for the tick that covers it
 (``ping_stamp_waited``), or is extrapolated from the latest tick when that tick is late
-(``ping_stamp_extrapolated``); later stamps, or stamps before the history, use the newest or
-oldest pose (``ping_stamp_future``, ``ping_stamp_old``). Echoes are computed off the tick loop by
+(``ping_stamp_extrapolated``); stamps more than ``pose_history_s`` after the latest tick, or
+before the history, use the newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``).
+Echoes are computed off the tick loop by
 :class:`hil_bridge.server.echo_service.EchoService`: on a thread (default), or ``echo_worker:
 pool``,
 ``echo_workers`` processes (default one per core) sharing the forest's tiles in shared memory at
@@ -166,9 +167,10 @@ class SimServer:
     ``state_rate_hz`` override the scene's. ``stop_after_s``: stop ticking at that sim time
     (the node keeps answering pings). ``forest_points``: at most this many leaf centres around
     the sonars' routes are published once (latched) on ``/forest/points`` for viewers and plots
-    (0: none). ``pose_history_s``: how far back a ping's emission stamp may reach;
-    ``pose_wait_ticks``: how far ahead of the newest tick (tick periods) it may be and wait for
-    the tick that covers it (module docstring, "Echoes").
+    (0: none). ``pose_history_s``: how far back (or ahead of the newest tick) a ping's emission
+    stamp may reach; ``pose_wait_ticks``: how long (tick periods of sim time) a ping stamped
+    after the newest tick waits for the tick that covers it (0: extrapolated at once; module
+    docstring, "Echoes").
     ``echo_worker``, ``echo_workers``, ``echo_deadlines``: see the module docstring.
     """
 
@@ -315,6 +317,7 @@ class SimServer:
         out["built"] = sorted(self.scene.built)
         out["ping_echo_ms"] = percentiles(sonars["ping_echo_ms"])
         out["ping_wait_ms"] = percentiles(sonars["ping_wait_ms"])
+        out["ping_extrapolated_ms"] = percentiles(sonars["ping_extrapolated_ms"])
         out["echo_compute_ms"] = percentiles(sonars["echo_compute_ms"])
         out["cmd_effect_ticks"] = percentiles(effect)
         if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
@@ -468,7 +471,8 @@ class SimServer:
         counters: dict[str, int | float] = {
             k: v for k, v in stats.items() if isinstance(v, int | float) and not isinstance(v, bool)
         }
-        for key in ("ping_echo_ms", "ping_wait_ms", "echo_compute_ms", "cmd_effect_ticks"):
+        for key in ("ping_echo_ms", "ping_wait_ms", "ping_extrapolated_ms", "echo_compute_ms",
+                    "cmd_effect_ticks"):
             for p in ("p50", "p99"):
                 val = stats[key][p]
                 if math.isfinite(val):

@@ -79,13 +79,13 @@ class ServerSonars:
         }
         self._lock = threading.Lock()
         self._c = dict.fromkeys(("pings_received", "echoes_published"), 0)
-        wait_ns = round(params.pose_wait_ticks * fleet.tick_ns)
-        self.emission = EmissionPoses(
-            fleet, wait_ns=wait_ns, on_pose=self._answer,
-            # realtime: that much sim time on the wall clock; else a lockstep step's patience
-            wait_s=(wait_ns / 1e9 / clock.rate if clock.mode == "realtime"
-                    else clock.lockstep_timeout_s),
-        )
+        wait_s = 0.0  # pose_wait_ticks 0: extrapolated at once
+        if params.pose_wait_ticks > 0 and clock.mode == "realtime":
+            wait_s = params.pose_wait_ticks * fleet.tick_ns / 1e9 / clock.rate
+        elif params.pose_wait_ticks > 0:  # ticks not on the wall clock: a step's patience
+            wait_s = clock.lockstep_timeout_s
+        self.emission = EmissionPoses(fleet, horizon_ns=round(params.pose_history_s * 1e9),
+                                      wait_s=wait_s, on_pose=self._answer)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._last_error = ""
         self._pubs: dict[str, Any] = {}
@@ -145,7 +145,8 @@ class ServerSonars:
         """Ping and echo counters, the emission poses' counters
         (:data:`hil_bridge.server.emission.EMISSION_COUNTERS`, ``pings_waiting_tick``),
         ``last_echo_error``, the echo service's counters (named as in :data:`ECHO_COUNTERS`)
-        and the raw ``ping_echo_ms`` / ``ping_wait_ms`` / ``echo_compute_ms`` lists."""
+        and the raw ``ping_echo_ms`` / ``ping_wait_ms`` / ``ping_extrapolated_ms`` /
+        ``echo_compute_ms`` lists."""
         echo = self.service.stats() if self.service is not None else {}
         with self._lock:
             out: dict[str, Any] = dict(self._c)

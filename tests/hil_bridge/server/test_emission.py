@@ -78,7 +78,7 @@ class _Sink:
 def test_a_ping_between_two_ticks_gets_the_pose_at_its_stamp() -> None:
     scene, fleet = _fleet(20)
     sink = _Sink()
-    poses = EmissionPoses(fleet, wait_ns=2 * TICK_NS, wait_s=60.0, on_pose=sink)
+    poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=60.0, on_pose=sink)
     for k, frac in enumerate((0.1, 0.5, 0.93)):
         for vid in (1, 2):
             stamp = (10 + k) * TICK_NS + round(frac * TICK_NS)
@@ -99,7 +99,7 @@ def test_a_ping_stamped_after_the_newest_tick_gets_the_pose_at_its_stamp_once_co
     scene, fleet = _fleet(20)
     newest = fleet.recorded_ns
     sink = _Sink()
-    poses = EmissionPoses(fleet, wait_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
+    poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
     poses.start()
     try:
         stamp = newest + round(0.6 * TICK_NS)
@@ -123,7 +123,7 @@ def test_a_held_ping_whose_tick_does_not_come_is_extrapolated_and_every_ping_is_
     scene, fleet = _fleet(20)
     newest = fleet.recorded_ns
     sink = _Sink()
-    poses = EmissionPoses(fleet, wait_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
+    poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
     poses.start()
     try:
         stamps = [newest + round(f * TICK_NS) for f in (0.3, 1.0, 1.9)]
@@ -154,22 +154,26 @@ def test_a_held_ping_whose_tick_does_not_come_is_extrapolated_and_every_ping_is_
     assert st["pings_waiting_tick"] == 0
 
 
-def test_without_waiting_a_ping_after_the_newest_tick_gets_its_pose() -> None:
-    _, fleet = _fleet(5)
+def test_without_waiting_a_ping_after_the_newest_tick_is_extrapolated_at_once() -> None:
+    scene, fleet = _fleet(20)
     sink = _Sink()
-    poses = EmissionPoses(fleet, wait_ns=0, wait_s=0.0, on_pose=sink)
+    poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=0.0, on_pose=sink)
     poses.start()
-    poses.request(2, fleet.recorded_ns + 1, "p", time.monotonic())
+    stamp = fleet.recorded_ns + TICK_NS // 2
+    poses.request(2, stamp, "p", time.monotonic())
     (_, pose) = sink.got.get_nowait()
     poses.close()
-    assert (pose.source, pose.t_ns) == ("newest", fleet.recorded_ns)
-    assert poses.stats()["ping_stamp_future"] == 1
+    assert (pose.source, pose.t_ns, pose.ahead_ns) == ("extrapolated", stamp, TICK_NS // 2)
+    dp, da = _error(scene, 2, pose, stamp)
+    assert dp < EXTRAP_M and da < ANGLE_DEG
+    st = poses.stats()
+    assert (st["ping_stamp_extrapolated"], st["ping_extrapolated_ms"]) == (1, [10.0])
 
 
 def _accounted(st: dict[str, Any]) -> int:
     """Pings the server is done with."""
     return int(st["echoes_published"] + st["pings_dropped"] + st["pings_dropped_deadline"]
-               + st["echo_errors"] + st["pings_ignored"])
+               + st["echo_errors"] + st["ping_pose_errors"] + st["pings_ignored"])
 
 
 class _WallClockHead:
