@@ -289,7 +289,7 @@ class Fleet:
     # -- pose history ------------------------------------------------------------------------
     def add_listener(self, callback: Callable[[int], None]) -> None:
         """Call ``callback(t_ns)`` after every tick recorded in the history, on the thread
-        stepping the fleet: it must not block."""
+        stepping the fleet: it must not block. Add listeners before the fleet is stepped."""
         self._listeners.append(callback)
 
     @property
