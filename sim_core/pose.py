@@ -36,16 +36,19 @@ __all__ = [
     "euler_from_quat",
     "flu_from_frd",
     "pose_compose",
+    "pose_extrapolate",
     "pose_interpolate",
     "quat_between",
     "quat_conjugate",
     "quat_enu_flu_from_ned_frd",
     "quat_from_euler",
+    "quat_from_rotation_vector",
     "quat_multiply",
     "quat_normalize",
     "quat_rotate",
     "quat_slerp",
     "quat_to_matrix",
+    "velocity_interpolate",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -242,6 +245,50 @@ def pose_interpolate(
     h11 = ((s3 - s2) * h)[..., None]
     p = h00 * _f(p0) + h10 * _f(v0) + h01 * _f(p1) + h11 * _f(v1)
     return p, quat_slerp(q0, q1, s)
+
+
+def velocity_interpolate(
+    t0: ArrayLike, t1: ArrayLike, p0: ArrayLike, p1: ArrayLike, v0: ArrayLike, v1: ArrayLike,
+    t: ArrayLike,
+) -> FloatArray:
+    """Velocity ``(..., 3)`` m/s at time ``t`` of the position :func:`pose_interpolate` gives
+    (the time derivative of the same cubic Hermite: ``v0`` at ``t0``, ``v1`` at ``t1``); ``t``
+    outside ``[t0, t1]`` is clamped."""
+    a, b = _f(t0), _f(t1)
+    h = b - a
+    s = np.clip((_f(t) - a) / h, 0.0, 1.0)
+    s2 = s * s
+    d00 = ((6.0 * s2 - 6.0 * s) / h)[..., None]
+    d10 = (3.0 * s2 - 4.0 * s + 1.0)[..., None]
+    d11 = (3.0 * s2 - 2.0 * s)[..., None]
+    return np.asarray(d00 * (_f(p0) - _f(p1)) + d10 * _f(v0) + d11 * _f(v1), dtype=np.float64)
+
+
+def quat_from_rotation_vector(v: ArrayLike) -> FloatArray:
+    """Unit quaternions ``(..., 4)`` of rotation vectors ``v (..., 3)`` (axis times angle,
+    rad): the inverse of the rotation vector :func:`body_rates_from_quats` takes."""
+    va = _f(v)
+    angle = np.linalg.norm(va, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    # sin(half) / angle -> 1/2 as angle -> 0, without dividing by zero
+    scale = np.where(angle > 1e-12, np.sin(half) / np.where(angle > 1e-12, angle, 1.0), 0.5)
+    return np.concatenate([np.cos(half), scale * va], axis=-1)
+
+
+def pose_extrapolate(
+    t1: ArrayLike, p1: ArrayLike, v1: ArrayLike, a1: ArrayLike, q1: ArrayLike,
+    rates: ArrayLike, t: ArrayLike,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Pose and velocity at time ``t`` (s) of a body last known at ``t1``: position
+    ``p1 + v1 τ + a1 τ²/2`` and velocity ``v1 + a1 τ`` (``τ = t − t1``; ``p1, v1, a1 (..., 3)``
+    m, m/s, m/s², world axes), attitude ``q1 ⊗ exp(rates τ)`` (``q1 (..., 4)`` world-from-body
+    turning at constant body ``rates (..., 3)`` rad/s: exact for a steady coordinated turn).
+    Returns ``(position (..., 3), orientation (..., 4), velocity (..., 3))``."""
+    tau = (_f(t) - _f(t1))[..., None]
+    a = _f(a1)
+    p = _f(p1) + _f(v1) * tau + 0.5 * a * tau * tau
+    q = quat_multiply(q1, quat_from_rotation_vector(_f(rates) * tau))
+    return p, q / np.linalg.norm(q, axis=-1, keepdims=True), _f(v1) + a * tau
 
 
 def enu_from_ned(v: ArrayLike) -> FloatArray:

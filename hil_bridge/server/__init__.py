@@ -2,7 +2,9 @@
 
 ``sim_server`` (:class:`SimServer`: topics, commands, the tick loop, publishing), ``fleet``
 (vehicles' flight and pose history), ``sonars`` (pings in at the pose of emission, echoes out),
-``echo_service`` and ``echo_pool`` (echo workers: thread, process or a deadline-aware pool),
+``emission`` (that pose, a ping stamped after the newest tick waiting for the tick covering it),
+``echo_compute`` (one echo: request, job, result and their computation), ``echo_service`` and
+``echo_pool`` (the scheduler and its workers: thread, process or a deadline-aware pool),
 ``shared_tiles`` (forest tiles in shared memory for the workers) and ``lockstep`` (the gate
 that holds the clock for hardware in lockstep).
 

@@ -42,7 +42,7 @@ from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
-from hil_bridge.server.echo_service import (
+from hil_bridge.server.echo_compute import (
     DeadlinePlanner,
     EchoJob,
     EchoRequest,

@@ -15,9 +15,10 @@
 server passes those held when the tick starts, so a command received before tick k is flown
 in the state of tick k). :meth:`Fleet.states` gives the state and attitude of every vehicle
 and records the poses of the vehicles listed in ``history_ids`` (those carrying a sonar) in a
-short history that :meth:`Fleet.pose_at` interpolates, for pings emitted between ticks.
-Only :meth:`pose_at` and :meth:`latest` may be called from another thread than the one stepping
-the fleet.
+short history that :meth:`Fleet.pose_at` interpolates, for pings emitted between ticks (and
+extrapolates a little past the newest tick, when asked). Listeners (:meth:`Fleet.add_listener`)
+are told of every recorded tick. Only :meth:`pose_at`, :meth:`latest` and :attr:`recorded_ns`
+may be called from another thread than the one stepping the fleet.
 """
 
 from __future__ import annotations
@@ -26,9 +27,9 @@ import bisect
 import math
 import threading
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,10 +47,10 @@ from sim_core.flight import (
     path_state,
     path_states,
 )
-from sim_core.pose import pose_interpolate
+from sim_core.pose import pose_extrapolate, pose_interpolate, velocity_interpolate
 from sim_core.scene import Scene
 
-__all__ = ["Fleet", "FleetStates", "VehiclePose"]
+__all__ = ["Fleet", "FleetStates", "PoseSource", "VehiclePose"]
 
 F8 = NDArray[np.float64]
 B8 = NDArray[np.bool_]
@@ -80,16 +81,25 @@ class FleetStates:
     step: NDArray[np.int64]
 
 
+#: where a :class:`VehiclePose` comes from: between two recorded ticks (or on one),
+#: extrapolated past the newest, or the newest (oldest) state for a time after (before) those
+PoseSource = Literal["history", "extrapolated", "newest", "oldest"]
+
+
 @dataclass(frozen=True, slots=True)
 class VehiclePose:
-    """A vehicle's pose at ``t_ns``: ``position`` (3,) m, ``orientation`` (4,) world-from-body.
-    ``clamped``: 0 inside the history, +1 asked after its newest state (the newest is given),
-    −1 before its oldest (the oldest is given)."""
+    """A vehicle's pose at ``t_ns``: ``position`` (3,) m, ``orientation`` (4,) world-from-body,
+    ``velocity`` (3,) m/s world, body ``rates`` (3,) rad/s; ``source`` says how it was found
+    (:data:`PoseSource`; for ``newest``/``oldest``, ``t_ns`` is that state's); ``ahead_ns``:
+    how far past the newest state an extrapolated pose lies."""
 
     t_ns: int
     position: F8
     orientation: F8
-    clamped: int
+    velocity: F8
+    rates: F8
+    source: PoseSource
+    ahead_ns: int = 0
 
 
 class Fleet:
@@ -148,10 +158,13 @@ class Fleet:
         self._external: Any = None
         self.ids: tuple[int, ...] = (*self.glider_ids, *self.vehicle_ids)
         keep = max(2, math.ceil(history_s * 1e9 / tick_ns) + 1)
-        self._history: dict[int, deque[tuple[int, F8, F8, F8]]] = {
+        #: per id: (t_ns, position, velocity, quat, rates) of each recorded tick
+        self._history: dict[int, deque[tuple[int, F8, F8, F8, F8]]] = {
             int(i): deque(maxlen=keep) for i in history_ids
         }
         self._hlock = threading.Lock()
+        self._recorded_ns = -1
+        self._listeners: list[Callable[[int], None]] = []
 
     # -- stepping ----------------------------------------------------------------------------
     @property
@@ -274,6 +287,17 @@ class Fleet:
         }
 
     # -- pose history ------------------------------------------------------------------------
+    def add_listener(self, callback: Callable[[int], None]) -> None:
+        """Call ``callback(t_ns)`` after every tick recorded in the history, on the thread
+        stepping the fleet: it must not block. Add listeners before the fleet is stepped."""
+        self._listeners.append(callback)
+
+    @property
+    def recorded_ns(self) -> int:
+        """The tick of the newest recorded poses (sim ns; -1 before the first)."""
+        with self._hlock:
+            return self._recorded_ns
+
     def _record(self, st: FleetStates) -> None:
         if not self._history:
             return
@@ -284,7 +308,10 @@ class Fleet:
                 if hist and hist[-1][0] == st.t_ns:
                     hist.pop()  # the same tick again: the newer computation replaces it
                 hist.append((st.t_ns, st.position[k].copy(), st.velocity[k].copy(),
-                             st.quat[k].copy()))
+                             st.quat[k].copy(), st.rates[k].copy()))
+            self._recorded_ns = max(self._recorded_ns, st.t_ns)
+        for listener in self._listeners:
+            listener(st.t_ns)
 
     def latest(self, vid: int) -> tuple[int, F8, F8] | None:
         """Vehicle ``vid``'s newest recorded ``(t_ns, position (3,), velocity (3,))`` (one of
@@ -293,28 +320,42 @@ class Fleet:
             hist = self._history[vid]
             if not hist:
                 return None
-            t, p, v, _ = hist[-1]
+            t, p, v, _, _ = hist[-1]
         return t, p, v
 
-    def pose_at(self, vid: int, t_ns: int) -> VehiclePose:
+    def pose_at(self, vid: int, t_ns: int, *, extrapolate_ns: int = 0) -> VehiclePose:
         """Vehicle ``vid``'s pose at ``t_ns`` (one of ``history_ids``): interpolated between
-        the two recorded states around it (Hermite position, slerp attitude), or the newest
-        (oldest) one when ``t_ns`` is after (before) the history."""
+        the two recorded states around it (Hermite position and velocity, slerp attitude,
+        linear body rates); up to ``extrapolate_ns`` after the newest state, extrapolated from
+        it (its velocity, its acceleration since the state before, its body rates:
+        :func:`sim_core.pose.pose_extrapolate`); else the newest (oldest) state when ``t_ns``
+        is after (before) the history."""
         with self._hlock:
             hist = list(self._history[vid])
         if not hist:
             raise ValueError(f"no pose of vehicle {vid} recorded yet")
         times = [h[0] for h in hist]
+        if t_ns > times[-1] and t_ns - times[-1] <= extrapolate_ns:
+            t1, p1, v1, q1, w1 = hist[-1]
+            accel = np.zeros(3)
+            if len(hist) > 1:
+                t0, _, v0, _, _ = hist[-2]
+                accel = (v1 - v0) / ((t1 - t0) / 1e9)
+            p, q, v = pose_extrapolate(t1 / 1e9, p1, v1, accel, q1, w1, t_ns / 1e9)
+            return VehiclePose(t_ns, p, q, v, w1, "extrapolated", t_ns - t1)
         if t_ns >= times[-1]:
-            t, p, _, q = hist[-1]
-            return VehiclePose(t, p, q, int(t_ns > times[-1]))
+            t, p, v, q, w = hist[-1]
+            return VehiclePose(t, p, q, v, w, "history" if t_ns == t else "newest")
         if t_ns < times[0]:
-            t, p, _, q = hist[0]
-            return VehiclePose(t, p, q, -1)
+            t, p, v, q, w = hist[0]
+            return VehiclePose(t, p, q, v, w, "oldest")
         k = bisect.bisect_right(times, t_ns) - 1
-        (t0, p0, v0, q0), (t1, p1, v1, q1) = hist[k], hist[k + 1]
-        p, q = pose_interpolate(t0 / 1e9, t1 / 1e9, p0, p1, v0, v1, q0, q1, t_ns / 1e9)
-        return VehiclePose(t_ns, p, q, 0)
+        (t0, p0, v0, q0, w0), (t1, p1, v1, q1, w1) = hist[k], hist[k + 1]
+        a, b, at = t0 / 1e9, t1 / 1e9, t_ns / 1e9
+        p, q = pose_interpolate(a, b, p0, p1, v0, v1, q0, q1, at)
+        v = velocity_interpolate(a, b, p0, p1, v0, v1, at)
+        s = (t_ns - t0) / (t1 - t0)
+        return VehiclePose(t_ns, p, q, v, (1.0 - s) * w0 + s * w1, "history")
 
 
 def _row(out: FlightOutputs, run: int) -> FlightOutputs:

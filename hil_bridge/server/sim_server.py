@@ -33,13 +33,16 @@ until the next good one. Commands for path vehicles are counted in ``cmd_ignored
 when it arrived, plus one (1: in effect at the next tick; 2: it arrived while that tick was
 being computed).
 
-**Echoes** (:mod:`hil_bridge.server.sonars`, :mod:`hil_bridge.server.echo_service`). A ping is
-answered
-at its sonar's world pose at the ping's *emission*: the ping's ``stamp_ns`` when the sender
-gives one (> 0), else its arrival (the latest tick), the vehicle's pose interpolated between
-ticks from a ``pose_history_s`` history, composed with the sonar's mount. Stamps after the
-latest tick or before the history use its newest or oldest pose (``ping_stamp_future``,
-``ping_stamp_old``). Echoes are computed off the tick loop by
+**Echoes** (:mod:`hil_bridge.server.sonars`, :mod:`hil_bridge.server.emission`,
+:mod:`hil_bridge.server.echo_service`). A ping is answered at its sonar's world pose at the
+ping's *emission*: the ping's ``stamp_ns`` when the sender gives one (> 0), else its arrival
+(the latest tick), the vehicle's pose interpolated between ticks from a ``pose_history_s``
+history, composed with the sonar's mount. A stamp after the latest tick waits (off the tick
+loop, at most ``pose_wait_ticks`` tick periods) for the tick that covers it
+(``ping_stamp_waited``), or is extrapolated from the latest tick when that tick is late
+(``ping_stamp_extrapolated``); stamps more than ``pose_history_s`` after the latest tick, or
+before the history, use the newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``).
+Echoes are computed off the tick loop by
 :class:`hil_bridge.server.echo_service.EchoService`: on a thread (default), or ``echo_worker:
 pool``,
 ``echo_workers`` processes (default one per core) sharing the forest's tiles in shared memory at
@@ -120,6 +123,7 @@ class ServerParams:
     echo_workers: int | None = None
     echo_deadlines: bool = True
     pose_history_s: float = 2.0
+    pose_wait_ticks: float = 2.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.scene, str | Mapping | Path):
@@ -136,6 +140,9 @@ class ServerParams:
             raise ValueError(f"state_rate_hz: expected 0 < rate <= 2000, got {self.state_rate_hz}")
         if not self.pose_history_s > 0:
             raise ValueError(f"pose_history_s: expected > 0, got {self.pose_history_s}")
+        if not 0 <= self.pose_wait_ticks <= 100:
+            raise ValueError(f"pose_wait_ticks: expected 0 <= ticks <= 100, got "
+                             f"{self.pose_wait_ticks}")
         if self.echo_workers is not None and self.echo_workers < 1:
             raise ValueError(f"echo_workers: expected >= 1 or null (one per core), got "
                              f"{self.echo_workers}")
@@ -156,12 +163,15 @@ class SimServer:
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
     publish_thermals=True, forest_points=20000, echo_worker="thread", echo_workers=None,
-    echo_deadlines=True, pose_history_s=2.0)``.
+    echo_deadlines=True, pose_history_s=2.0, pose_wait_ticks=2.0)``.
     ``scene`` is a scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and
     ``state_rate_hz`` override the scene's. ``stop_after_s``: stop ticking at that sim time
     (the node keeps answering pings). ``forest_points``: at most this many leaf centres around
     the sonars' routes are published once (latched) on ``/forest/points`` for viewers and plots
-    (0: none). ``pose_history_s``: how far back a ping's emission stamp may reach.
+    (0: none). ``pose_history_s``: how far back (or ahead of the newest tick) a ping's emission
+    stamp may reach; ``pose_wait_ticks``: how long (tick periods of sim time) a ping stamped
+    after the newest tick waits for the tick that covers it (0: extrapolated at once; module
+    docstring, "Echoes").
     ``echo_worker``, ``echo_workers``, ``echo_deadlines``: see the module docstring.
     """
 
@@ -307,6 +317,8 @@ class SimServer:
         out["clock_mode"] = self.clock_spec.mode
         out["built"] = sorted(self.scene.built)
         out["ping_echo_ms"] = percentiles(sonars["ping_echo_ms"])
+        out["ping_wait_ms"] = percentiles(sonars["ping_wait_ms"])
+        out["ping_extrapolated_ms"] = percentiles(sonars["ping_extrapolated_ms"])
         out["echo_compute_ms"] = percentiles(sonars["echo_compute_ms"])
         out["cmd_effect_ticks"] = percentiles(effect)
         if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
@@ -460,7 +472,8 @@ class SimServer:
         counters: dict[str, int | float] = {
             k: v for k, v in stats.items() if isinstance(v, int | float) and not isinstance(v, bool)
         }
-        for key in ("ping_echo_ms", "echo_compute_ms", "cmd_effect_ticks"):
+        for key in ("ping_echo_ms", "ping_wait_ms", "ping_extrapolated_ms", "echo_compute_ms",
+                    "cmd_effect_ticks"):
             for p in ("p50", "p99"):
                 val = stats[key][p]
                 if math.isfinite(val):
@@ -482,6 +495,7 @@ class SimServer:
             with self._lock:
                 self._tick_error = f"{type(exc).__name__}: {exc}"
         finally:
+            self._sonars.ticks_ended()
             self._done.set()
 
     def _run_ticks(self) -> None:

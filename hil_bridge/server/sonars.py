@@ -2,8 +2,10 @@
 "Echoes").
 
 :class:`ServerSonars` subscribes to every ``/sonar/<id>/ping``, answers each at its sonar's
-world pose at the ping's emission (the carrying vehicle's pose from the fleet's history,
-composed with the sonar's mount) through :class:`hil_bridge.server.echo_service.EchoService`, and
+world pose and velocity at the ping's emission (the carrying vehicle's, from the fleet's
+history, found by :class:`hil_bridge.server.emission.EmissionPoses`: a ping stamped just after
+the newest tick waits for the tick that covers it; composed with the sonar's mount) through
+:class:`hil_bridge.server.echo_service.EchoService`, and
 publishes ``/sonar/<id>/echo`` (frame ``glider/<mount id>``) and the latched
 ``/forest/points``. It tells the echo service where the sonars are going (:meth:`lookahead`)
 so the tiles they will reach are built ahead, and which regions ``/forest/points`` covers
@@ -21,10 +23,12 @@ from typing import Any
 import numpy as np
 
 from hil_bridge.bus.messages import PointCloud, SonarEcho, SonarPing
-from hil_bridge.server.echo_service import EchoRequest, EchoResult, EchoService, Region, SonarPose
-from hil_bridge.server.fleet import Fleet, FleetStates
+from hil_bridge.server.echo_compute import EchoRequest, EchoResult, Region, SonarPose
+from hil_bridge.server.echo_service import EchoService
+from hil_bridge.server.emission import EmissionPoses
+from hil_bridge.server.fleet import Fleet, FleetStates, VehiclePose
 from hil_bridge.server.lockstep import LockstepGate
-from sim_core.pose import pose_compose, quat_from_euler
+from sim_core.pose import pose_compose, quat_from_euler, quat_rotate
 from sim_core.scene import ClockSpec, Scene
 
 __all__ = ["ECHO_COUNTERS", "ECHO_READY_TIMEOUT_S", "LOOKAHEAD_HORIZON_S", "LOOKAHEAD_STEPS",
@@ -74,8 +78,14 @@ class ServerSonars:
             for s in scene.spec.sonars
         }
         self._lock = threading.Lock()
-        self._c = dict.fromkeys(
-            ("pings_received", "ping_stamp_future", "ping_stamp_old", "echoes_published"), 0)
+        self._c = dict.fromkeys(("pings_received", "echoes_published"), 0)
+        wait_s = 0.0  # pose_wait_ticks 0: extrapolated at once
+        if params.pose_wait_ticks > 0 and clock.mode == "realtime":
+            wait_s = params.pose_wait_ticks * fleet.tick_ns / 1e9 / clock.rate
+        elif params.pose_wait_ticks > 0:  # ticks not on the wall clock: a step's patience
+            wait_s = clock.lockstep_timeout_s
+        self.emission = EmissionPoses(fleet, horizon_ns=round(params.pose_history_s * 1e9),
+                                      wait_s=wait_s, on_pose=self._answer)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._last_error = ""
         self._pubs: dict[str, Any] = {}
@@ -116,23 +126,33 @@ class ServerSonars:
         workers are up and the first tiles built: the server ticks after this."""
         if self.service is None:
             return
+        self.emission.start()
         self.service.start()
         if not self.service.wait_ready(ECHO_READY_TIMEOUT_S):
             log.warning("%s: echo workers not ready after %.0f s; ticking anyway", self.name,
                         ECHO_READY_TIMEOUT_S)
 
+    def ticks_ended(self) -> None:
+        """The server stopped ticking: no ping waits for a tick any more."""
+        self.emission.ticks_ended()
+
     def close(self) -> None:
+        self.emission.close()
         if self.service is not None:
             self.service.close()
 
     def stats(self) -> dict[str, Any]:
-        """Ping and echo counters, ``last_echo_error``, the echo service's counters (named as
-        in :data:`ECHO_COUNTERS`) and the raw ``ping_echo_ms`` / ``echo_compute_ms`` lists."""
+        """Ping and echo counters, the emission poses' counters
+        (:data:`hil_bridge.server.emission.EMISSION_COUNTERS`, ``pings_waiting_tick``),
+        ``last_echo_error``, the echo service's counters (named as in :data:`ECHO_COUNTERS`)
+        and the raw ``ping_echo_ms`` / ``ping_wait_ms`` / ``ping_extrapolated_ms`` /
+        ``echo_compute_ms`` lists."""
         echo = self.service.stats() if self.service is not None else {}
         with self._lock:
             out: dict[str, Any] = dict(self._c)
             out["last_echo_error"] = self._last_error
             out["ping_echo_ms"] = list(self._ping_echo_ms)
+        out.update(self.emission.stats())
         for key, name in ECHO_COUNTERS.items():
             out[name] = int(echo.get(key, 0))
         out["echo_compute_ms"] = echo.get("compute_ms", [])
@@ -147,29 +167,34 @@ class ServerSonars:
         return on_ping
 
     def _on_ping(self, sonar_id: int, msg: SonarPing) -> None:
-        """Queue the ping with its sonar's pose at emission (bus thread)."""
+        """Ask for the ping's pose at emission (bus thread); :meth:`_answer` queues it."""
         t_recv = time.monotonic()
-        mount, offset, rotation = self._mounts[sonar_id]
         with self._lock:
             self._c["pings_received"] += 1
         now = self._now_ns()
         if not self._gate.on_ping(sonar_id, int(msg.stamp_ns), int(msg.next_ns)):
             return
-        emit = int(msg.stamp_ns) if msg.stamp_ns > 0 else now
-        pose = self.fleet.pose_at(mount, emit)
-        if pose.clamped:
-            with self._lock:
-                self._c["ping_stamp_future" if pose.clamped > 0 else "ping_stamp_old"] += 1
-        position, orientation = pose_compose(pose.position, pose.orientation, offset, rotation)
-        if self.service is not None:
-            deadline = None
-            if msg.next_ns > msg.stamp_ns > 0 and self._clock.mode == "realtime":
-                # a head on sim time says when its next ping is due
-                deadline = t_recv + (msg.next_ns - msg.stamp_ns) / 1e9 / self._clock.rate
-            self.service.submit(EchoRequest(
-                sonar_id, msg, SonarPose(pose.t_ns, position, orientation), t_recv, deadline))
-        else:
+        if self.service is None:
             self._gate.echo_done(sonar_id)
+            return
+        emit = int(msg.stamp_ns) if msg.stamp_ns > 0 else now
+        deadline = None
+        if msg.next_ns > msg.stamp_ns > 0 and self._clock.mode == "realtime":
+            # a head on sim time says when its next ping is due
+            deadline = t_recv + (msg.next_ns - msg.stamp_ns) / 1e9 / self._clock.rate
+        self.emission.request(self._mounts[sonar_id][0], emit, (sonar_id, msg, deadline), t_recv)
+
+    def _answer(self, payload: Any, pose: VehiclePose, received: float) -> None:
+        """Queue a ping at its sonar's world pose and velocity (the vehicle's ``pose`` at
+        emission composed with the mount; the mount's offset adds the turn's lever arm)."""
+        sonar_id, msg, deadline = payload
+        _, offset, rotation = self._mounts[sonar_id]
+        position, orientation = pose_compose(pose.position, pose.orientation, offset, rotation)
+        velocity = pose.velocity + quat_rotate(pose.orientation, np.cross(pose.rates, offset))
+        assert self.service is not None  # only pings for a service are asked for
+        self.service.submit(EchoRequest(
+            sonar_id, msg, SonarPose(pose.t_ns, position, orientation, velocity), received,
+            deadline))
 
     def _publish_echo(self, req: EchoRequest, out: EchoResult) -> None:
         msg = SonarEcho(

@@ -126,6 +126,11 @@ class Scene:
                     f"sonars[{i}].fidelity: expected one of {sorted(FIDELITIES)}, "
                     f"got {s.fidelity!r}"
                 )
+            if self._echo_params[s.id].doppler and s.fidelity != "reference":
+                raise ConfigError(
+                    f"sonars[{i}].echo.doppler: needs fidelity 'reference' (the only one "
+                    f"with Doppler), got {s.fidelity!r}"
+                )
         glider_ids = self.glider_ids
         clash = sorted(set(glider_ids) & {v.id for v in spec.vehicles})
         if clash:

@@ -141,6 +141,9 @@ class SonarSpec:
     Its pose on the vehicle: ``mount_offset_m`` (body axes FLU, m) and ``mount_rpy_rad``
     (body-from-sonar Z-Y-X roll, pitch, yaw, rad); identity by default. A ping's ``az``/``el``
     are in the sonar frame. ``ears`` (sonar frame) make a multi-channel echo, one per ear.
+    ``echo``: :class:`sim_core.sonar.EchoParams` overrides; with ``doppler: true`` (fidelity
+    ``reference`` only) the simulation server gives the model the sonar's velocity at each
+    ping's emission as its ``platform_velocity``.
     """
 
     id: int

@@ -18,16 +18,19 @@ from sim_core.pose import (
     euler_from_quat,
     flu_from_frd,
     pose_compose,
+    pose_extrapolate,
     pose_interpolate,
     quat_between,
     quat_conjugate,
     quat_enu_flu_from_ned_frd,
     quat_from_euler,
+    quat_from_rotation_vector,
     quat_multiply,
     quat_normalize,
     quat_rotate,
     quat_slerp,
     quat_to_matrix,
+    velocity_interpolate,
 )
 
 D = math.radians
@@ -218,3 +221,30 @@ def test_pose_interpolation_is_exact_for_cubic_motion() -> None:
         np.testing.assert_allclose(q, quat_from_euler(0, 0, 0.1 + 0.4 * (t - 0.3)), atol=1e-15)
     p, _ = pose_interpolate(0.3, 0.8, pos(0.3), pos(0.8), vel(0.3), vel(0.8), qa, qb, 2.0)
     np.testing.assert_allclose(p, pos(0.8))  # clamped to the newer state
+    # the velocity of that cubic is its derivative, exactly
+    for t in (0.3, 0.55, 0.8):
+        v = velocity_interpolate(0.3, 0.8, pos(0.3), pos(0.8), vel(0.3), vel(0.8), t)
+        np.testing.assert_allclose(v, vel(t), atol=1e-13)
+
+
+def test_a_rotation_vector_is_the_inverse_of_the_mean_body_rates() -> None:
+    q0 = quat_from_euler(0.3, -0.2, 2.0)
+    for w in ([0.0, 0.0, 0.0], [0.4, -1.2, 0.7], [1e-14, 0.0, 0.0]):
+        q1 = quat_multiply(q0, quat_from_rotation_vector(np.array(w) * 0.5))
+        np.testing.assert_allclose(body_rates_from_quats(q0, q1, 0.5), w, atol=1e-13)
+    np.testing.assert_allclose(quat_from_rotation_vector([0.0, 0.0, 0.5]),
+                               quat_from_euler(0.0, 0.0, 0.5), atol=1e-15)
+
+
+def test_extrapolation_is_exact_for_constant_acceleration_and_a_steady_turn() -> None:
+    p1, v1, a1 = np.array([1.0, 2.0, 3.0]), np.array([4.0, -1.0, 0.5]), np.array([0.2, 1.0, 0.0])
+    # a banked glider turning at a constant yaw rate: constant body rates
+    roll, yaw0, yaw_rate = -0.5, 0.3, 0.8
+    rates = body_rates_from_euler_rates(roll, 0.0, 0.0, 0.0, yaw_rate)
+    for tau in (0.0, 0.013, 0.04):
+        p, q, v = pose_extrapolate(2.0, p1, v1, a1, quat_from_euler(roll, 0.0, yaw0), rates,
+                                   2.0 + tau)
+        np.testing.assert_allclose(p, p1 + v1 * tau + 0.5 * a1 * tau**2, atol=1e-15)
+        np.testing.assert_allclose(v, v1 + a1 * tau, atol=1e-15)
+        np.testing.assert_allclose(q, quat_from_euler(roll, 0.0, yaw0 + yaw_rate * tau),
+                                   atol=1e-15)

@@ -20,14 +20,9 @@ import pytest
 from hil_bridge.bus.domain import Domain, shared_root
 from hil_bridge.bus.messages import SonarPing
 from hil_bridge.files.scene import load_scene
+from hil_bridge.server.echo_compute import EchoRequest, EchoResult, SonarPose, compute_echo
 from hil_bridge.server.echo_pool import WORKER_NAME
-from hil_bridge.server.echo_service import (
-    EchoRequest,
-    EchoResult,
-    EchoService,
-    SonarPose,
-    compute_echo,
-)
+from hil_bridge.server.echo_service import EchoService
 from hil_bridge.server.shared_tiles import SharedTiles, stores_of
 from sim_core.pose import quat_from_euler
 from sim_core.scene import Scene

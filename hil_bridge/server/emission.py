@@ -1,0 +1,183 @@
+"""The pose of a sonar's vehicle at a ping's emission, found off the server's tick loop.
+
+A ping is answered at its vehicle's pose at its emission stamp, from the fleet's pose history
+(:meth:`hil_bridge.server.fleet.Fleet.pose_at`). :class:`EmissionPoses` finds it:
+
+- a stamp the history covers: interpolated between the two ticks around it, at once;
+- a stamp before the history: the oldest pose kept (``ping_stamp_old``);
+- a stamp after the newest tick (by at most ``horizon_ns``, the server's ``pose_history_s``)
+  while the server ticks: the ping is *held* until the fleet has recorded a tick at or after
+  its stamp, then interpolated (``ping_stamp_waited``; the wall time it waited is in
+  ``ping_wait_ms``). A held ping whose covering tick has not come ``wait_s`` wall seconds after
+  its arrival (the server's ``pose_wait_ticks``), or when the server stops ticking, is
+  *extrapolated* from the newest tick (its velocity, its acceleration since the tick before,
+  its body rates: :func:`sim_core.pose.pose_extrapolate`; ``ping_stamp_extrapolated``, the
+  sim time extrapolated in ``ping_extrapolated_ms``); so is such a ping when nothing waits
+  (``wait_s`` 0) or the ticks have ended;
+- a stamp later than that: the newest tick's pose (``ping_stamp_future``): the stamp is not
+  on this server's time.
+
+A held ping whose pose cannot be found (a bug) is logged and counted in ``ping_pose_errors``.
+
+The tick loop never waits for any of it: the fleet tells :meth:`EmissionPoses.on_tick` of each
+recorded tick, which only wakes this module's thread; that thread finds the poses of the pings
+a tick released and hands them on (``on_pose``), in stamp order. Pings found at once are
+handed on from the caller's thread (the bus's).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from hil_bridge.server.fleet import Fleet, VehiclePose
+
+__all__ = ["EMISSION_COUNTERS", "EmissionPoses"]
+
+log = logging.getLogger(__name__)
+
+#: counters of :meth:`EmissionPoses.stats` (besides the gauge ``pings_waiting_tick``)
+EMISSION_COUNTERS = ("ping_stamp_old", "ping_stamp_future", "ping_stamp_waited",
+                     "ping_stamp_extrapolated", "ping_pose_errors")
+
+
+@dataclass(frozen=True, slots=True)
+class _Held:
+    vid: int
+    t_ns: int
+    received: float
+    payload: Any
+
+
+class EmissionPoses:
+    """Poses at the pings' emission (module docstring) of the vehicles of ``fleet``'s history.
+
+    ``horizon_ns``: how far (sim ns) after the newest tick a stamp may be and still be this
+    server's time (waited for, or extrapolated); ``wait_s``: how long (wall s after its
+    arrival) a ping stamped after the newest tick waits for its tick before it is
+    extrapolated (0: never held). ``on_pose(payload, pose, received)`` gets every ping's pose.
+    ``start()`` starts the thread, ``ticks_ended()`` says the server stopped ticking (held
+    pings are extrapolated now, later ones at once), ``close()`` does the same and joins the
+    thread.
+    """
+
+    def __init__(self, fleet: Fleet, *, horizon_ns: int, wait_s: float,
+                 on_pose: Callable[[Any, VehiclePose, float], None]) -> None:
+        if horizon_ns < 0 or not wait_s >= 0:
+            raise ValueError(f"horizon_ns, wait_s: expected >= 0, got {horizon_ns}, {wait_s}")
+        self.fleet = fleet
+        self.horizon_ns = int(horizon_ns)
+        self.wait_s = float(wait_s)
+        self._on_pose = on_pose
+        self._cond = threading.Condition()
+        self._held: list[_Held] = []
+        self._newest = fleet.recorded_ns
+        self._ticking = True
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        self._c = dict.fromkeys(EMISSION_COUNTERS, 0)
+        self._wait_ms: deque[float] = deque(maxlen=10000)
+        self._extrapolated_ms: deque[float] = deque(maxlen=10000)
+        fleet.add_listener(self.on_tick)
+
+    def start(self) -> None:
+        if self._thread is None and self.wait_s > 0:
+            self._thread = threading.Thread(target=self._run, name="emission-poses",
+                                            daemon=True)
+            self._thread.start()
+
+    def on_tick(self, t_ns: int) -> None:
+        """The fleet recorded tick ``t_ns`` (the tick loop's thread: wakes the thread only)."""
+        with self._cond:
+            self._newest = max(self._newest, t_ns)
+            if self._held:
+                self._cond.notify()
+
+    def ticks_ended(self) -> None:
+        with self._cond:
+            self._ticking = False
+            self._cond.notify()
+
+    def close(self) -> None:
+        with self._cond:
+            self._ticking = False
+            self._closed = True
+            self._cond.notify()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+
+    def request(self, vid: int, t_ns: int, payload: Any, received: float) -> None:
+        """Find vehicle ``vid``'s pose at emission ``t_ns`` for ``payload`` (arrived at
+        ``received``, ``time.monotonic()``): at once, or once its tick is recorded."""
+        with self._cond:
+            hold = (self._ticking and self._thread is not None
+                    and self._newest < t_ns <= self._newest + self.horizon_ns)
+            if hold:
+                self._held.append(_Held(vid, t_ns, received, payload))
+                self._cond.notify()
+        if not hold:
+            self._answer(_Held(vid, t_ns, received, payload), held=False)
+
+    def stats(self) -> dict[str, Any]:
+        """The counters of :data:`EMISSION_COUNTERS`, ``pings_waiting_tick`` (held now) and
+        the raw ``ping_wait_ms`` (wall ms each held ping waited) and ``ping_extrapolated_ms``
+        (sim ms each extrapolated pose lies past the newest tick) lists."""
+        with self._cond:
+            out: dict[str, Any] = dict(self._c)
+            out["pings_waiting_tick"] = len(self._held)
+            out["ping_wait_ms"] = list(self._wait_ms)
+            out["ping_extrapolated_ms"] = list(self._extrapolated_ms)
+        return out
+
+    def _answer(self, h: _Held, *, held: bool) -> None:
+        pose = self.fleet.pose_at(h.vid, h.t_ns, extrapolate_ns=self.horizon_ns)
+        counter = {"oldest": "ping_stamp_old", "newest": "ping_stamp_future",
+                   "extrapolated": "ping_stamp_extrapolated",
+                   "history": "ping_stamp_waited" if held else ""}[pose.source]
+        with self._cond:
+            if counter:
+                self._c[counter] += 1
+            if held:
+                self._wait_ms.append((time.monotonic() - h.received) * 1e3)
+            if pose.source == "extrapolated":
+                self._extrapolated_ms.append(pose.ahead_ns / 1e6)
+        self._on_pose(h.payload, pose, h.received)
+
+    def _due(self) -> list[_Held] | None:
+        """Under the lock: the held pings to answer now (stamp order), once there are some;
+        None when closed with nothing held."""
+        while True:
+            now = time.monotonic()
+            due: list[_Held] = []
+            keep: list[_Held] = []
+            for h in self._held:
+                released = (h.t_ns <= self._newest or not self._ticking
+                            or now >= h.received + self.wait_s)
+                (due if released else keep).append(h)
+            if due:
+                self._held = keep
+                return sorted(due, key=lambda h: h.t_ns)
+            if self._closed:
+                return None
+            first = min((h.received for h in self._held), default=None)
+            self._cond.wait(None if first is None else first + self.wait_s - now)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                due = self._due()
+            if due is None:
+                return
+            for h in due:
+                try:
+                    self._answer(h, held=True)
+                except Exception:  # one ping's failure must not strand the others
+                    log.exception("no pose at emission %d ns for vehicle %d", h.t_ns, h.vid)
+                    with self._cond:
+                        self._c["ping_pose_errors"] += 1
