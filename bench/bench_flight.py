@@ -1,5 +1,5 @@
 """Continuous flight model (sim_core.flight): error against dt, and the seed law's metrics
-with the seed's discrete step and with the continuous model (sim_core.soaring.continuous).
+with the seed's discrete step and with the continuous model (sim_core.continuous_swarm).
 
 **Error vs dt.** 20 SB-XC gliders (default :class:`~sim_core.flight.FlightParams`) start level
 at 10 m/s next to a 5 m/s thermal and fly 60 s of commands held for 0.5 s each (the seed
@@ -30,10 +30,10 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from bench._util import table
+from sim_core.continuous_swarm import run_continuous
 from sim_core.flight import FlightModel, FlightParams, X, Y, Z
 from sim_core.rng import make_rng
 from sim_core.soaring import Law, run_batch
-from sim_core.soaring.continuous import run_continuous
 from sim_core.soaring.thermals import spawn_thermals, updraft
 
 TITLE = "Continuous flight: error vs dt, seed law discrete vs continuous"

@@ -3,7 +3,7 @@
 ``--law`` takes a YAML law file or ``default`` (the packaged Law_40SurvivorsExample).
 ``--set KEY=VALUE`` overrides a law parameter (VALUE in YAML syntax); overrides beat the file.
 ``run --physics continuous`` flies the law with the simulation server's continuous flight model
-(``sim_core.soaring.continuous``: the controller every ``dt``, the gliders integrated at
+(``sim_core.continuous_swarm``: the controller every ``dt``, the gliders integrated at
 ``--physics-rate`` Hz in between, ``--flight KEY=VALUE`` for ``sim_core.flight.FlightParams``);
 the default ``discrete`` is the seed's own step.
 """
@@ -119,8 +119,8 @@ def _run(law: Any, args: argparse.Namespace) -> int:
     want_trace = bool(args.trace or args.plot)
     if args.physics == "continuous":
         from sim_core.config import from_dict
+        from sim_core.continuous_swarm import run_continuous
         from sim_core.flight import FlightParams
-        from sim_core.soaring.continuous import run_continuous
 
         flight = from_dict(FlightParams, _overrides(args.flight), path="--flight")
         t0 = time.perf_counter()

@@ -2,7 +2,7 @@
 
 :class:`Fleet` flies everything the server publishes on ``/glider/<id>/state``:
 
-- the swarm's gliders (:class:`sim_core.soaring.continuous.ContinuousSwarm`): the law's
+- the swarm's gliders (:class:`sim_core.continuous_swarm.ContinuousSwarm`): the law's
   controller decides every ``law.dt`` (:meth:`Fleet.decide`, on the ticks :meth:`Fleet.control_due`
   names: ``law.dt`` must be a whole number of ticks), and every glider flies the continuous
   model in between, on the law's held commands or on its autopilot's latest;

@@ -216,12 +216,12 @@ class Scene:
 
     @cached_property
     def swarm(self) -> Any:
-        """The swarm flown in continuous time, a :class:`sim_core.soaring.continuous.
+        """The swarm flown in continuous time, a :class:`sim_core.continuous_swarm.
         ContinuousSwarm` (batch 1: the law's controller every ``law.dt``, the gliders flown
         by :mod:`sim_core.flight` with ``swarm.flight``), or None without a swarm section."""
         if self.spec.swarm is None:
             return None
-        from sim_core.soaring.continuous import ContinuousSwarm
+        from sim_core.continuous_swarm import ContinuousSwarm
 
         self.built.add("swarm")
         sw = self.spec.swarm

@@ -449,7 +449,7 @@ class SwarmSim:
 
     def set_state(self, state: SwarmState) -> None:
         """Take the gliders' position, heading, bank, speed, omega and vz (arrays (B, N)) from
-        a flight flown outside the step (:mod:`sim_core.soaring.continuous` flies the gliders
+        a flight flown outside the step (:mod:`sim_core.continuous_swarm` flies the gliders
         between steps); ``state.alive`` is ignored (deaths are the step's)."""
         k = kernels
         for name, row in (("x", k.ROW_X), ("y", k.ROW_Y), ("z", k.ROW_Z),

@@ -1,4 +1,4 @@
-"""The seed law flown in continuous time (sim_core.soaring.continuous) and `swarm run --physics`:
+"""The seed law flown in continuous time (sim_core.continuous_swarm) and `swarm run --physics`:
 the controller keeps its rate, commands are held between decisions, the seed's rules stay."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from hil_bridge.cli import main
+from sim_core.continuous_swarm import ContinuousSwarm, run_continuous
 from sim_core.flight import BANK, SPEED, FlightParams, Z
 from sim_core.soaring import Commands, Law, run
-from sim_core.soaring.continuous import ContinuousSwarm, run_continuous
 
 
 def _glide_law(**extra: object) -> Law:
