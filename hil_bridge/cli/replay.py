@@ -33,7 +33,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--id", type=int, default=None,
                    help="vehicle of a multi-vehicle log (trace id, glider id, MAVLink system "
                         "id); also the replayed vehicle's id (default 0)")
-    p.add_argument("--topic", default=None, help="pose topic of a ROS 2 bag")
+    p.add_argument("--topic", default=None,
+                   help="pose topic of a ROS 2 bag; position message of a DataFlash log "
+                        "(POS, AHR2, GPS[N]; GPS2 = GPS[1]; default POS, else the first GPS)")
     p.add_argument("--origin", default=None, metavar="LAT,LON,ALT",
                    help="local ENU origin of a geodetic log (deg, deg, m; default: first fix); "
                         "write --origin=-33.9,... for a negative latitude")

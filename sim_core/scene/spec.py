@@ -191,9 +191,10 @@ class PathSpec:
     log read by the scene's :data:`TrajectoryReader`
     (``hil_bridge.recording.logs.load_trajectory``: CSV,
     NPZ, ULog, DataFlash, tlog, ROS 2 bags, echoloop recordings) with its options ``id``
-    (vehicle of a multi-vehicle log), ``topic`` (ROS 2 bags) and ``origin`` ([lat, lon, alt]
-    of the local ENU frame for geodetic logs; default the first fix); ``points`` is a list of
-    [x, y, z] flown at ``speed_mps``. ``speed_mps`` also times the figure-eight route.
+    (vehicle of a multi-vehicle log), ``topic`` (ROS 2 bags; DataFlash: ``POS``, ``GPS[1]``...)
+    and ``origin`` ([lat, lon, alt] of the local ENU frame for geodetic logs; default the first
+    fix); ``points`` is a list of [x, y, z] flown at ``speed_mps``. ``speed_mps`` also times the
+    figure-eight route.
     """
 
     kind: Literal["figure_eight", "file", "points"]

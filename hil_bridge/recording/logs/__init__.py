@@ -9,7 +9,8 @@ Formats, chosen by the file's content first and its extension second (:func:`det
 - ``npz``: the same columns as arrays (a swarm trace: ``t`` (T,), the others (T, N));
 - ``ulog`` (PX4 ``.ulg``, pyulog): ``vehicle_global_position`` or ``vehicle_local_position``,
   and ``vehicle_attitude``;
-- ``dataflash`` (ArduPilot ``.bin``, pymavlink): ``POS``, ``GPS`` or ``AHR2``; ``ATT``/``AHR2``;
+- ``dataflash`` (ArduPilot ``.bin``, pymavlink): ``POS``, ``GPS`` (one receiver: the first,
+  or ``topic`` ``GPS[1]``, ``GPS2``, ...) or ``AHR2``; ``ATT``/``AHR2``;
 - ``tlog`` (MAVLink ``.tlog``, pymavlink): ``GLOBAL_POSITION_INT`` or ``LOCAL_POSITION_NED``;
   ``ATTITUDE_QUATERNION`` or ``ATTITUDE``;
 - ``ros2`` (a ROS 2 bag directory, ``.mcap`` or ``.db3``; rosbags): ``nav_msgs/Odometry``,
@@ -134,8 +135,9 @@ def read_log(
     """Trajectory and :class:`LogReport` of a flight log of any format in :data:`READERS`.
 
     ``vehicle_id``: the vehicle of a multi-vehicle log (a swarm trace, a recording, a tlog
-    with several systems); ``topic``: the pose topic of a ROS 2 bag; ``origin``: (lat deg,
-    lon deg, alt m) of the local ENU frame for geodetic logs (default the first fix);
+    with several systems); ``topic``: the pose topic of a ROS 2 bag, or the position message
+    of a DataFlash log (``POS``, ``AHR2``, ``GPS[N]``; ``GPS2`` = ``GPS[1]``); ``origin``:
+    (lat deg, lon deg, alt m) of the local ENU frame for geodetic logs (default the first fix);
     ``max_gap_s``: longer intervals between poses are reported as gaps. Raises ``ValueError``
     (:class:`NoPoseError` when the file has no usable pose) naming the file. Results are
     cached per file version, so the replay command, the server and an echo worker process

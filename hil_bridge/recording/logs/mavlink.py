@@ -3,17 +3,25 @@
 DataFlash: position from ``POS`` (``Lat``, ``Lng`` deg, ``Alt`` m AMSL), else ``GPS`` (fix
 status >= 3; ``Spd`` horizontal and ``VZ`` m/s down give the speed), else ``AHR2``; attitude
 from ``ATT`` (``Roll``, ``Pitch``, ``Yaw`` deg, NED/FRD Z-Y-X), else ``AHR2``. Times: ``TimeUS``.
+GPS receivers are kept apart, never interleaved into one track: ArduPilot 4.x logs tell them by
+the ``GPS`` instance field ``I`` (``GPS[0]``, ``GPS[1]``, ...), older ones write the second as
+``GPS2`` (= ``GPS[1]``). Without ``topic`` the first receiver with a 3D fix is used (instance 0,
+as the ULog reader takes instance 0 of every topic) and the report lists the others; ``topic``
+names the position message: ``POS``, ``AHR2``, ``GPS``, ``GPS2`` or ``GPS[N]``.
 
 tlog: position from ``GLOBAL_POSITION_INT`` (``lat``, ``lon`` 1e-7 deg, ``alt`` mm AMSL,
 ``vx, vy, vz`` cm/s NED), else ``LOCAL_POSITION_NED`` (m, m/s NED); attitude from
 ``ATTITUDE_QUATERNION`` (``q1..q4`` = w, x, y, z NED/FRD), else ``ATTITUDE`` (rad). Times are
 the vehicle's ``time_boot_ms`` (a reboot shows up as a time jump back). A tlog with several
-vehicles (MAVLink system ids) needs ``vehicle_id`` = the system id.
+vehicles (MAVLink system ids) needs ``vehicle_id`` = the system id. Frames pymavlink cannot
+decode (a bad CRC, broken framing) are dropped and counted in the report.
 """
 
 from __future__ import annotations
 
+import re
 from collections import defaultdict
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,16 +47,58 @@ def _rows(msgs: list[Any], fields: tuple[str, ...]) -> FloatArray:
 
 # --------------------------------------------------------------------------- DataFlash
 
-_DF_TYPES = ["POS", "GPS", "ATT", "AHR2"]
+_DF_TYPES = ["POS", "GPS", "GPS2", "ATT", "AHR2"]
+_DF_SOURCE = re.compile(r"(POS|AHR2|GPS2?)(?:\[(\d{1,3})\])?")
+_DF_SOURCES = "POS, AHR2, GPS (= GPS[0]), GPS2 (= GPS[1]) or GPS[N]"
 
 
-def read_dataflash(
-    path: Path, *, vehicle_id: int | None = None, topic: str | None = None
-) -> PoseLog:
+def _gps_instance(m: Any) -> tuple[int, str]:
+    """Receiver number and log name of a GPS message: the instance field (``I``) of ArduPilot
+    4.x logs (``GPS[0]``, ``GPS[1]``), else 0 for ``GPS`` and 1 for ``GPS2`` (older logs)."""
+    if m.get_type() == "GPS2":
+        return 1, "GPS2"
+    field = m.fmt.instance_field or ("I" if "I" in m.fmt.colhash else None)
+    if field is None:
+        return 0, "GPS"
+    i = int(getattr(m, field))
+    return i, f"GPS[{i}]"
+
+
+@dataclass
+class _DataFlash:
+    """What a DataFlash log holds for poses: messages by type, GPS by receiver."""
+
+    msgs: dict[str, list[Any]] = field(default_factory=lambda: defaultdict(list))
+    #: receiver -> its 3D-fix samples, and its name and sample count (with or without a fix)
+    gps: dict[int, list[Any]] = field(default_factory=lambda: defaultdict(list))
+    gps_name: dict[int, str] = field(default_factory=dict)
+    gps_all: dict[int, int] = field(default_factory=lambda: defaultdict(int))
+
+    def add(self, m: Any) -> None:
+        kind = m.get_type()
+        if kind not in ("GPS", "GPS2"):
+            self.msgs[kind].append(m)
+            return
+        i, name = _gps_instance(m)
+        self.gps_name[i] = name
+        self.gps_all[i] += 1
+        if getattr(m, "Status", 3) >= 3:
+            self.gps[i].append(m)
+
+    def holds(self) -> dict[str, int]:
+        """Position sources and their sample counts (GPS: all samples, fix or not)."""
+        out = {n: len(self.msgs[n]) for n in ("POS", "AHR2") if self.msgs[n]}
+        out.update({self.gps_name[i]: c for i, c in sorted(self.gps_all.items())})
+        return out
+
+
+def read_dataflash(path: Path, *, vehicle_id: int | None = None, topic: str | None = None
+                   ) -> PoseLog:
     """The poses of an ArduPilot DataFlash log (module docstring)."""
     from pymavlink import DFReader
 
-    msgs: dict[str, list[Any]] = defaultdict(list)
+    wanted = None if topic is None else _df_source(path, topic)
+    held = _DataFlash()
     with parser_chatter("pymavlink") as notes:
         try:
             reader = DFReader.DFReader_binary(str(path), zero_time_base=False)
@@ -60,12 +110,11 @@ def read_dataflash(
                 m = reader.recv_match(type=_DF_TYPES)
                 if m is None:
                     break
-                if m.get_type() == "GPS" and getattr(m, "Status", 3) < 3:
-                    continue
-                msgs[m.get_type()].append(m)
+                held.add(m)
         finally:
             reader.filehandle.close()
-    log = _dataflash_position(path, msgs, reader, notes)
+    log = _dataflash_position(path, held, wanted, reader, notes)
+    msgs = held.msgs
     if msgs["ATT"]:
         a = _rows(msgs["ATT"], ("TimeUS", "Roll", "Pitch", "Yaw"))
         log.att_source = "ATT"
@@ -81,24 +130,63 @@ def read_dataflash(
     return log
 
 
+def _df_source(path: Path, topic: str) -> str | int:
+    """``"POS"``/``"AHR2"``, or the GPS receiver number, that ``topic`` names."""
+    m = _DF_SOURCE.fullmatch(topic.strip())
+    if m is None or (m[2] is not None and m[1] != "GPS"):
+        raise ValueError(f"{path}: topic {topic!r}: expected a DataFlash position message, "
+                         f"{_DF_SOURCES}")
+    if m[1] == "GPS2":
+        return 1
+    if m[1] == "GPS":
+        return int(m[2] or 0)
+    return m[1]
+
+
 def _dataflash_position(
-    path: Path, msgs: dict[str, list[Any]], reader: Any, notes: list[str]
+    path: Path, held: _DataFlash, wanted: str | int | None, reader: Any, notes: list[str],
 ) -> PoseLog:
-    for name in ("POS", "GPS", "AHR2"):
-        if msgs[name]:
-            break
+    """The position stream ``wanted`` (:func:`_df_source`; None: POS, else the first GPS
+    receiver with a 3D fix, else AHR2)."""
+    msgs = held.msgs
+    if wanted is None:
+        if msgs["POS"]:
+            wanted = "POS"
+        elif held.gps:
+            # the first receiver, as the ULog reader takes instance 0 of every topic; several
+            # receivers are never interleaved into one track
+            wanted = 0 if 0 in held.gps else min(held.gps)
+        elif msgs["AHR2"]:
+            wanted = "AHR2"
+        else:
+            found = {n: int(c) for i, c in enumerate(getattr(reader, "counts", []))
+                     if c and (n := getattr(reader, "id_to_name", {}).get(i))}
+            said = f" ({'; '.join(notes)})" if notes else ""
+            raise NoPoseError(f"{path}: DataFlash log without a usable pose: no POS, GPS (3D "
+                              f"fix) or AHR2 messages; the log holds {describe(found)}{said}")
+    if isinstance(wanted, int):
+        chosen = held.gps.get(wanted, [])
+        name = held.gps_name.get(wanted, f"GPS[{wanted}]")
+        if not chosen:
+            why = (f"{held.gps_all[wanted]} sample(s), none with a 3D fix"
+                   if held.gps_all.get(wanted) else "no such receiver")
+            raise NoPoseError(f"{path}: {name}: {why}; position sources in the log: "
+                              f"{describe(held.holds())}")
     else:
-        found = {n: int(c) for i, c in enumerate(getattr(reader, "counts", []))
-                 if c and (n := getattr(reader, "id_to_name", {}).get(i))}
-        said = f" ({'; '.join(notes)})" if notes else ""
-        raise NoPoseError(f"{path}: DataFlash log without a usable pose: no POS, GPS (3D fix) "
-                          f"or AHR2 messages; the log holds {describe(found)}{said}")
-    p = _rows(msgs[name], ("TimeUS", "Lat", "Lng", "Alt"))
+        chosen, name = msgs[wanted], wanted
+        if not chosen:
+            raise NoPoseError(f"{path}: no {wanted} messages; position sources in the log: "
+                              f"{describe(held.holds())}")
+    p = _rows(chosen, ("TimeUS", "Lat", "Lng", "Alt"))
     log = PoseLog(format="ArduPilot DataFlash", source=name, t=p[:, 0] * 1e-6,
                   position=p[:, 1:4], frame="geodetic", notes=list(notes))
-    if name == "GPS" and all(hasattr(msgs[name][0], f) for f in ("Spd", "VZ")):
-        s = _rows(msgs[name], ("Spd", "VZ"))
+    if isinstance(wanted, int) and all(hasattr(chosen[0], f) for f in ("Spd", "VZ")):
+        s = _rows(chosen, ("Spd", "VZ"))
         log.speed = np.hypot(s[:, 0], s[:, 1])
+    if len(held.gps_all) > 1:
+        names = ", ".join(held.gps_name[i] for i in sorted(held.gps_all))
+        log.notes.append(f"GPS receivers in the log: {names}; {name} used "
+                         "(--topic chooses the position message)")
     return log
 
 
@@ -165,5 +253,8 @@ def read_tlog(path: Path, *, vehicle_id: int | None = None, topic: str | None = 
         log.att_t, log.att_q = a[:, 0] * 1e-3, _ned_quat_from_euler(a[:, 1], a[:, 2], a[:, 3])
         log.att_source = "ATTITUDE"
     log.vehicle_id = sysid
+    if found["BAD_DATA"]:
+        log.notes.append(f"{found['BAD_DATA']} frame(s) pymavlink could not decode (bad CRC or "
+                         "framing) dropped")
     log.notes.extend(notes)
     return log

@@ -151,6 +151,20 @@ def _flight_log(suffix: str) -> Callable[[Path], bytes]:
     return make
 
 
+def _dataflash_two_gps(d: Path) -> bytes:
+    """A DataFlash log of two GPS receivers (ArduPilot 4.x records, interleaved), as bytes."""
+    from tests.hil_bridge.recording.logs.logmakers import Flight, truth, write_dataflash_gps
+
+    t = np.arange(0.0, 20.0, 0.2)
+    first, late = truth(t), truth(t + 0.1)
+    second = Flight(late.t, late.enu + 30.0, late.roll, late.pitch, late.yaw)
+    path = d / "two_gps.bin"
+    write_dataflash_gps(path, [first, second], truth(t), layout="4x")
+    data = path.read_bytes()
+    path.unlink()
+    return data
+
+
 def _yaml(data: object) -> bytes:
     return yaml.safe_dump(data).encode()
 
@@ -222,6 +236,10 @@ KINDS: dict[str, Kind] = {
     "ulog": Kind(".ulg", _flight_log(".ulg")),
     "dataflash": Kind(".bin", _flight_log(".bin")),
     "tlog": Kind(".tlog", _flight_log(".tlog")),
+    # written by the real tools: an ArduPilot QuadPlane's telemetry log (README there)
+    "tlog-ardupilot": Kind(".tlog", lambda d: (
+        DATA / "flightlogs" / "ardupilot_quadplane_sitl.tlog").read_bytes()),
+    "dataflash-two-gps": Kind(".bin", _dataflash_two_gps),
     "curve-key": Kind(".key_secret", lambda d: (_keys(d) / "server.key_secret").read_bytes(),
                       None, None, _first(b"curve")),
 }
@@ -289,7 +307,12 @@ READERS: tuple[Reader, ...] = (
     *(Reader(f"replay-{kind}", kind, lambda f, d: [
         "replay", str(f), "--fast", "--bus", "mem://corpus_log", "--duration", "0.3",
         "--sonar", "0"], frozenset({"truncated", "flipped-bit"}), reports_on_stdout=True)
-      for kind in ("ulog", "dataflash", "tlog")),
+      for kind in ("ulog", "dataflash", "tlog", "tlog-ardupilot")),
+    # the second GPS receiver of a log with two, chosen by --topic
+    Reader("replay-dataflash-gps1", "dataflash-two-gps", lambda f, d: [
+        "replay", str(f), "--topic", "GPS[1]", "--fast", "--bus", "mem://corpus_log",
+        "--duration", "0.3", "--sonar", "0"], frozenset({"truncated", "flipped-bit"}),
+        reports_on_stdout=True),
     Reader("bag-info", "mcap", lambda f, d: ["bag", "info", str(f)], _MCAP_SURVIVES),
     Reader("bag-play", "mcap", lambda f, d: [
         "bag", "play", str(f), "--bus", "mem://corpus_play", "--rate", "0"], _MCAP_SURVIVES),

@@ -135,6 +135,64 @@ def write_dataflash(path: Path, pos: Flight, att: Flight, *, with_pos: bool = Tr
     path.write_bytes(bytes(out))
 
 
+#: ArduPilot's GPS record: 4.x (instance field ``I``, its unit ``#`` in FMTU) and 3.x (no
+#: instance field; the second receiver is the ``GPS2`` record)
+_GPS_4X = ("QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U",
+           "s#-s-S-DUmnhnh-", "F--C-0BGGB000--")
+_GPS_3X = ("QBIHBcLLefffB", "TimeUS,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,U")
+_DF_STRUCT = {"Q": "Q", "B": "B", "I": "I", "H": "H", "c": "h", "L": "i", "e": "i", "f": "f",
+              "N": "16s"}
+
+
+def _df_struct(fmt: str) -> str:
+    return "<" + "".join(_DF_STRUCT[c] for c in fmt)
+
+
+def write_dataflash_gps(path: Path, receivers: list[Flight], att: Flight, *, layout: str,
+                        no_fix: tuple[int, ...] = ()) -> None:
+    """An ArduPilot DataFlash log of several GPS receivers, their records interleaved in time
+    as the logger writes them, and ATT; no POS. ``layout``: ``"4x"`` (one ``GPS`` record with
+    instance field ``I``, declared by an FMTU record), ``"4x-no-fmtu"`` (the same without
+    FMTU) or ``"3x"`` (``GPS`` and ``GPS2``). The first ``no_fix[r]`` samples of receiver
+    ``r`` have no fix (``Status`` 1)."""
+    gps_fmt, gps_cols = _GPS_3X if layout == "3x" else _GPS_4X[:2]
+    gps_len = 3 + struct.calcsize(_df_struct(gps_fmt))
+    out = bytearray(_df_fmt(0x80, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns", 89))
+    out += _df_fmt(130, "ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw", 3 + 8 + 12)
+    out += _df_fmt(131, "GPS", gps_fmt, gps_cols, gps_len)
+    if layout == "3x":
+        out += _df_fmt(132, "GPS2", gps_fmt, gps_cols, gps_len)
+    if layout == "4x":
+        out += _df_fmt(172, "FMTU", "QBNN", "TimeUS,FmtType,UnitIds,MultIds", 3 + 8 + 1 + 32)
+        out += b"\xa3\x95\xac" + struct.pack("<QB16s16s", 0, 131, _GPS_4X[2].encode(),
+                                               _GPS_4X[3].encode())
+    rows: list[tuple[float, bytes]] = []
+    for r, flight in enumerate(receivers):
+        vel = np.gradient(flight.enu, flight.t, axis=0)
+        for k, t in enumerate(flight.t):
+            lat, lon, alt = flight.geodetic[k]
+            status = 1 if k < (no_fix[r] if r < len(no_fix) else 0) else 3
+            ve, vn, vu = vel[k]
+            course = math.degrees(math.atan2(ve, vn)) % 360.0
+            fix = (status, 0, 2200, 12, 70, round(lat * 1e7), round(lon * 1e7),
+                   round(alt * 100), math.hypot(ve, vn), course, -vu)
+            us = round(t * 1e6) + 1000
+            if layout == "3x":
+                head = b"\xa3\x95" + bytes([131 if r == 0 else 132])
+                body = struct.pack(_df_struct(gps_fmt), us, *fix, 1)
+            else:
+                head = b"\xa3\x95\x83"
+                body = struct.pack(_df_struct(gps_fmt), us, r, *fix, 0.0, 1)
+            rows.append((t, head + body))
+    r_, p_, y_ = (np.degrees(a) for a in att.ned_euler)
+    for k, t in enumerate(att.t):
+        rows.append((t, b"\xa3\x95\x82" + struct.pack("<Qfff", round(t * 1e6) + 1000, r_[k],
+                                                      p_[k], y_[k])))
+    for _, rec in sorted(rows, key=lambda row: row[0]):
+        out += rec
+    path.write_bytes(bytes(out))
+
+
 # --------------------------------------------------------------------------- tlog (pymavlink)
 
 
