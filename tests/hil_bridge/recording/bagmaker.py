@@ -6,6 +6,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
+from mcap.well_known import MessageEncoding
 
 from hil_bridge.bus.codec import Header, encode_payload
 from hil_bridge.bus.messages import (
@@ -18,7 +19,7 @@ from hil_bridge.bus.messages import (
     SonarPing,
     ThermalMarkers,
 )
-from hil_bridge.recording.bag import BagWriter, MessageEncoding
+from hil_bridge.recording.bag_writer import BagWriter
 
 
 def write_bag(path: Path, messages: Iterable[tuple[str, Message, str]]) -> Path:
