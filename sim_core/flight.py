@@ -53,7 +53,7 @@ from sim_core.pose import (
     euler_from_quat,
     quat_from_euler,
 )
-from sim_core.soaring import kernels
+from sim_core.soaring.kernels.glider import sink_many
 
 if TYPE_CHECKING:
     from sim_core.scene import Trajectory
@@ -214,7 +214,7 @@ class FlightModel:
         if abc is None:
             abc = self._polar_flat[shape] = (flat(self.A), flat(self.B), flat(self.C))
         v, b = flat(speed), flat(bank)
-        return np.asarray(kernels.sink_many(v, b, *abc)).reshape(shape)
+        return np.asarray(sink_many(v, b, *abc)).reshape(shape)
 
     def derivative(self, y: F8, u: F8, w: F8 | float = 0.0) -> F8:
         """``dy/dt`` ``(6, *S)`` of states ``y (6, *S)`` under commands ``u (2, *S)`` with the
