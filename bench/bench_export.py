@@ -25,6 +25,8 @@ REPEAT = 3
 
 
 def _write(path: Path, kinds: set[str], seconds: float = 20.0) -> int:
+    from mcap.well_known import MessageEncoding
+
     from hil_bridge.bus.codec import Header, encode_payload
     from hil_bridge.bus.messages import (
         Clock,
@@ -35,7 +37,7 @@ def _write(path: Path, kinds: set[str], seconds: float = 20.0) -> int:
         SonarPing,
         ThermalMarkers,
     )
-    from hil_bridge.recording.bag import BagWriter, MessageEncoding
+    from hil_bridge.recording.bag_writer import BagWriter
 
     rng = np.random.default_rng(0)
     count = 0
@@ -85,7 +87,7 @@ def _cpu(fn: Callable[[], Any]) -> float:
 
 
 def run(out_dir: Path) -> str:
-    from hil_bridge.recording.bag import export_json
+    from hil_bridge.recording.bag_writer import export_json
     from hil_bridge.recording.export import run_exporter
     from hil_bridge.recording.export.common import ExportCounts, decoded
 

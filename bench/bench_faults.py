@@ -6,12 +6,13 @@
    separate process) injecting FLOOD_RATE malformed messages/s on ``/glider/0/state`` for FLOOD_S
    seconds after a WARMUP_S warm-up. Measured: the injected rate; the state latency (server
    ``pub_ns`` → the CAN adapter's state callback) over the adapter's last 10,000 states; the
-   malformed messages the adapter dropped and counted per second; hold/failsafe entries and failsafe
-   commands of the CAN adapter (goal: 0); the sonar head's ping outcomes.
+   malformed messages the adapter dropped and counted per second; hold/failsafe entries and
+   failsafe commands of the CAN adapter (goal: 0); the sonar head's ping outcomes.
 2. **Recovery.** A recorder in a child process records incompressible echoes and states until
-   it is killed with SIGKILL; ``hil_bridge.recording.bag.recover`` turns its unfinished ``.part``
-   file into a finished one. Measured: recover speed (MB/s of input, median of 3) and the kept
-   fraction (messages recovered / messages the recorder had received when it was killed).
+   it is killed with SIGKILL; ``hil_bridge.recording.bag_writer.recover`` turns its unfinished
+   ``.part`` file into a finished one. Measured: recover speed (MB/s of input, median of 3)
+   and the kept fraction (messages recovered / messages the recorder had received when it was
+   killed).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from mcap.reader import make_reader
 from bench._util import median, table
 from hil_bridge.launch.runner import LaunchSpec, load
 from hil_bridge.launch.runner import run as run_launch
-from hil_bridge.recording.bag import recover
+from hil_bridge.recording.bag_writer import recover
 
 TITLE = "Faults: flood isolation, recovering a killed recording"
 

@@ -29,7 +29,9 @@ from types import FrameType
 
 from hil_bridge.cli._args import add_domain_argument, domain_from, seconds
 from hil_bridge.outputs import atomic_output
-from hil_bridge.recording.bag import BagInfo, Player, bag_info, export_json, recover
+from hil_bridge.recording.bag import BagInfo, bag_info
+from hil_bridge.recording.bag_player import Player
+from hil_bridge.recording.bag_writer import export_json, recover
 from hil_bridge.recording.recorder import Recorder
 
 

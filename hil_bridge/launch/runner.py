@@ -461,13 +461,14 @@ def run(
     The run ends ``duration`` seconds after every node started (argument, else the file's;
     ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
     main thread and ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every
-    topic to MCAP with :class:`hil_bridge.recording.bag.Recorder`. ``live`` starts the Foxglove view
-    (:mod:`hil_bridge.tools.live`). ``bus`` replaces the file's bus URL. ``domain`` (default
-    ``ECHOLOOP_DOMAIN``, else 0) gives every default the file leaves out: the bus, pty links,
-    virtual CAN channels, the live-view port. ``on_started(spec)`` is called once every node
-    runs, with ``spec.bus`` the bus in use. A node that fails to construct or start stops every
-    node already constructed (reverse order) and re-raises. ``overwrite`` lets ``record`` and
-    the nodes' own outputs (nodes with an ``overwrite`` parameter) replace existing files.
+    topic to MCAP with :class:`hil_bridge.recording.recorder.Recorder`. ``live`` starts the
+    Foxglove view (:mod:`hil_bridge.tools.live`). ``bus`` replaces the file's bus URL.
+    ``domain`` (default ``ECHOLOOP_DOMAIN``, else 0) gives every default the file leaves out:
+    the bus, pty links, virtual CAN channels, the live-view port. ``on_started(spec)`` is called
+    once every node runs, with ``spec.bus`` the bus in use. A node that fails to construct or
+    start stops every node already constructed (reverse order) and re-raises. ``overwrite`` lets
+    ``record`` and the nodes' own outputs (nodes with an ``overwrite`` parameter) replace
+    existing files.
 
     ``expect`` (``"NODE.COUNTER OP VALUE"`` strings, checked for unknown nodes before anything
     starts), ``allow_disconnected`` and the launchables that fail (their optional ``failure()``

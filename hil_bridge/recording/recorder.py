@@ -1,5 +1,5 @@
 """The live recorder: every bus topic (or some) into an MCAP bag (:mod:`hil_bridge.recording.bag`
-format).
+format, written by :class:`hil_bridge.recording.bag_writer.BagWriter`).
 
 :class:`Recorder` is launchable-like (``start``, ``stop``, ``stats``, ``failure``); the launch
 runner starts one for ``--record`` and ``echoloop bag record`` runs one alone.
@@ -23,7 +23,12 @@ from hil_bridge.bus.messages import Diagnostics
 from hil_bridge.bus.transport import Transport, open_transport
 from hil_bridge.errors import CodecError, HilError
 from hil_bridge.outputs import AtomicOutput
-from hil_bridge.recording.bag import _COMPRESSION, MAX_CHANNELS, BagWriter, ChannelLimitError
+from hil_bridge.recording.bag_writer import (
+    COMPRESSIONS,
+    MAX_CHANNELS,
+    BagWriter,
+    ChannelLimitError,
+)
 
 __all__ = ["Recorder"]
 
@@ -69,9 +74,9 @@ class Recorder:
         self.name = name
         if not flush_period_s > 0:
             raise ValueError(f"flush_period_s must be > 0, got {flush_period_s}")
-        if compression not in _COMPRESSION:
+        if compression not in COMPRESSIONS:
             raise ValueError(
-                f"unknown compression {compression!r}; expected one of {sorted(_COMPRESSION)}"
+                f"unknown compression {compression!r}; expected one of {sorted(COMPRESSIONS)}"
             )
         if diagnostics_period_s < 0:
             raise ValueError(f"diagnostics_period_s must be >= 0, got {diagnostics_period_s}")

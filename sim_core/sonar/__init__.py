@@ -1,7 +1,8 @@
 """Foliage biosonar echoes (seed 000): the docs/spec/echo_model.md reference and fast fidelities.
 
 Public API: :class:`EchoParams`, :class:`Beam`, :class:`Ear`, :class:`Call`, :class:`Echo`,
-:func:`synthesize`, :data:`FIDELITIES`, :func:`to_baseband`. See docs/sonar.md.
+:func:`synthesize`, :data:`FIDELITIES`, :func:`to_baseband`, :class:`Workspace`. See
+docs/sonar.md.
 """
 
 from sim_core.sonar.api import FIDELITIES, synthesize
@@ -10,6 +11,7 @@ from sim_core.sonar.fast import Fast, Realtime
 from sim_core.sonar.model import LeafSource
 from sim_core.sonar.params import Beam, Call, Ear, Echo, EchoParams
 from sim_core.sonar.reference import Fidelity, Reference
+from sim_core.sonar.workspace import Workspace
 
 __all__ = [
     "FIDELITIES",
@@ -23,6 +25,7 @@ __all__ = [
     "LeafSource",
     "Realtime",
     "Reference",
+    "Workspace",
     "from_baseband",
     "synthesize",
     "to_baseband",

@@ -1,15 +1,24 @@
-"""``synthesize``: one ping -> :class:`Echo`, with the fidelity chosen by name from one table."""
+"""``synthesize``: one ping -> :class:`Echo`, with the fidelity chosen by name from one table.
+
+The pipeline: :func:`~sim_core.sonar.model.prepare` (guards, beam selection, per-leaf terms),
+the fidelity's band spectra (:meth:`Fidelity.run`), then :func:`assemble` (time samples).
+"""
 
 from __future__ import annotations
 
-from numpy.typing import ArrayLike
+import contextlib
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from sim_core.sonar.fast import Fast, Realtime
-from sim_core.sonar.model import LeafSource, assemble, prepare
+from sim_core.sonar.model import LeafSource, prepare
 from sim_core.sonar.params import Beam, Echo, EchoParams
+from sim_core.sonar.physics import call_waveform
 from sim_core.sonar.reference import Fidelity, Reference
+from sim_core.sonar.workspace import Workspace, borrowed
 
-__all__ = ["FIDELITIES", "synthesize"]
+__all__ = ["FIDELITIES", "assemble", "synthesize"]
 
 #: name -> implementation; every entry has the :class:`Fidelity` signature.
 FIDELITIES: dict[str, Fidelity] = {
@@ -36,6 +45,7 @@ def synthesize(
     params: EchoParams | None = None,
     *,
     fidelity: str | Fidelity = "fast",
+    workspace: Workspace | None = None,
 ) -> Echo:
     """Echo of ``leaves`` for one ping of ``beam``.
 
@@ -44,6 +54,8 @@ def synthesize(
     ``fidelity``: a name of :data:`FIDELITIES` or a :class:`Fidelity` instance. Returns samples
     (N,) float64 at ``params.fs`` (or (C, N) with ``params.ears``). Raises ValueError for
     invalid geometry/parameters (spec guards) or a switch the fidelity cannot honour.
+    ``workspace``: the scratch memory to use (:mod:`sim_core.sonar.workspace`; never shared by
+    two calls at once), else an idle one of the process is borrowed for the call.
     """
     params = EchoParams() if params is None else params
     if not isinstance(beam, Beam):
@@ -52,7 +64,28 @@ def synthesize(
     reason = impl.supports(params)
     if reason is not None:
         raise ValueError(f"fidelity {impl.name!r} cannot run these parameters: {reason}")
-    scene = prepare(leaves, beam, params, budget=impl.leaf_budget(params))
-    band = impl.run(scene, params)
+    with borrowed() if workspace is None else contextlib.nullcontext(workspace) as ws:
+        scene = prepare(leaves, beam, params, budget=impl.leaf_budget(params), workspace=ws)
+        band = impl.run(scene, params, ws)
     samples = assemble(band.spectra, band.lo_bin, params)
     return Echo(samples, params.fs, scene.in_beam, scene.dropped, impl.name, band.error_bound)
+
+
+def assemble(
+    spectra: NDArray[np.complex128], lo_bin: int, params: EchoParams
+) -> NDArray[np.float64]:
+    """Band spectra (C, B) starting at bin ``lo_bin`` -> time samples (C, N) or (N,).
+
+    h = 2 irfft(H, N) with H zero outside the band; with a call, H is multiplied by the call's
+    spectrum first (echo = call * impulse response).
+    """
+    n = params.samples
+    C, B = spectra.shape
+    H = np.zeros((C, n // 2 + 1), dtype=np.complex128)
+    H[:, lo_bin : lo_bin + B] = spectra
+    if params.call is not None:
+        H[:, lo_bin : lo_bin + B] *= np.fft.rfft(call_waveform(params.call, params.fs), n=n)[
+            lo_bin : lo_bin + B
+        ]
+    h = 2.0 * np.fft.irfft(H, n=n, axis=-1)
+    return h[0] if not params.ears else h

@@ -13,7 +13,7 @@ plan, K0 = B // 2 centres the modes). Cost O(P M + P B log B) instead of O(M B) 
 The weights at the nodes are evaluated in float32 (SIMD transcendentals, error ~1e-6) and the
 NUFFT runs in single precision for eps >= 1e-5; the large phase (m0 + K0) x_i is reduced
 modulo 2 pi in float64 first and added to the weight's phase. The leaves are processed in
-blocks of BLOCK on per-thread scratch arrays (fresh pages cost more than the arithmetic). The
+blocks of BLOCK on workspace arrays (fresh pages cost more than the arithmetic). The
 window w_k, like every leaf-independent factor, multiplies after the sum. Geometry, guards and
 selection are shared with ``reference`` (model.prepare). ``realtime`` gives ``prepare`` a
 :class:`~sim_core.sonar.model.LeafBudget` for the whole echo: it tests and synthesises only the
@@ -26,17 +26,17 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import threading
-from typing import Any
 
-import finufft
 import numpy as np
 from numpy.typing import NDArray
 
 from sim_core.sonar.cost import COST
-from sim_core.sonar.model import SCRATCH_MAX_BYTES, LeafBudget, Scene, leaf_weights
+from sim_core.sonar.geometry import Scene
+from sim_core.sonar.model import LeafBudget
 from sim_core.sonar.params import EchoParams
 from sim_core.sonar.reference import Band, Fidelity, direct_sum
+from sim_core.sonar.weights import leaf_weights
+from sim_core.sonar.workspace import Workspace
 
 __all__ = ["Fast", "Realtime", "chebyshev_nodes", "lagrange_basis"]
 
@@ -134,7 +134,7 @@ class Fast(Fidelity):
             return "Doppler frequency scaling is implemented by fidelity 'reference' only"
         return None
 
-    def run(self, scene: Scene, params: EchoParams) -> Band:
+    def run(self, scene: Scene, params: EchoParams, workspace: Workspace) -> Band:
         g = params.grid
         B = g.count
         C = scene.beta.shape[0]
@@ -148,27 +148,28 @@ class Fast(Fidelity):
             order = self.order_for(params)
             n_kinked = kinked.shape[0]
             apart = False
-            spec, tail, weight = self._group(scene, ch, params, order, kinked, apart)
+            spec, tail, weight = self._group(scene, ch, params, order, kinked, apart, workspace)
             while self.adapt is not None and tail > self.adapt and order < MAX_ORDER:
                 order = min(2 * order, MAX_ORDER)
-                spec, tail, weight = self._group(scene, ch, params, order, kinked, apart)
+                spec, tail, weight = self._group(scene, ch, params, order, kinked, apart, workspace)
             # interpolating f -> max(0, f) at P Chebyshev nodes errs by at most (1 + Lambda_P)
             # max|f|, Lambda_P <= 1 + (2/pi) ln P (Lebesgue constant)
             kink_err = (2.0 + 2.0 / math.pi * math.log(order)) * float(amax.sum())
             if not apart and kink_err > self.kink_share * weight:
                 apart = True
-                spec, tail, weight = self._group(scene, ch, params, order, kinked, apart)
+                spec, tail, weight = self._group(scene, ch, params, order, kinked, apart, workspace)
             err = CHECK_MARGIN * tail * weight
             if n_kinked and apart:
                 kink_err = 0.0
                 sub = scene.select(kinked)
                 if n_kinked <= DIRECT_KINKED:
-                    spec += direct_sum(sub, ch, params)
-                    weight += float(np.abs(leaf_weights(sub, ch, [centre_f], params)).sum())
+                    spec += direct_sum(sub, ch, params, workspace)
+                    w = leaf_weights(sub, ch, [centre_f], params, workspace=workspace)
+                    weight += float(np.abs(w).sum())
                 else:
                     none = np.empty(0, dtype=np.intp)
                     spec_k, _, weight_k = self._group(sub, ch, params, self.kink_order, none,
-                                                      False)
+                                                      False, workspace)
                     spec += spec_k
                     err += CHECK_MARGIN * KINK_ERROR * weight_k
                     weight += weight_k
@@ -189,6 +190,7 @@ class Fast(Fidelity):
         P: int,
         kinked: NDArray[np.intp],
         apart: bool,
+        ws: Workspace,
     ) -> tuple[NDArray[np.complex128], float, float]:
         """Interpolated sum of the leaves: (spectrum (B,), tail, amplitude weight).
 
@@ -205,8 +207,8 @@ class Fast(Fidelity):
         rdt = np.float32 if single else np.float64
         K0 = B // 2
         M = scene.count
-        strengths = _scratch("strengths", (P, M), cdt)
-        x = _scratch("x", (M,), rdt)
+        strengths = ws.array("strengths", (P, M), cdt)
+        x = ws.array("x", (M,), rdt)
         f_nodes = centre + half * nodes
         for start in range(0, M, BLOCK):
             blk = slice(start, min(start + BLOCK, M))
@@ -221,20 +223,20 @@ class Fast(Fidelity):
             cycles -= np.floor(cycles)
             cycles *= 2.0 * np.pi
             leaf_weights(scene.select(blk), ch, f_nodes, params, single=single, freq_major=True,
-                         phase=cycles, out=strengths[:, blk])
+                         phase=cycles, out=strengths[:, blk], workspace=ws)
         if apart and kinked.shape[0]:
             strengths[:, kinked] = 0.0
         if M < LOOP_MIN_LEAVES:
-            plan = _plan(B, self.eps, single, P)
+            plan = ws.plan(B, self.eps, single, P)
             plan.setpts(x)
             modes = plan.execute(strengths)
         else:
             modes = np.empty((P, B), dtype=cdt)
-            plan = _plan(B, self.eps, single, 1)
+            plan = ws.plan(B, self.eps, single, 1)
             plan.setpts(x)
             for p in range(P):
                 plan.execute(strengths[p], out=modes[p])
-        tail, weight = _interpolation_error(scene, ch, params, nodes, kinked)
+        tail, weight = _interpolation_error(scene, ch, params, nodes, kinked, ws)
         return np.einsum("kp,pk->k", basis, modes), tail, weight
 
     def order_for(self, params: EchoParams) -> int:
@@ -302,6 +304,7 @@ def _interpolation_error(
     params: EchoParams,
     nodes: NDArray[np.float64],
     skip: NDArray[np.intp],
+    ws: Workspace,
 ) -> tuple[float, float]:
     """A-posteriori interpolation error of a group: (relative error, amplitude weight).
 
@@ -325,7 +328,7 @@ def _interpolation_error(
     centre, half = 0.5 * (f_lo + f_hi), 0.5 * (f_hi - f_lo)
     check = chebyshev_nodes(2 * nodes.shape[0] + 1)
     both = leaf_weights(scene.select(pick), ch, centre + half * np.concatenate([check, nodes]),
-                        params)
+                        params, workspace=ws)
     exact, w = both[:, : check.shape[0]], both[:, check.shape[0] :]
     approx = np.einsum("mp,pc->mc", w, _check_basis(nodes.shape[0]).astype(w.real.dtype))
     amp = np.abs(exact).max(axis=1)
@@ -334,37 +337,6 @@ def _interpolation_error(
         return 0.0, 0.0
     err = float(np.abs(approx - exact).max(axis=1).sum())
     return err / total, total * count / pick.shape[0]
-
-
-_PLANS = threading.local()
-_SCRATCH = threading.local()
-
-
-def _scratch(name: str, shape: tuple[int, ...], dtype: type) -> NDArray[Any]:
-    """A per-thread array of ``shape`` reused between pings, up to SCRATCH_MAX_BYTES (its
-    contents do not outlive the call: fresh pages cost more than the arithmetic on them)."""
-    size = math.prod(shape)
-    if size * np.dtype(dtype).itemsize > SCRATCH_MAX_BYTES:
-        return np.empty(shape, dtype=dtype)
-    cache: dict[tuple[str, type], NDArray[Any]] = _SCRATCH.__dict__.setdefault("arrays", {})
-    buf = cache.get((name, dtype))
-    if buf is None or buf.shape[0] < size:
-        buf = np.empty(max(size, 4096), dtype=dtype)
-        cache[(name, dtype)] = buf
-    return buf[:size].reshape(shape)
-
-
-def _plan(modes: int, eps: float, single: bool, n_trans: int) -> Any:
-    """A per-thread cached finufft type-1 plan for ``n_trans`` transforms (points unsorted: the
-    fine grid of a few thousand points fits in cache, so sorting only costs)."""
-    cache: dict[tuple[int, float, bool, int], Any] = _PLANS.__dict__.setdefault("plans", {})
-    key = (modes, eps, single, n_trans)
-    if key not in cache:
-        cache[key] = finufft.Plan(
-            1, (modes,), n_trans=n_trans, eps=eps, isign=-1, nthreads=1, spread_sort=0,
-            dtype="complex64" if single else "complex128",
-        )
-    return cache[key]
 
 
 class Realtime(Fidelity):
@@ -434,9 +406,9 @@ class Realtime(Fidelity):
         per_channel = dataclasses.replace(budget, budget_s=budget.budget_s / params.channels)
         return per_channel.synthesised(examined, candidates, candidates)
 
-    def run(self, scene: Scene, params: EchoParams) -> Band:
+    def run(self, scene: Scene, params: EchoParams, workspace: Workspace) -> Band:
         g = params.grid
-        band = self.fast.run(scene, params)
+        band = self.fast.run(scene, params, workspace)
         cut = scene.cut
         if cut.count == 0:
             return band

@@ -1,47 +1,39 @@
-"""The foliage echo model of ``docs/spec/echo_model.md``: guards, beam selection, per-leaf terms.
+"""The foliage echo model of ``docs/spec/echo_model.md``, up to the kept leaves: guards and beam
+selection.
 
-Shared by every fidelity: :func:`prepare` applies the guards and the beam selection and returns
-the per-leaf, frequency-independent quantities (:class:`Scene`); :func:`leaf_weights` evaluates
-the per-leaf, per-frequency complex weight W_ik (everything except the delay phase and the
-leaf-independent window); :func:`assemble` turns band spectra into time samples. Fidelities
-differ only in how they evaluate sum_i W_ik exp(-j 2 pi f_k tau_i).
+:func:`prepare` is shared by every fidelity: it applies the guards (leaves with a non-finite
+centre, normal or radius, a zero normal or r < r_min are dropped and counted), culls by range
+and cone, applies the waterdrop test r <= r0 S1 and, under a :class:`LeafBudget`, keeps only
+what the budget affords (:func:`_cut_amax` bounds the rest); the per-leaf terms of the kept
+leaves are then computed by :func:`sim_core.sonar.geometry.leaf_terms` into the
+:class:`~sim_core.sonar.geometry.Scene` the fidelities sum. :func:`precull_half_angle` gives
+the cone of the pre-cull to the cost model (:mod:`sim_core.sonar.cost`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import threading
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import erf
 
-from sim_core.sonar.params import SIGMA_FACTOR, Beam, EchoParams
-from sim_core.sonar.physics import (
-    absorption_db_per_m,
-    call_waveform,
-    incident_freq_sigma,
-    shading_factor,
-)
-from sim_core.sonar.seedbeam import off_axis
+from sim_core.sonar.geometry import GEOMETRY_BLOCK, Cut, Kept, Scene, leaf_terms, off_axis_squared
+from sim_core.sonar.params import Beam, EchoParams
+from sim_core.sonar.workspace import Workspace
 
 __all__ = [
-    "Cut",
+    "INDEX_MAX_SHARE",
+    "INDEX_MIN_LEAVES",
     "LeafBudget",
     "LeafSource",
-    "Scene",
-    "assemble",
-    "leaf_weights",
     "precull_half_angle",
     "prepare",
-    "window_at",
 ]
 
 F64 = NDArray[np.float64]
-C128 = NDArray[np.complex128]
 
 
 @runtime_checkable
@@ -56,62 +48,6 @@ class LeafSource(Protocol):
 
     @property
     def radii(self) -> ArrayLike: ...
-
-
-@dataclass(frozen=True, slots=True)
-class Scene:
-    """Kept leaves of one ping, per channel c (C = number of ears, 1 if monostatic).
-
-    ``a`` (M,) clamped radius m; ``beta`` (C,M) incidence angle rad; ``beam`` (C,M) the
-    two-way beam gain S = S1(emitter) S1(ear) times ``rest``, the shading / spreading factor,
-    except with ``beam_model="incident_freq"`` (S then depends on f): there ``beam`` is S at
-    the fixed beamwidth and ``rest`` (C,M) that factor, otherwise ``rest`` is all ones;
-    ``tau`` (C,M) two-way delay s; ``path`` (C,M) two-way path length m; ``cap`` (C,M)
-    near-field cap r/2 m; ``theta2`` (C,2,M) squared off-axis angles of emitter and ear (for
-    ``incident_freq``); ``leaf_ratio`` (C,M) leaf-frame / emitted frequency and ``eta`` (C,M)
-    received / emitted frequency (both 1 without Doppler). ``dropped``: leaves removed by the
-    guards; ``in_beam``: leaves
-    the beam selects (the kept leaves plus ``cut``, those a :class:`LeafBudget` left out; under
-    a range cut the untested candidates are counted, so it is then an upper bound).
-    """
-
-    a: F64
-    beta: F64
-    beam: F64
-    rest: F64
-    tau: F64
-    path: F64
-    cap: F64
-    theta2: F64
-    leaf_ratio: F64
-    eta: F64
-    dropped: int
-    speed: float
-    in_beam: int
-    cut: Cut
-
-    @property
-    def count(self) -> int:
-        return int(self.a.shape[0])
-
-    def select(self, index: NDArray[np.intp] | slice) -> Scene:
-        """The sub-scene of kept leaves ``index`` (ints into 0..count-1, or a slice: views)."""
-        return Scene(
-            a=self.a[index],
-            beta=self.beta[:, index],
-            beam=self.beam[:, index],
-            rest=self.rest[:, index],
-            tau=self.tau[:, index],
-            path=self.path[:, index],
-            cap=self.cap[:, index],
-            theta2=self.theta2[:, :, index],
-            leaf_ratio=self.leaf_ratio[:, index],
-            eta=self.eta[:, index],
-            dropped=self.dropped,
-            speed=self.speed,
-            in_beam=self.in_beam,
-            cut=self.cut,
-        )
 
 
 def _leaf_arrays(
@@ -141,38 +77,6 @@ def _leaf_arrays(
     if a.shape != (c.shape[0],):
         raise ValueError(f"leaf radii must have shape ({c.shape[0]},), got {a.shape}")
     return c, n, a
-
-
-def _rowdot(x: F64, v: F64) -> F64:
-    """x @ v for x (M,3), v (3,) without BLAS (OpenBLAS threads spin on a shared machine)."""
-    return np.einsum("ij,j->i", x, v)
-
-
-def _theta2(u: F64, axis: F64, params: EchoParams) -> F64:
-    """Squared off-axis angle, rad^2, (M,), of leaves in unit directions ``u`` (M,3) from a beam
-    along unit ``axis``: arccos(u.b)^2, or with ``seed2020`` daz^2 + del^2 (exact or on the
-    seed's grid, :mod:`sim_core.sonar.seedbeam`; these need only the direction, so any positive
-    multiple of ``u`` gives the same)."""
-    if not params.seed2020:
-        return np.arccos(np.clip(_rowdot(u, axis), -1.0, 1.0)) ** 2
-    daz, dele = off_axis(u[:, 0], u[:, 1], u[:, 2], axis, params.beam_lookup or "exact")
-    return daz * daz + dele * dele
-
-
-def _ear_geometry(beam: Beam, params: EchoParams) -> list[tuple[F64, F64, float]]:
-    """Per channel: receiver position (3,), beam axis (3,), sigma (rad)."""
-    if not params.ears:
-        return [(beam.position, beam.boresight, beam.sigma)]
-    frame = beam.frame()
-    out = []
-    for ear in params.ears:
-        pos = beam.position + np.asarray(ear.offset) @ frame
-        cy, sy = math.cos(ear.yaw_rad), math.sin(ear.yaw_rad)
-        cp, sp = math.cos(ear.pitch_rad), math.sin(ear.pitch_rad)
-        axis = np.array([cp * cy, cp * sy, sp]) @ frame
-        bw = beam.beamwidth_rad if ear.beamwidth_rad is None else ear.beamwidth_rad
-        out.append((pos, axis / np.linalg.norm(axis), 0.5 * bw / SIGMA_FACTOR))
-    return out
 
 
 #: leaf sets at least this large are culled through their own ``query_ball`` (a k-d tree that
@@ -228,48 +132,6 @@ def _exp(x: F64) -> F64:
     corr += 1.0
     corr *= y0
     return corr
-
-
-@dataclass(frozen=True, slots=True)
-class Cut:
-    """Selected leaves left out of the synthesis by a :class:`LeafBudget` (``realtime``).
-
-    ``count`` leaves; ``amax`` (C,) = sqrt(sum_i max_f |W_i(f)|^2) over them per channel, with
-    max_f |W_i| bounded by g0 P1(k_hi a_i) S_i / (k_lo r_i r_ear,i) (the random-phase norm of
-    their spectrum before the window, see :class:`sim_core.sonar.fast.Realtime`).
-    """
-
-    count: int
-    amax: F64
-
-
-_WORKSPACE = threading.local()
-#: scratch arrays larger than this are allocated per call instead of kept per thread (bounds
-#: the memory a thread holds between pings; at this size the page faults are a small share)
-SCRATCH_MAX_BYTES = 32 << 20
-
-
-def _workspace(name: str, size: int, dtype: type) -> NDArray[Any]:
-    """A per-thread scratch array of ``size`` elements, reused between pings (up to
-    SCRATCH_MAX_BYTES).
-
-    For results that do not outlive the call that asks for them (fresh pages for large arrays
-    are slow; reused ones are not).
-    """
-    if size * np.dtype(dtype).itemsize > SCRATCH_MAX_BYTES:
-        return np.empty(size, dtype=dtype)
-    cache: dict[str, NDArray[Any]] = _WORKSPACE.__dict__.setdefault("arrays", {})
-    buf = cache.get(name)
-    if buf is None or buf.shape[0] < size or buf.dtype != dtype:
-        buf = np.empty(max(size, 1024), dtype=dtype)
-        cache[name] = buf
-    return buf[:size]
-
-
-#: leaves per block of the geometry pass: temporaries of 128 KiB stay in cache and in the
-#: allocator's free lists (whole-array temporaries of 1e5 leaves are fresh pages each time,
-#: which cost more than the arithmetic on them)
-GEOMETRY_BLOCK = 16384
 
 
 @dataclass(frozen=True, slots=True)
@@ -387,14 +249,15 @@ class _Selection:
 
 
 def _nearest(
-    c: F64, n: F64, a: F64, sel: _Selection, budget: LeafBudget, params: EchoParams
+    c: F64, n: F64, a: F64, sel: _Selection, budget: LeafBudget, params: EchoParams,
+    ws: Workspace,
 ) -> tuple[NDArray[np.intp], int, int, Cut]:
     """Rows of the nearest leaves passing the pre-cull that ``budget`` affords to test (ties
     kept), the number dropped by the guards, the number that passed, and the farther ones left
     untested (their bound takes the beam gain at its peak A0)."""
     total = c.shape[0]
-    rows = _workspace("near_rows", total, np.intp)
-    ranges = _workspace("near_r", total, np.float64)
+    rows = ws.array("near_rows", total, np.intp)
+    ranges = ws.array("near_r", total, np.float64)
     found = 0
     dropped = 0
     for start in range(0, total, GEOMETRY_BLOCK):
@@ -425,19 +288,19 @@ def _select(
     a: F64,
     beam: Beam,
     params: EchoParams,
+    ws: Workspace,
     budget: LeafBudget | None = None,
-) -> tuple[NDArray[np.intp], F64, F64, F64, F64, int, int, int, Cut]:
-    """Guards and waterdrop selection: (index, r, theta^2, S1, n_hat.d, dropped, candidates,
-    tested, untested).
+) -> tuple[Kept, int, int, int, Cut]:
+    """Guards and waterdrop selection: (kept, dropped, candidates, tested, untested).
 
-    ``index`` (K,) are the kept rows of ``c``; r, theta^2 (the spec's off-axis angle, or the
-    seed2020 az/el form), S1 and n_hat.d (the unit normal dotted with the offset, m) are
-    theirs. Every leaf first passes the guards and a range and cone pre-cull without
+    ``kept`` holds the kept rows of ``c`` with their r, theta^2 (the spec's off-axis angle, or
+    the seed2020 az/el form), S1 and n_hat.d (the unit normal dotted with the offset, m). Every
+    leaf first passes the guards and a range and cone pre-cull without
     transcendentals (:meth:`_Selection.precull`); the waterdrop test r <= r0 S1 is taken on
     logarithms, and with the spec's exact expression where both sides are within
     _SELECTION_SLACK. With a ``budget`` that cannot afford every candidate (pre-cull survivor),
     only the nearest it affords are tested (:func:`_nearest`; ``untested`` the others). The
-    arrays are per-thread scratch, valid until the next call.
+    arrays are ``ws`` scratch, valid until its next selection.
     """
     sel = _Selection.of(beam, params)
     rows_in: NDArray[np.intp] | None = None
@@ -446,14 +309,14 @@ def _select(
     untested = Cut(0, np.zeros(params.channels))
     found = -1
     if budget is not None and total > budget.candidates(total):
-        rows_in, dropped, found, untested = _nearest(c, n, a, sel, budget, params)
+        rows_in, dropped, found, untested = _nearest(c, n, a, sel, budget, params, ws)
         total = rows_in.shape[0]
     tested = 0
     r0, a0, sigma = sel.r0, sel.a0, sel.sigma
     inv2s2 = 1.0 / (2.0 * sigma * sigma)
     log_scale = 1.0 / (r0 * a0)
-    index = _workspace("index", total, np.intp)
-    outs = [_workspace(name, total, np.float64) for name in ("r", "th2", "s1", "nd")]
+    index = ws.array("index", total, np.intp)
+    outs = [ws.array(name, total, np.float64) for name in ("r", "th2", "s1", "nd")]
     kept = 0
     for start in range(0, total, GEOMETRY_BLOCK):
         stop = min(start + GEOMETRY_BLOCK, total)
@@ -477,7 +340,7 @@ def _select(
         tested += r.shape[0]
         if params.seed2020:
             d = np.stack([dx, dy, dz], 1)
-            th2 = _theta2(d if everyone else d.compress(valid, axis=0), sel.axis, params)
+            th2 = off_axis_squared(d if everyone else d.compress(valid, axis=0), sel.axis, params)
         else:
             proj /= r
             np.clip(proj, -1.0, 1.0, out=proj)
@@ -504,7 +367,29 @@ def _select(
         kept += k
     r, th2, s1, nd = (x[:kept] for x in outs)
     s1 *= a0
-    return index[:kept], r, th2, s1, nd, dropped, tested if found < 0 else found, tested, untested
+    found = tested if found < 0 else found
+    return Kept(index[:kept], r, th2, s1, nd), dropped, found, tested, untested
+
+
+def _strongest(
+    kept: Kept, a: F64, cut: Cut, wanted: int, params: EchoParams
+) -> tuple[Kept, Cut]:
+    """The ``wanted`` kept leaves with the largest waterdrop metric S1/r (in row order) and
+    ``cut`` grown by the others (``a``: the radii of the rows ``kept`` indexes)."""
+    selected = kept.count
+    if wanted >= selected:
+        return kept, cut
+    wanted = max(wanted, 0)
+    if wanted:
+        metric = np.divide(kept.s1, kept.r)
+        np.negative(metric, out=metric)
+        order = np.argpartition(metric, wanted - 1)
+    else:
+        order = np.arange(selected)
+    out = order[wanted:]
+    amax = _cut_amax(params, kept.r[out], a.take(kept.index[out]), kept.s1[out])
+    cut = Cut(cut.count + selected - wanted, np.hypot(cut.amax, amax))
+    return kept.select(np.sort(order[:wanted])), cut
 
 
 def prepare(
@@ -513,6 +398,7 @@ def prepare(
     params: EchoParams,
     *,
     budget: LeafBudget | None = None,
+    workspace: Workspace | None = None,
 ) -> Scene:
     """Apply the guards and the beam selection; compute per-leaf quantities (spec, all channels).
 
@@ -522,13 +408,15 @@ def prepare(
     ``query_ball(point, r)`` method (``sim_core.world.Leaves``) only that ball is examined.
 
     Blocks of GEOMETRY_BLOCK leaves over coordinate columns: the selection (:func:`_select`),
-    then incidence, gain and delay for the kept leaves only. With a ``budget``
-    (:class:`LeafBudget`) the waterdrop test sees only the nearest candidates it affords, and
-    of the selected leaves only as many as it affords are kept, those with the largest
-    waterdrop metric S1/r (raising the threshold G); ``Scene.cut`` summarises the others.
+    then incidence, gain and delay for the kept leaves only
+    (:func:`~sim_core.sonar.geometry.leaf_terms`). With a ``budget`` (:class:`LeafBudget`) the
+    waterdrop test sees only the nearest candidates it affords, and of the selected leaves only
+    as many as it affords are kept, those with the largest waterdrop metric S1/r (raising the
+    threshold G); ``Scene.cut`` summarises the others. Scratch arrays come from ``workspace``
+    (a new :class:`~sim_core.sonar.workspace.Workspace` if None); the Scene never aliases them.
     """
+    ws = Workspace() if workspace is None else workspace
     c, n, a = _leaf_arrays(leaves)
-    v = params.speed
     a0 = params.peak_amplitude
     cand = _candidates(leaves, c.shape[0], beam, params.selection_radius * max(a0, 1.0))
     if cand is not None:
@@ -537,136 +425,12 @@ def prepare(
     per_channel = None
     if budget is not None:
         per_channel = dataclasses.replace(budget, budget_s=budget.budget_s / params.channels)
-    idx, r, th2, s1, nd, dropped, found, tested, cut = _select(c, n, a, beam, params, per_channel)
-    selected = int(idx.shape[0])
-    in_beam = selected + cut.count
-    channels = _ear_geometry(beam, params)
-    C = len(channels)
-    wanted = selected
+    kept, dropped, found, tested, cut = _select(c, n, a, beam, params, ws, per_channel)
+    in_beam = kept.count + cut.count
     if per_channel is not None:
         wanted = per_channel.synthesised(examined, found, tested)
-    if wanted < selected:
-        wanted = max(wanted, 0)
-        if wanted:
-            metric = np.divide(s1, r)
-            np.negative(metric, out=metric)
-            order = np.argpartition(metric, wanted - 1)
-        else:
-            order = np.arange(selected)
-        out = order[wanted:]
-        amax = _cut_amax(params, r[out], a.take(idx[out]), s1[out])
-        cut = Cut(cut.count + selected - wanted, np.hypot(cut.amax, amax))
-        sel = np.sort(order[:wanted])
-        idx, r, th2, s1, nd = idx[sel], r[sel], th2[sel], s1[sel], nd[sel]
-    m = idx.shape[0]
-    incident = params.beam_model == "incident_freq"
-    doppler = params.doppler and params.moving
-    monostatic = not params.ears
-    beta = np.empty((C, m))
-    beam_gain = np.empty((C, m))
-    rest = np.empty((C, m)) if incident else _filled(1.0, C, m)
-    tau = np.empty((C, m))
-    path = np.empty((C, m)) if params.absorption else _filled(0.0, C, m)
-    cap = np.empty((C, m)) if params.near_field_cap else _filled(0.0, C, m)
-    theta2 = np.empty((C, 2, m)) if incident else _filled(0.0, C, 2, m)
-    leaf_ratio = np.empty((C, m)) if doppler else _filled(1.0, C, m)
-    eta = np.empty((C, m)) if doppler else _filled(1.0, C, m)
-    a_kept = np.empty(m)
-    # offsets (M,3) are read only by shading, the ears and the moving platform
-    need_d = params.shading or not monostatic or params.moving
-    # shading couples all kept leaves: one block; otherwise blocks of GEOMETRY_BLOCK
-    step = max(m, 1) if params.shading else GEOMETRY_BLOCK
-    vel = np.asarray(params.platform_velocity, dtype=np.float64)
-    pos = beam.position
-    for start in range(0, m, step):
-        blk = slice(start, min(start + step, m))
-        ib = idx[blk]
-        rb, th2b, s1b, ndb = r[blk], th2[blk], s1[blk], nd[blk]
-        ab = np.maximum(a.take(ib), params.a_min)
-        a_kept[blk] = ab
-        if need_d:
-            d = c.take(ib, axis=0) - pos
-            nb = n.take(ib, axis=0)
-            nn = np.sqrt(np.einsum("ij,ij->i", nb, nb))
-            u = d / rb[:, None]
-        shade: F64 | float = 1.0
-        if params.shading and rb.shape[0] > 1:
-            shade = shading_factor(u, rb, ab, ndb / rb, params.shading_opacity)
-        t1 = rb / v
-        for ch, (pos_rx, axis_rx, sig) in enumerate(channels):
-            if monostatic:
-                dr, rr, th2r, s1r = (d if need_d else None), rb, th2b, s1b
-                cosb = np.abs(ndb)
-                cosb /= rb
-                np.clip(cosb, 0.0, 1.0, out=cosb)
-                np.arccos(cosb, out=beta[ch, blk])
-            else:
-                dr = d + (pos - pos_rx)
-                rr = np.sqrt(np.einsum("ij,ij->i", dr, dr))
-                rr = np.maximum(rr, params.r_min)
-                ur = dr / rr[:, None]
-                th2r = _theta2(ur, axis_rx, params)
-                s1r = a0 * np.exp(-th2r / (2.0 * sig * sig))
-                bis = u + ur
-                bis_n = np.sqrt(np.einsum("ij,ij->i", bis, bis))
-                ok = bis_n > 0.0
-                bis = np.where(ok[:, None], bis / np.where(ok, bis_n, 1.0)[:, None], u)
-                nhat_bis = np.abs(np.einsum("ij,ij->i", nb, bis)) / nn
-                beta[ch, blk] = np.arccos(np.clip(nhat_bis, 0.0, 1.0))
-            spread = 1.0 / (rb * rr) if params.spreading else 1.0
-            gain = np.multiply(s1b, s1r, out=beam_gain[ch, blk])
-            if incident:
-                np.multiply(shade, spread, out=rest[ch, blk])
-                theta2[ch, 0, blk] = th2b
-                theta2[ch, 1, blk] = th2r
-            else:
-                gain *= np.multiply(shade, spread)
-            if params.near_field_cap:
-                cap[ch, blk] = 0.5 * np.sqrt(rb * rr)
-            if params.absorption:
-                path[ch, blk] = rb + rr
-            if params.moving and dr is not None:
-                q = dr - vel * t1[:, None]
-                qq = np.einsum("ij,ij->i", q, q)
-                qv = _rowdot(q, vel)
-                vv = float(vel @ vel)
-                s = qq / (qv + np.sqrt(qv * qv + (v * v - vv) * qq))
-                tau[ch, blk] = t1 + s
-                if doppler:
-                    u_rx = (q - vel * s[:, None]) / (v * s)[:, None]
-                    leaf_ratio[ch, blk] = v / (v - _rowdot(u, vel))
-                    eta[ch, blk] = leaf_ratio[ch, blk] * (v + _rowdot(u_rx, vel)) / v
-            else:
-                np.add(rb, rr, out=tau[ch, blk])
-                tau[ch, blk] /= v
-    if m:
-        call_s = params.call.total_s if params.call is not None else 0.0
-        window_s = params.samples / params.fs
-        t_max = float(tau.max()) + call_s
-        if not t_max < window_s:
-            far = float(r.max())
-            need = math.ceil(t_max * params.fs) + 1
-            raise ValueError(
-                f"window of {params.samples} samples ({window_s * 1e3:.3f} ms) cannot hold the "
-                f"farthest kept leaf (r = {far:.3f} m, echo ends at {t_max * 1e3:.3f} ms); "
-                f"use samples >= {need} (and band edges on bins) or a higher threshold_db"
-            )
-    return Scene(
-        a=a_kept,
-        beta=beta,
-        beam=beam_gain,
-        rest=rest,
-        tau=tau,
-        path=path,
-        cap=cap,
-        theta2=theta2,
-        leaf_ratio=leaf_ratio,
-        eta=eta,
-        dropped=dropped,
-        speed=v,
-        in_beam=in_beam,
-        cut=cut,
-    )
+        kept, cut = _strongest(kept, a, cut, wanted, params)
+    return leaf_terms(c, n, a, kept, beam, params, dropped=dropped, in_beam=in_beam, cut=cut)
 
 
 def _cut_amax(params: EchoParams, r: F64, a: F64, s1: F64) -> F64:
@@ -705,166 +469,3 @@ def _cut_amax(params: EchoParams, r: F64, a: F64, s1: F64) -> F64:
         w *= w
         out[ch] = math.sqrt(float(w.sum()))
     return out
-
-
-def _filled(value: float, *shape: int) -> F64:
-    """A read-only broadcast array of ``value`` (no memory per leaf) for unused fields."""
-    return np.broadcast_to(np.float64(value), shape)
-
-
-def _scratch(name: str, shape: tuple[int, ...], dtype: Any) -> NDArray[Any]:
-    """A per-thread scratch array of ``shape`` (see :func:`_workspace`), one per name and dtype."""
-    dt = np.dtype(dtype)
-    return _workspace(f"{name}:{dt.char}", math.prod(shape), dt.type).reshape(shape)
-
-
-def _erf_fast(x: NDArray[np.floating]) -> NDArray[np.floating]:
-    """erf via Abramowitz & Stegun 7.1.26 (|error| <= 1.5e-7), SIMD-friendly for float32.
-
-    Overwrites and returns ``x``.
-    """
-    dt = x.dtype.type
-    ax = np.abs(x, out=_scratch("erf_ax", x.shape, dt))
-    t = np.multiply(ax, dt(0.3275911), out=_scratch("erf_t", x.shape, dt))
-    t += dt(1.0)
-    np.reciprocal(t, out=t)
-    poly = np.multiply(t, dt(1.061405429), out=_scratch("erf_poly", x.shape, dt))
-    poly += dt(-1.453152027)
-    for coef in (1.421413741, -0.284496736, 0.254829592):
-        poly *= t
-        poly += dt(coef)
-    poly *= t
-    ax *= ax
-    np.negative(ax, out=ax)
-    np.exp(ax, out=ax)
-    poly *= ax
-    np.subtract(dt(1.0), poly, out=poly)
-    return np.copysign(poly, x, out=x)
-
-
-def leaf_weights(
-    scene: Scene,
-    ch: int,
-    f_leaf: ArrayLike,
-    params: EchoParams,
-    *,
-    single: bool = False,
-    freq_major: bool = False,
-    phase: NDArray[np.floating] | None = None,
-    out: NDArray[np.complexfloating] | None = None,
-) -> NDArray[np.complexfloating]:
-    """Per-leaf, per-frequency weight W = A exp(-j psi) (no delay phase, no window), (M, F).
-
-    ``f_leaf`` Hz is the frequency the leaf sees, shape (F,) or (M, F). A = g0 S L / k / r^2
-    (spec), with the opt-in absorption, near-field cap and incident-frequency beam applied.
-    ``single=True`` evaluates in float32 with a 1.5e-7 erf approximation (fast fidelities;
-    relative error ~1e-6), returning complex64. ``freq_major=True`` (``f_leaf`` of shape (F,)
-    only) returns the transpose, (F, M). ``phase`` (M,) rad, if given, multiplies leaf i by
-    exp(-j phase_i); ``out`` receives the result (a complex array of the result's shape).
-    """
-    dt: Any = np.float32 if single else np.float64
-    v = scene.speed
-    f = np.asarray(f_leaf, dtype=np.float64)
-    if freq_major:
-        if f.ndim != 1:
-            raise ValueError(f"freq_major needs f_leaf of shape (F,), got {f.shape}")
-
-        def leaf(x: NDArray[Any]) -> Any:
-            return x[None, :]
-
-        f_axis = f[:, None]
-    else:
-
-        def leaf(x: NDArray[Any]) -> Any:
-            return x[:, None]
-
-        f_axis = f
-    kk64 = (2.0 * np.pi / v) * f_axis
-    kk: Any = kk64.astype(dt)
-    a64 = leaf(scene.a)
-    beta: Any = leaf(scene.beta[ch].astype(dt))
-    shape = np.broadcast_shapes(kk.shape, a64.shape)
-    c = np.multiply(kk, a64.astype(dt), out=_scratch("c", shape, dt))
-    p1 = np.multiply(dt(0.5003), c, out=_scratch("p1", shape, dt))
-    p1 *= c
-    p1 += dt(0.6867)
-    # c^p = a^p k^p: the powers are taken per leaf and per frequency, not per (leaf, frequency)
-    if single:
-        # per-leaf powers in float32 through one logarithm (they are rounded to float32 anyway)
-        log_a = np.log(a64.astype(dt))
-        ap: Any = np.exp(log_a * dt(-0.9065))
-        ap *= dt(0.3999)
-        bp: Any = np.exp(log_a * dt(0.3523))
-        bp *= dt(0.9824)
-    else:
-        ap = dt(0.3999) * a64**-0.9065
-        bp = dt(0.9824) * a64**0.3523
-    lb = np.multiply(ap, (kk64**-0.9065).astype(dt), out=_scratch("lb", shape, dt))
-    lb += dt(0.9979)
-    lb *= beta
-    np.cos(lb, out=lb)
-    lb *= p1
-    np.maximum(lb, dt(0.0), out=lb)
-    psi = np.multiply(bp, (kk64**0.3523).astype(dt), out=_scratch("psi", shape, dt))
-    psi -= dt(0.9459)
-    psi *= dt(1.57) - beta
-    if single:
-        _erf_fast(psi)
-    else:
-        erf(psi, out=psi)
-    psi -= dt(2.6343)
-    if params.beam_model == "incident_freq":
-        sig = incident_freq_sigma(f_axis).astype(dt)
-        th = leaf((scene.theta2[ch, 0] + scene.theta2[ch, 1]).astype(dt))
-        a0 = params.peak_amplitude
-        gain: Any = dt(a0 * a0) * np.exp(-th / (2.0 * sig * sig))
-        gain = gain * leaf(scene.rest[ch].astype(dt))
-    else:
-        gain = leaf(scene.beam[ch].astype(dt))
-    amp = lb
-    amp *= dt(params.g0)
-    amp /= kk
-    if params.near_field_cap:
-        np.minimum(amp, leaf(scene.cap[ch].astype(dt)), out=amp)
-    amp *= gain
-    if params.absorption:
-        alpha = absorption_db_per_m(
-            f_axis, params.temperature_c, params.humidity_pct, params.pressure_kpa
-        ).astype(dt)
-        amp *= np.exp(alpha * leaf(scene.path[ch].astype(dt)) * dt(-math.log(10.0) / 20.0))
-    if phase is not None:
-        psi += leaf(phase.astype(dt, copy=False))
-    if out is None:
-        out = np.empty(amp.shape, dtype=np.complex64 if single else np.complex128)
-    trig = np.cos(psi, out=_scratch("trig", shape, dt))
-    np.multiply(amp, trig, out=out.real)
-    np.sin(psi, out=trig)
-    np.negative(amp, out=amp)
-    np.multiply(amp, trig, out=out.imag)
-    return out
-
-
-def window_at(freq: F64, params: EchoParams) -> F64:
-    """Continuous periodic-Hann band window at emitted frequencies ``freq`` Hz (0 outside)."""
-    g = params.grid
-    x = (np.asarray(freq) / g.df - g.m0) / g.count
-    inside = (x >= 0.0) & (x <= 1.0)
-    return np.where(inside, 0.5 * (1.0 - np.cos(2.0 * np.pi * x)), 0.0)
-
-
-def assemble(spectra: C128, lo_bin: int, params: EchoParams) -> F64:
-    """Band spectra (C, B) starting at bin ``lo_bin`` -> time samples (C, N) or (N,).
-
-    h = 2 irfft(H, N) with H zero outside the band; with a call, H is multiplied by the call's
-    spectrum first (echo = call * impulse response).
-    """
-    n = params.samples
-    C, B = spectra.shape
-    H = np.zeros((C, n // 2 + 1), dtype=np.complex128)
-    H[:, lo_bin : lo_bin + B] = spectra
-    if params.call is not None:
-        H[:, lo_bin : lo_bin + B] *= np.fft.rfft(call_waveform(params.call, params.fs), n=n)[
-            lo_bin : lo_bin + B
-        ]
-    h = 2.0 * np.fft.irfft(H, n=n, axis=-1)
-    return h[0] if not params.ears else h

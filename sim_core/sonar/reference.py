@@ -2,8 +2,9 @@
 
 Contract of a fidelity (:class:`Fidelity`), the one signature every implementation shares:
 
-1. ``fid.run(scene, params) -> Band``: given the kept leaves of one ping (:class:`Scene`, from
-   :func:`sim_core.sonar.model.prepare`), return the band spectra of every channel.
+1. ``fid.run(scene, params, workspace) -> Band``: given the kept leaves of one ping
+   (:class:`Scene`, from :func:`sim_core.sonar.model.prepare`), return the band spectra of
+   every channel, with scratch arrays from ``workspace`` (:mod:`sim_core.sonar.workspace`).
 2. It never builds an M x N array; memory is bounded for any number of leaves M.
 3. ``Band.error_bound`` is the relative L2 error bound it ran at, or None if not reported.
 4. ``fid.supports(params)`` returns None or the reason the fidelity cannot honour ``params``.
@@ -20,8 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from sim_core.sonar.model import LeafBudget, Scene, leaf_weights, window_at
+from sim_core.sonar.geometry import Scene
+from sim_core.sonar.model import LeafBudget
 from sim_core.sonar.params import EchoParams
+from sim_core.sonar.weights import leaf_weights, window_at
+from sim_core.sonar.workspace import Workspace
 
 __all__ = ["Band", "Fidelity", "Reference", "direct_sum", "output_bins"]
 
@@ -67,7 +71,7 @@ class Fidelity(ABC):
         return None
 
     @abstractmethod
-    def run(self, scene: Scene, params: EchoParams) -> Band:
+    def run(self, scene: Scene, params: EchoParams, workspace: Workspace) -> Band:
         """Band spectra of all channels for the kept leaves ``scene``."""
 
 
@@ -80,7 +84,7 @@ class Reference(Fidelity):
 
     name = "reference"
 
-    def run(self, scene: Scene, params: EchoParams) -> Band:
+    def run(self, scene: Scene, params: EchoParams, workspace: Workspace) -> Band:
         lo, hi = output_bins(scene, params)
         g = params.grid
         f_rx = np.arange(lo, hi + 1) * g.df
@@ -88,7 +92,7 @@ class Reference(Fidelity):
         C = scene.beta.shape[0]
         doppler = params.doppler and params.moving
         if not doppler:
-            spectra = np.stack([direct_sum(scene, ch, params) for ch in range(C)])
+            spectra = np.stack([direct_sum(scene, ch, params, workspace) for ch in range(C)])
             return Band(spectra * g.window, lo, None)
         out = np.zeros((C, n_f), dtype=np.complex128)
         chunk = max(1, CHUNK_ELEMENTS // n_f)
@@ -98,13 +102,16 @@ class Reference(Fidelity):
                 phase = (2.0 * np.pi) * sub.tau[ch][:, None] * f_rx
                 eta = sub.eta[ch][:, None]
                 f_emit = f_rx / eta
-                w = leaf_weights(sub, ch, f_emit * sub.leaf_ratio[ch][:, None], params)
+                w = leaf_weights(sub, ch, f_emit * sub.leaf_ratio[ch][:, None], params,
+                                 workspace=workspace)
                 w *= window_at(f_emit, params) / eta
                 out[ch] += np.einsum("ij,ij->j", w, np.exp(-1j * phase))
         return Band(out, lo, None)
 
 
-def direct_sum(scene: Scene, ch: int, params: EchoParams) -> NDArray[np.complex128]:
+def direct_sum(
+    scene: Scene, ch: int, params: EchoParams, workspace: Workspace
+) -> NDArray[np.complex128]:
     """Unwindowed band sum of channel ``ch``, sum_i W_ik exp(-j 2 pi f_k tau_i), (B,), float64."""
     g = params.grid
     f = g.freqs
@@ -113,5 +120,6 @@ def direct_sum(scene: Scene, ch: int, params: EchoParams) -> NDArray[np.complex1
     for start in range(0, scene.count, chunk):
         sub = scene.select(np.arange(start, min(start + chunk, scene.count)))
         phase = (2.0 * np.pi) * sub.tau[ch][:, None] * f
-        out += np.einsum("ij,ij->j", leaf_weights(sub, ch, f, params), np.exp(-1j * phase))
+        w = leaf_weights(sub, ch, f, params, workspace=workspace)
+        out += np.einsum("ij,ij->j", w, np.exp(-1j * phase))
     return out

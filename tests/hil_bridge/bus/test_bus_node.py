@@ -15,7 +15,7 @@ from hil_bridge.bus.node import Node
 from hil_bridge.bus.proxy import Proxy
 from hil_bridge.bus.qos import COMMAND, LATCHED, SENSOR, QoSProfile
 from hil_bridge.bus.transport import open_transport
-from hil_bridge.recording.bag import Recorder
+from hil_bridge.recording.recorder import Recorder
 from tests.hil_bridge.bus.bus_test_util import poll_until
 
 WAIT = 10.0

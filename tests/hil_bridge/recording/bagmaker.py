@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.well_known import MessageEncoding
 
 from hil_bridge.bus.codec import Header, encode_payload
 from hil_bridge.bus.messages import (
@@ -21,7 +22,7 @@ from hil_bridge.bus.messages import (
     SonarPing,
     ThermalMarkers,
 )
-from hil_bridge.recording.bag import BagWriter, MessageEncoding
+from hil_bridge.recording.bag_writer import BagWriter
 
 
 def write_bag(path: Path, messages: Iterable[tuple[str, Message, str]]) -> Path:

@@ -23,7 +23,8 @@ from hil_bridge.bus.node import Node
 from hil_bridge.bus.proxy import Proxy
 from hil_bridge.bus.transport import open_transport
 from hil_bridge.errors import OutputExistsError
-from hil_bridge.recording.bag import MAX_PUBLISHERS_PER_TOPIC, bag_info, read_bag
+from hil_bridge.recording.bag import bag_info, read_bag
+from hil_bridge.recording.bag_writer import MAX_PUBLISHERS_PER_TOPIC
 from hil_bridge.recording.recorder import Recorder
 from tests.hil_bridge.bus.bus_test_util import WAIT, poll_until
 

@@ -19,7 +19,8 @@ from hil_bridge.bus.messages import Clock
 from hil_bridge.bus.transport import open_transport
 from hil_bridge.cli import main as echoloop
 from hil_bridge.errors import OutputExistsError
-from hil_bridge.recording.bag import bag_info, read_bag, recover
+from hil_bridge.recording.bag import bag_info, read_bag
+from hil_bridge.recording.bag_writer import recover
 from hil_bridge.recording.mcap_scan import BagFileError, ScanReport, scan
 from hil_bridge.recording.recorder import Recorder
 

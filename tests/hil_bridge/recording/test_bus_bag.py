@@ -24,7 +24,9 @@ from hil_bridge.bus.proxy import Proxy
 from hil_bridge.bus.qos import SENSOR, QoSProfile
 from hil_bridge.bus.transport import open_transport
 from hil_bridge.cli.bag import main as bag_main
-from hil_bridge.recording.bag import Player, Recorder, bag_info, read_bag
+from hil_bridge.recording.bag import bag_info, read_bag
+from hil_bridge.recording.bag_player import Player
+from hil_bridge.recording.recorder import Recorder
 from tests.hil_bridge.bus.bus_test_util import poll_until
 
 WAIT = 20.0
@@ -98,7 +100,7 @@ def test_sigkilled_recording_is_readable_to_its_last_chunk(tmp_path: Path) -> No
     path = tmp_path / "killed.mcap"
     child = textwrap.dedent(f"""
         import sys, threading
-        from hil_bridge.recording.bag import Recorder
+        from hil_bridge.recording.recorder import Recorder
         from hil_bridge.bus.messages import Clock
         from hil_bridge.bus.node import Node
         bus = "mem://kill?depth=100000"

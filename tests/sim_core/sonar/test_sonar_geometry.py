@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sim_core.sonar import Beam, EchoParams
-from sim_core.sonar.model import GEOMETRY_BLOCK, _exp, prepare
+from sim_core.sonar.geometry import GEOMETRY_BLOCK
+from sim_core.sonar.model import _exp, prepare
 from tests.sim_core.sonar._scenes import cone_cloud
 
 

@@ -184,9 +184,11 @@ def test_unknown_content_names_the_file(tmp_path: Path) -> None:
 
 
 def test_echoloop_recording_replays_the_chosen_glider(tmp_path: Path) -> None:
+    from mcap.well_known import MessageEncoding
+
     from hil_bridge.bus.codec import Header, encode_payload
     from hil_bridge.bus.messages import GliderState
-    from hil_bridge.recording.bag import BagWriter, MessageEncoding
+    from hil_bridge.recording.bag_writer import BagWriter
 
     path = tmp_path / "run.mcap"
     with open(path, "wb") as f:
