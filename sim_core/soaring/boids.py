@@ -4,9 +4,8 @@ Layout: own-glider arrays are (B, N) (B runs, N gliders); neighbour lists are (K
 neighbour slots of glider (b, i), with a ``valid`` mask (padding slots are False). Per-run
 parameters are (B, 1) arrays in a :class:`LawParams` table built by :func:`law_params`, which also
 holds them as the kernels' table (B, len(kernels.PAR)). The controller and the search themselves
-are :func:`sim_core.soaring.kernels.boids.accel` and
-:func:`~sim_core.soaring.kernels.boids.find_lists`, the swarm's own code; sums over a glider's
-neighbours run in list order, whatever the batch.
+are :func:`sim_core.soaring.kernels.accel` and :func:`~sim_core.soaring.kernels.find_lists`, the
+swarm's own code; sums over a glider's neighbours run in list order, whatever the batch.
 
 :func:`controller_command` is the same controller for ONE glider from its own observations, for
 an autopilot on the far side of a bus.
@@ -25,10 +24,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim_core.soaring import kernels
-from sim_core.soaring.kernels import octave
-from sim_core.soaring.kernels.boids import accel_many, lists_many
-from sim_core.soaring.kernels.boids import controller as controller_kernel
-from sim_core.soaring.kernels.thermals import FADE_TOLERANCE
 from sim_core.soaring.law import Law
 
 __all__ = [
@@ -112,7 +107,7 @@ def law_params(laws: Sequence[Law]) -> LawParams:
     p["fade_rate"] = col([c[0] for c in chosen]).astype(np.float64)
     p["fade_top"] = col([c[1] for c in chosen]).astype(np.float64)
     p["fade_bottom"] = col([c[2] for c in chosen]).astype(np.float64)
-    tol = [FADE_TOLERANCE if t else 0.0 for t in by_time]
+    tol = [kernels.FADE_TOLERANCE if t else 0.0 for t in by_time]
     derived: dict[str, list[float]] = {
         "unified": [float(law.controller == "unified") for law in laws],
         "fov_limited": [float(law.fov < 2 * math.pi) for law in laws],
@@ -146,7 +141,7 @@ def find_neighbors(
         S[row] = v
     nb = np.zeros((b, n, width), dtype=np.int64)
     cnt = np.zeros((b, n), dtype=np.int64)
-    lists_many(S, np.array(alive, dtype=bool), P.table, nb, cnt, False)
+    kernels.lists_many(S, np.array(alive, dtype=bool), P.table, nb, cnt, False)
     valid = np.arange(width)[:, None, None] < cnt[None]
     idx = np.where(valid, nb.transpose(2, 0, 1), 0).astype(np.intp)
     return idx, valid
@@ -192,7 +187,7 @@ def boids_accel(
         c = np.array(own["cos"], dtype=np.float64).ravel()
         s = np.array(own["sin"], dtype=np.float64).ravel()
     else:
-        c, s = octave.cos_sin(heading)
+        c, s = kernels.cos_sin(heading)
     speed = np.asarray(own["speed"], dtype=np.float64).ravel()
     rows = (speed * c, speed * s, *(np.asarray(own[k], dtype=np.float64).ravel()
                                     for k in ("x", "y", "z", "vz")))
@@ -203,7 +198,7 @@ def boids_accel(
         raise ValueError("boids_accel: pairs must be sorted by owner")
     start = np.zeros(M + 1, dtype=np.int64)
     np.cumsum(np.bincount(owner, minlength=M), out=start[1:])
-    out = np.asarray(accel_many(
+    out = np.asarray(kernels.accel_many(
         G, np.arange(owner.size, dtype=np.int64), start, own_rows, heading,
         np.broadcast_to(np.asarray(waggle_sign, dtype=np.float64), (B, N)).ravel().copy(),
         np.repeat(P.table, N, axis=0),
@@ -274,6 +269,6 @@ def controller_command(
         ).reshape(-1, 6)
     P = _single_params(law, law.controller if controller is None else controller)
     me = np.array([float(getattr(own, k)) for k in _OBS_KEYS])
-    bank, speed = controller_kernel(me, np.array(arr, dtype=np.float64), P.table[0],
-                                    float(law.dt), float(waggle_sign), float(own.updraft))
+    bank, speed = kernels.controller(me, np.array(arr, dtype=np.float64), P.table[0], float(law.dt),
+                               float(waggle_sign), float(own.updraft))
     return float(bank), float(speed)

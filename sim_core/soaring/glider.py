@@ -16,8 +16,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sim_core.soaring import kernels
-from sim_core.soaring.kernels import octave
-from sim_core.soaring.kernels.glider import command_many, fly_many, sink_many
 
 __all__ = ["GliderStep", "accel_to_command", "glider_step", "sink_rate"]
 
@@ -37,7 +35,7 @@ def sink_rate(speed: ArrayLike, bank: ArrayLike, A: ArrayLike, B: ArrayLike, C: 
     speed v in m/s, bank φ in rad (|φ| < π/2).
     """
     shape, (v, b, a, bb, c) = flat(speed, bank, A, B, C)
-    return np.asarray(sink_many(v, b, a, bb, c)).reshape(shape)
+    return np.asarray(kernels.sink_many(v, b, a, bb, c)).reshape(shape)
 
 
 def accel_to_command(
@@ -63,10 +61,10 @@ def accel_to_command(
     shape, (x, y, h, v, gg, tbf, w) = flat(ax, ay, heading, speed, g, thermal_bank_factor,
                                           updraft)
     if cos_sin is None:
-        c, s = octave.cos_sin(h)
+        c, s = kernels.cos_sin(h)
     else:
         _, (c, s) = flat(np.broadcast_to(cos_sin[0], shape), np.broadcast_to(cos_sin[1], shape))
-    out = np.asarray(command_many(x, y, c, s, v, float(dt), gg, tbf, w))
+    out = np.asarray(kernels.command_many(x, y, c, s, v, float(dt), gg, tbf, w))
     return out[1].reshape(shape), out[0].reshape(shape)
 
 
@@ -138,7 +136,7 @@ def glider_step(
     shape, cols = flat(x, y, z, heading, bank, speed, airspeed_cmd, bank_cmd, updraft, g,
                        *params)
     if cos_sin is None:
-        c, s = octave.cos_sin(cols[3])
+        c, s = kernels.cos_sin(cols[3])
     else:
         _, (c, s) = flat(np.broadcast_to(cos_sin[0], shape), np.broadcast_to(cos_sin[1], shape))
     par = np.zeros((cols[0].shape[0], len(kernels.PAR)))
@@ -146,7 +144,7 @@ def glider_step(
     for col, values in zip(_STEP_PARAMS, cols[10:], strict=True):
         par[:, col] = values
     X = np.stack([*cols[:9], c, s])
-    out = np.asarray(fly_many(X, float(dt), par))
+    out = np.asarray(kernels.fly_many(X, float(dt), par))
     ground = out[8] != 0.0
 
     def kept(new: F8, old: F8) -> F8:

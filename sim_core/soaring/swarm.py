@@ -10,7 +10,7 @@ with slots that are never alive). One step follows the seed's order (spec §3.1)
    the external commands of gliders flown by an autopilot), then the glider step;
 5. deaths take effect; metrics accumulate from the saved state of the gliders still alive.
 
-The step is :func:`sim_core.soaring.kernels.step.advance` (compiled); this module holds the state
+The step is :func:`sim_core.soaring.kernels.advance` (compiled); this module holds the state
 between calls, draws the randomness, and turns accumulators into :class:`Metrics`. A run
 without trace, waggle or external commands is flown to its end in one kernel call.
 
@@ -32,9 +32,6 @@ from numpy.typing import NDArray
 from sim_core.rng import derive_rng
 from sim_core.soaring import kernels
 from sim_core.soaring.boids import LawParams, law_params
-from sim_core.soaring.kernels.boids import lists_many
-from sim_core.soaring.kernels.step import advance
-from sim_core.soaring.kernels.thermals import updraft_many
 from sim_core.soaring.law import Law
 from sim_core.soaring.thermals import Thermals, spawn_thermals, stack_thermals
 from sim_core.soaring.trace import Trace
@@ -338,7 +335,7 @@ class SwarmSim:
     def updraft_at(self, xy: NDArray[np.floating]) -> F8:
         """w m/s at points xy (B, M, 2) → (B, M) for the current thermals."""
         pts = np.asarray(xy, dtype=np.float64)
-        return np.asarray(updraft_many(np.array(pts[..., 0]), np.array(pts[..., 1]),
+        return np.asarray(kernels.updraft_many(np.array(pts[..., 0]), np.array(pts[..., 1]),
                                          self._th, self._th_on))
 
     def _refreshes(self, step: int) -> bool:
@@ -363,7 +360,7 @@ class SwarmSim:
             return self._nb, self._cnt
         if self._peek is None or self._peek[0] != self.step_count:
             nb, cnt = np.zeros_like(self._nb), np.zeros_like(self._cnt)
-            lists_many(self._S.copy(), self._alive, self.P.table, nb, cnt, True)
+            kernels.lists_many(self._S.copy(), self._alive, self.P.table, nb, cnt, True)
             self._peek = (self.step_count, nb, cnt)
         return self._peek[1], self._peek[2]
 
@@ -439,7 +436,7 @@ class SwarmSim:
         return self._kernel(steps, skip_finished)
 
     def _kernel(self, steps: int, skip_finished: bool) -> int:
-        flown = int(advance(
+        flown = int(kernels.advance(
             steps, self.step_count, self.total_steps, self._nfs, self._mfs, self._res, self.dt,
             self._stop_when_dead, skip_finished, self._S, self._alive, self._nb, self._cnt,
             self._th, self._th_on, self.P.table, self._ext_on, self._ext_cmd,

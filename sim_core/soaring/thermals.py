@@ -19,7 +19,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim_core.soaring import kernels
-from sim_core.soaring.kernels.thermals import FADE_TOLERANCE, fade_many, updraft_many
 from sim_core.soaring.law import Law
 
 __all__ = [
@@ -209,7 +208,7 @@ def updraft(xy: NDArray[np.floating], thermals: Thermals) -> F8:
             f"got {np.shape(xy)}"
         )
     th, on = thermals.block()
-    w = np.asarray(updraft_many(np.array(pts[..., 0]), np.array(pts[..., 1]), th, on))
+    w = np.asarray(kernels.updraft_many(np.array(pts[..., 0]), np.array(pts[..., 1]), th, on))
     return w[0] if single else w
 
 
@@ -228,14 +227,14 @@ def fade_step(
         return np.broadcast_to(v, (b, 1))[:, 0]
 
     seconds = col(by_time).astype(bool)
-    tol = np.where(seconds, FADE_TOLERANCE, 0.0)
+    tol = np.where(seconds, kernels.FADE_TOLERANCE, 0.0)
     par = np.zeros((b, len(kernels.PAR)))
     par[:, kernels.P_FADE_RATE] = col(rate)
     par[:, kernels.P_FADE_INCR] = np.where(seconds, dt, 1.0)
     par[:, kernels.P_FADE_TOP] = col(top) - tol
     par[:, kernels.P_FADE_BOTTOM] = col(bottom) - tol
     block, on = th.block()
-    fade_many(block, on, par)
+    kernels.fade_many(block, on, par)
     th.strength[...] = block[kernels.TH_W]
     th.direction[...] = block[kernels.TH_DIR]
     th.timer[...] = block[kernels.TH_TIMER]
