@@ -109,6 +109,7 @@ class ServerSonars:
             on_drop=lambda req: self._gate.echo_done(req.sonar_id),
             points=self.points_request(first) if "/forest/points" in self._pubs else None,
             on_points=self._publish_points, lookahead=self.lookahead, domain=self._domain,
+            faults=node.faults,
         )
 
     def start(self) -> None:
