@@ -40,10 +40,20 @@ def test_a_failed_expectation_raises_naming_it(echoloop_launch):
     assert exc.value.summary.exit_status == 4
 
 
-def test_a_node_that_fails_to_start_raises_its_error(echoloop_launch):
+def test_a_node_that_fails_to_construct_fails_the_run_naming_it(echoloop_launch):
     bad = {"name": "sonar_head", "entry": "drivers.serial.adapter:SonarHeadAdapter",
            "params": {"port": "nope://x"}}
-    with pytest.raises(ValueError, match="serial URL scheme 'nope' unknown"):
+    with pytest.raises(RunFailed, match="sonar_head failed: constructor raised ValueError: "
+                                        "serial URL scheme 'nope' unknown") as exc:
+        echoloop_launch({"nodes": [SERVER, bad]}, duration=0.5)
+    assert exc.value.summary.exit_status == 1
+    assert exc.value.summary.stopped_by == "failure"
+
+
+def test_a_node_that_refuses_its_params_raises_the_config_error(echoloop_launch):
+    bad = {"name": "sonar_head", "entry": "drivers.serial.adapter:SonarHeadAdapter",
+           "params": {"colour": "red"}}
+    with pytest.raises(ValueError, match="colour"):
         echoloop_launch({"nodes": [SERVER, bad]}, duration=0.5)
 
 
@@ -73,7 +83,7 @@ def test_the_fixture_works_from_a_test_file_outside_the_repository(tmp_path: Pat
         cwd=tmp_path / "user_project", env=env, capture_output=True, text=True, timeout=300,
     )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
-    assert "4 passed" in proc.stdout
+    assert "5 passed" in proc.stdout
 
 
 def test_node_overrides_forms() -> None:

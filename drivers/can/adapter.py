@@ -41,14 +41,14 @@ neighbour lists, and malformed bus messages are dropped and counted before they 
 (:mod:`hil_bridge.bus.node`), so a flood on one topic cannot hold states back.
 
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
-recovery, re-open); no exception leaves the adapter's threads (anything unexpected is logged
-and counted as ``loop_errors``). Counters are in :meth:`stats`
+recovery, re-open); no exception leaves the adapter's threads: anything unexpected is counted
+as ``loop_errors`` and reported to the node's ``faults`` (a failure of the node, naming the
+loop: the launch run exits non-zero). Counters are in :meth:`stats`
 and published on ``/diagnostics`` (by the node, every ``diagnostics_period_s``).
 """
 
 from __future__ import annotations
 
-import logging
 import math
 import threading
 import time
@@ -79,8 +79,6 @@ __all__ = [
     "best_glide_speed",
     "parse_gliders",
 ]
-
-log = logging.getLogger(__name__)
 
 #: cmd_state values (BRIDGE_HEARTBEAT.cmd_state, the DBC's value table).
 CMD_STATES = {"WAITING": 0, "FRESH": 1, "HOLD": 2, "FAILSAFE": 3}
@@ -293,7 +291,8 @@ class AutopilotAdapter(Node):
         super().start()
         self._start_wall = time.monotonic()
         for target, suffix in ((self._can_rx_loop, "can-rx"), (self._can_tx_loop, "can-tx")):
-            t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
+            t = threading.Thread(target=self.faults.guarded(f"{suffix} loop", target),
+                                 name=f"{self.name}-{suffix}", daemon=True)
             t.start()
             self._can_threads.append(t)
         return self
@@ -400,9 +399,9 @@ class AutopilotAdapter(Node):
                     next_hb = max(next_hb + hb_period, now)
                     self._supervise(now)
                     self._send_heartbeats()
-            except Exception:
+            except Exception as exc:
                 self._inc("loop_errors")
-                log.exception("%s: CAN transmit cycle failed", self.name)
+                self.faults.report("CAN transmit cycle", exc)
             self._stop_evt.wait(max(0.0, min(next_state, next_hb) - time.monotonic()))
 
     def _send(self, name: str, node: int, values: Mapping[str, float]) -> bool:
@@ -608,9 +607,9 @@ class AutopilotAdapter(Node):
                 continue
             try:
                 self._on_frame(frame)
-            except Exception:
+            except Exception as exc:
                 self._inc("loop_errors")
-                log.exception("%s: handling CAN frame %s failed", self.name, frame.name)
+                self.faults.report(f"handling CAN frame {frame.name}", exc)
 
     def _on_frame(self, frame: DecodedFrame) -> None:
         g = self._by_node.get(frame.node_id)

@@ -29,6 +29,7 @@ import numpy as np
 
 from drivers.mocks.device_port import SerialDevicePort
 from drivers.serial.ptyport import PtyPort
+from hil_bridge.bus.faults import Faults
 from sim_core.config import from_dict
 from sim_core.rng import derive_rng
 
@@ -110,7 +111,8 @@ class FaultInjector:
 
 
 class SerialFaultProxy:
-    """Device <-> faults <-> host pty (module docstring)."""
+    """Device <-> faults <-> host pty (module docstring). ``faults`` are the faults it injects;
+    ``fault_record`` what went wrong in the proxy itself (a thread that died: ``failure()``)."""
 
     def __init__(
         self,
@@ -150,6 +152,7 @@ class SerialFaultProxy:
         self._started = False
         self._stopped = False
         self.unplugs = 0
+        self.fault_record = Faults(name)
 
     @property
     def path(self) -> str:
@@ -168,7 +171,8 @@ class SerialFaultProxy:
         if self.unplug_every_s > 0:
             loops.append((self._unplug_loop, "unplug"))
         for target, suffix in loops:
-            t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
+            t = threading.Thread(target=self.fault_record.guarded(f"{suffix} loop", target),
+                                 name=f"{self.name}-{suffix}", daemon=True)
             self._threads.append(t)
             t.start()
 
@@ -209,6 +213,10 @@ class SerialFaultProxy:
         """Bring the host-side device back under the same symlink."""
         if self.pty is not None:
             self.pty.replug()
+
+    def failure(self, *, final: bool = False) -> str | None:
+        """Why the proxy failed (one of its threads ended by an exception), or None."""
+        return self.fault_record.failure(final=final)
 
     def stats(self) -> dict[str, Any]:
         out: dict[str, Any] = {"unplugs": self.unplugs}

@@ -29,12 +29,12 @@ whatever the wall clock does. Its control timer leaves such nodes alone; a node 
 sample is not a lockstep one is commanded at ``rate_hz`` again.
 
 Launchable (``Cls(name, *, bus, **params)``): the ``bus`` argument is part of the contract; a
-device mock has no use for the echoloop bus.
+device mock has no use for the echoloop bus. An exception in its receive or control loop is
+counted (``loop_errors``) and reported to its ``faults``: ``failure()`` names it.
 """
 
 from __future__ import annotations
 
-import logging
 import math
 import threading
 import time
@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 from drivers.can.bus import CanBusConfig, CanLink
 from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
 from drivers.can.samples import STATE_FRAMES, SampleAssembler
+from hil_bridge.bus.faults import Faults
 from hil_bridge.errors import CodecError
 from hil_bridge.files.soaring import load_law
 from hil_bridge.outputs import check_output
@@ -66,8 +67,6 @@ __all__ = [
     "ProfileReceiver",
     "figure_eight_waypoints",
 ]
-
-log = logging.getLogger(__name__)
 
 #: Default control rate of the path follower, Hz.
 PATH_RATE_HZ = 10.0
@@ -417,6 +416,8 @@ replaces an existing one), ``faults``.
         self._hb_counter = 0
         self._last_cmd: dict[int, tuple[float, float]] = {}
         self._started = False
+        #: what went wrong in its loops (:mod:`hil_bridge.bus.faults`)
+        self.faults = Faults(name)
 
     # -- launchable contract ------------------------------------------------------------------
     def start(self) -> None:
@@ -427,7 +428,8 @@ replaces an existing one), ``faults``.
         self._link = CanLink(self.bus_config, log_path=self.can_log, stop_event=self._stop,
                              overwrite=self.overwrite)
         for target, suffix in ((self._rx_loop, "rx"), (self._tx_loop, "tx")):
-            t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
+            t = threading.Thread(target=self.faults.guarded(f"{suffix} loop", target),
+                                 name=f"{self.name}-{suffix}", daemon=True)
             t.start()
             self._threads.append(t)
 
@@ -453,6 +455,10 @@ replaces an existing one), ``faults``.
         out["controller"] = self.controller
         out["nodes"] = list(self.nodes)
         return out
+
+    def failure(self, *, final: bool = False) -> str | None:
+        """Why the mock failed (an exception in its loops), or None."""
+        return self.faults.failure(final=final)
 
     def last_command(self, node: int) -> tuple[float, float] | None:
         """The last (bank_cmd, airspeed_cmd) sent for ``node``, None if none yet."""
@@ -484,9 +490,9 @@ replaces an existing one), ``faults``.
                     if frame.name == "GLIDER_STATE_MOTION":
                         self._answer_lockstep(
                             frame.node_id, int(frame.signals["state_counter"]), now)
-            except Exception:
+            except Exception as exc:
                 self._inc("loop_errors")
-                log.exception("%s: assembling CAN frame %s failed", self.name, frame.name)
+                self.faults.report(f"assembling CAN frame {frame.name}", exc)
 
     # -- control ------------------------------------------------------------------------------
     def _tx_loop(self) -> None:
@@ -502,9 +508,9 @@ replaces an existing one), ``faults``.
                 if now >= next_hb:
                     next_hb = max(next_hb + hb_period, now)
                     self._heartbeat(now)
-            except Exception:
+            except Exception as exc:
                 self._inc("loop_errors")
-                log.exception("%s: control cycle failed", self.name)
+                self.faults.report("control cycle", exc)
             self._stop.wait(max(0.0, min(next_ctl, next_hb) - time.monotonic()))
 
     def _fresh(self, view: NodeView, now: float) -> bool:

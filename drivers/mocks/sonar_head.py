@@ -25,7 +25,8 @@
    latency from firing a ping to receiving the last chunk of its echo.
 
 The ``bus`` argument is accepted for the launch contract only: a device speaks serial, never
-the bus. Its counters are available through ``stats()`` (the launch run summary).
+the bus. Its counters are available through ``stats()`` (the launch run summary); an exception
+that ends its receive or transmit thread is reported to its ``faults`` (``failure()``).
 
 This module holds the device's protocol state machine; its parameters are
 :class:`~drivers.mocks.sonar_head_config.SonarHeadConfig`, its port and UART pacing are in
@@ -61,6 +62,7 @@ from drivers.serial.protocol import (
 )
 from drivers.serial.ptyport import PtyPort
 from hil_bridge.bus.domain import current as current_domain
+from hil_bridge.bus.faults import Faults
 from sim_core.config import from_dict
 from sim_core.rng import make_rng
 
@@ -136,6 +138,8 @@ class MockSonarHead:
         self._counts = collections.Counter[str]()
         self._started = False
         self._stopped = False
+        #: what ended one of its threads (:mod:`hil_bridge.bus.faults`)
+        self.faults = Faults(name)
 
     # ---- lifecycle -------------------------------------------------------------------------
 
@@ -158,7 +162,8 @@ class MockSonarHead:
                 self._device = SerialDevicePort(str(self._port_url), self.cfg.baudrate)
         self._t0 = time.monotonic()
         for target, suffix in ((self._rx_loop, "rx"), (self._tx_loop, "tx")):
-            t = threading.Thread(target=target, name=f"{self.name}-{suffix}", daemon=True)
+            t = threading.Thread(target=self.faults.guarded(f"{suffix} loop", target),
+                                 name=f"{self.name}-{suffix}", daemon=True)
             self._threads.append(t)
             t.start()
 
@@ -183,6 +188,10 @@ class MockSonarHead:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def failure(self, *, final: bool = False) -> str | None:
+        """Why the mock failed (one of its threads ended by an exception), or None."""
+        return self.faults.failure(final=final)
 
     def wait_echoes(self, n: int, timeout: float) -> bool:
         """Block until ``n`` pings had their echo complete in time (True) or ``timeout`` s

@@ -24,6 +24,10 @@ does not answer such pings of a lockstep head.
 Otherwise a ping is stamped with the sim time of the latest ``/clock`` the adapter saw (its
 arrival, in sim time), which the server takes as its emission.
 
+The port dropping is a fault the adapter recovers from (its link re-opens it); one that never
+comes back by the end of the run, a callback of the link or the heartbeat thread that raises,
+fail the node (``failure()``, :mod:`hil_bridge.bus.faults`).
+
 ``stats()`` adds to the node's bus counters: ``frames_in``, ``frames_out``, ``crc_errors``,
 ``frames_dropped`` (any decode failure), ``echoes_out``, ``echoes_dropped``, ``reconnects``,
 ``pings_in``, ``link_state`` (0 ok, 1 degraded = frames dropped in the last heartbeat period,
@@ -135,7 +139,8 @@ class SonarHeadAdapter(Node):
             capture=p.capture, overwrite=overwrite, on_ping=self._on_ping,
             on_config=self._on_config,
             backoff_initial_s=p.backoff_initial_s, backoff_max_s=p.backoff_max_s,
-            tx_queue_bytes=p.tx_queue_bytes, echo_fs_hz=p.echo_fs_hz, name=name)
+            tx_queue_bytes=p.tx_queue_bytes, echo_fs_hz=p.echo_fs_hz, name=name,
+            faults=self.faults)
         if not self.budget.fits:
             self.host.state = LinkState.OVER_BUDGET
         self._ping_pub = self.create_publisher(SonarPing, f"/sonar/{p.sonar_id}/ping")
@@ -213,8 +218,9 @@ class SonarHeadAdapter(Node):
         super().start()
         self.host.start()
         if self._beat_thread is None:
-            self._beat_thread = threading.Thread(target=self._beat_loop,
-                                                 name=f"{self.name}-beat", daemon=True)
+            self._beat_thread = threading.Thread(
+                target=self.faults.guarded("heartbeat loop", self._beat_loop),
+                name=f"{self.name}-beat", daemon=True)
             self._beat_thread.start()
         return self
 

@@ -44,6 +44,7 @@ from drivers.serial.protocol import (
     echo_wire_bytes,
     encode_samples,
 )
+from hil_bridge.bus.faults import Faults
 from sim_core.sonar import to_baseband
 
 __all__ = ["LinkBudget", "SonarHeadHost", "baseband", "link_budget"]
@@ -133,6 +134,7 @@ class SonarHeadHost:
     ``echo_fs_hz``) is refused with an ERROR frame (``BAD_CONFIG``, counted
     ``configs_refused``) and the previous configuration stays.
     ``send_echo`` may be called from any thread; chunks of one echo are queued contiguously.
+    ``faults``: where its link reports (:class:`~drivers.serial.link.Link`).
     """
 
     def __init__(
@@ -153,6 +155,7 @@ class SonarHeadHost:
         tx_queue_bytes: int = 256 * 1024,
         echo_fs_hz: int = 400_000,
         name: str = "sonar_head",
+        faults: Faults | None = None,
     ) -> None:
         self.name = name
         if not 0 < echo_fs_hz < 1 << 32:
@@ -171,7 +174,7 @@ class SonarHeadHost:
         self.link = Link(port, baudrate=baudrate, on_bytes=self._on_bytes,
                          on_connect=self._on_connect, capture=capture, overwrite=overwrite,
                          backoff_initial_s=backoff_initial_s, backoff_max_s=backoff_max_s,
-                         tx_queue_bytes=tx_queue_bytes, name=name)
+                         tx_queue_bytes=tx_queue_bytes, name=name, faults=faults)
         self._tx_lock = threading.Lock()
         self._seq = 0
         self._t0 = time.monotonic()

@@ -10,12 +10,16 @@ above never knows which.
 1. ``start()`` returns at once; the reader thread opens the port and keeps it open. When the
    port fails (unplugged device, closed pty, reset socket) the link closes it and re-opens it
    with exponential back-off (``backoff_initial_s`` doubling to ``backoff_max_s``); each
-   successful re-open counts in ``reconnects``. A ``ValueError`` on open (bad URL option or
-   baud rate) is a configuration error: the link sets ``failed`` and stops trying.
+   successful re-open counts in ``reconnects``. The drop is reported to the link's ``faults``
+   as a recoverable fault and the re-open as its recovery (:mod:`hil_bridge.bus.faults`), so a
+   port that dropped and never came back fails the run it was in. A ``ValueError`` on open
+   (bad URL option or baud rate) is a configuration error: the link sets ``failed`` and stops
+   trying.
 2. ``send(data)`` never blocks: it queues the bytes for the writer thread (bounded by
    ``tx_queue_bytes``; overflow and bytes sent while disconnected are dropped and counted).
 3. Received bytes go to ``on_bytes(data)`` on the reader thread; an exception raised by the
-   callback is counted (``callback_errors``) and logged, never ends the thread.
+   callback is counted (``callback_errors``) and reported to ``faults`` (unrecoverable: a bug
+   of the link's owner), never ends the thread.
 4. With ``capture=PREFIX`` every byte read goes to ``PREFIX.rx.bin`` and every byte written to
    ``PREFIX.tx.bin``, byte-exact and in order, across reconnects; ``PREFIX.index.tsv`` has one
    line per read/write/open/close with a monotonic timestamp (format in docs/serial.md).
@@ -40,6 +44,7 @@ from typing import Any, BinaryIO, TextIO
 import serial
 
 from drivers import urlhandlers
+from hil_bridge.bus.faults import Faults
 from hil_bridge.errors import TransportTimeout
 from hil_bridge.outputs import AtomicOutput, check_output
 
@@ -151,7 +156,8 @@ class Capture:
 
 
 class Link:
-    """A reconnecting serial link (contract in the module docstring)."""
+    """A reconnecting serial link (contract in the module docstring); ``faults`` is its owner's
+    :class:`~hil_bridge.bus.faults.Faults` (default a record of its own, named ``name``)."""
 
     def __init__(
         self,
@@ -168,6 +174,7 @@ class Link:
         read_timeout_s: float = 0.05,
         tx_queue_bytes: int = 1 << 20,
         name: str = "link",
+        faults: Faults | None = None,
     ) -> None:
         self.url = check_url(url)
         if capture is not None:
@@ -182,6 +189,9 @@ class Link:
             )
         self.baudrate = int(baudrate)
         self.name = name
+        self.faults = faults if faults is not None else Faults(name)
+        #: where a drop of this port is reported (recoverable) and its re-open recovers it
+        self.fault_place = f"serial link {self.url}"
         self._on_bytes = on_bytes
         self._on_connect = on_connect
         self._on_disconnect = on_disconnect
@@ -377,6 +387,8 @@ class Link:
             return False
         self._ser = ser
         self.opens += 1
+        if self.opens > 1:  # before anyone can see it connected: a re-open is the recovery
+            self.faults.recovered(self.fault_place)
         if self.capture is not None:
             self.capture.event("open")
         self._connected.set()
@@ -411,9 +423,9 @@ class Link:
             return
         try:
             fn(*args)
-        except Exception:
+        except Exception as exc:
             self.callback_errors += 1
-            log.exception("%s: link callback %s failed", self.name, getattr(fn, "__name__", fn))
+            self.faults.report(f"link callback {getattr(fn, '__name__', fn)}", exc)
 
     def _read_loop(self) -> None:
         delay = self._backoff[0]
@@ -440,7 +452,7 @@ class Link:
                     break
                 self.read_errors += 1
                 self.last_error = exc
-                log.warning("%s: %s failed (%s); reconnecting", self.name, self.url, exc)
+                self.faults.report(self.fault_place, exc, recoverable=True)  # reconnecting
                 self._close_port()
                 continue
             if not data:

@@ -1,7 +1,10 @@
 """Endpoints of a :class:`hil_bridge.bus.node.Node`: publishers, subscriptions (and the lanes
 their deliveries queue in) and timers. They hold their own state (``seq``, pending
 acknowledgements, per-publisher sequence accounting, queued deliveries); the node's workers
-drive them (:mod:`hil_bridge.bus.node`).
+drive them (:mod:`hil_bridge.bus.executor`).
+
+An endpoint knows its node only as an :class:`EndpointHost` (what it needs of it), so this
+module imports neither the node nor the executor: both import it.
 """
 
 from __future__ import annotations
@@ -10,17 +13,16 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
+from hil_bridge.bus.clock import SimClock
 from hil_bridge.bus.codec import Envelope, Header, encode_header, encode_payload
 from hil_bridge.bus.messages import Message
 from hil_bridge.bus.qos import QoSProfile
 from hil_bridge.bus.seq import SeqTracker, Verdict
+from hil_bridge.bus.transport import Transport
 
-if TYPE_CHECKING:
-    from hil_bridge.bus.node import Node
-
-__all__ = ["Publisher", "Subscription", "Timer"]
+__all__ = ["EndpointHost", "Lane", "Publisher", "Subscription", "Timer"]
 
 M = TypeVar("M", bound=Message)
 
@@ -28,11 +30,26 @@ _SEEN_WINDOW = 1024
 _RELIABLE_QUEUE_MAX = 4096
 
 
+class EndpointHost(Protocol):
+    """What an endpoint needs of its node (:class:`hil_bridge.bus.node.Node`): its ``src``
+    (publisher id in headers), sim ``clock``, ``transport``, the counters of a topic and a way
+    to wake its executor (a reliable publish or a cancelled timer changes what is due)."""
+
+    src: str
+    clock: SimClock
+    transport: Transport
+
+    def _topic(self, topic: str) -> dict[str, int]: ...
+
+    def _wake_exec(self) -> None: ...
+
+
 class Publisher(Generic[M]):
     """Made by :meth:`Node.create_publisher`. ``publish(msg)`` returns the message's ``seq``."""
 
     def __init__(
-        self, node: Node, msg_type: type[M], topic: str, qos: QoSProfile, frame_id: str
+        self, node: EndpointHost, msg_type: type[M], topic: str, qos: QoSProfile,
+        frame_id: str,
     ) -> None:
         self.node = node
         self.msg_type = msg_type
@@ -135,7 +152,7 @@ class Publisher(Generic[M]):
             self._counters["latched_resends"] = self._counters.get("latched_resends", 0) + 1
 
 
-class _Lane:
+class Lane:
     """The deliveries queued for one or more subscriptions, in arrival order (a subscription's
     own lane, or the lane shared by subscriptions made with one ``lane`` name)."""
 
@@ -153,14 +170,14 @@ class Subscription(Generic[M]):
 
     def __init__(
         self,
-        node: Node,
+        node: EndpointHost,
         msg_type: type[M],
         topic: str,
         callback: Callable[[Any], None],
         qos: QoSProfile,
         envelope: bool,
         priority: bool = False,
-        lane: _Lane | None = None,
+        lane: Lane | None = None,
     ) -> None:
         self.node = node
         self.msg_type = msg_type
@@ -169,7 +186,7 @@ class Subscription(Generic[M]):
         self.qos = qos
         self.envelope = envelope
         self.priority = priority
-        self._lane = lane if lane is not None else _Lane()
+        self._lane = lane if lane is not None else Lane()
         self._lane.priority |= priority
         #: deliveries of this subscription waiting in its lane, at most ``limit``: keep-last
         #: ``depth`` (reliable: a large bound, never a drop in normal operation, but a flood
@@ -198,7 +215,7 @@ class Subscription(Generic[M]):
 class Timer:
     """Made by :meth:`Node.create_timer`; fires every ``period_ns`` of the node's sim clock."""
 
-    def __init__(self, node: Node, period_s: float, callback: Callable[[], None]) -> None:
+    def __init__(self, node: EndpointHost, period_s: float, callback: Callable[[], None]) -> None:
         if not period_s > 0:
             raise ValueError(f"timer period must be > 0 s, got {period_s!r}")
         self.node = node

@@ -15,12 +15,17 @@ Contract:
 3. Every report is logged once per place with its traceback (later repeats are counted, not
    logged), and counted in ``counts()`` by place.
 4. Thread-safe; reporting never raises.
+
+A thread whose body should never end by an exception is started on :meth:`Faults.guarded`
+(``threading.Thread(target=faults.guarded("rx loop", self._rx_loop))``): what escapes it is
+reported, not only printed by :func:`threading.excepthook` while the run goes on.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 
 __all__ = ["Fault", "Faults"]
@@ -109,3 +114,15 @@ class Faults:
         """Faults reported so far, by place."""
         with self._lock:
             return dict(self._counts)
+
+    def guarded(self, where: str, body: Callable[[], object]) -> Callable[[], None]:
+        """``body`` as a thread target: an exception escaping it is reported at ``where``
+        (unrecoverable: the thread has ended) instead of vanishing with the thread."""
+
+        def run() -> None:
+            try:
+                body()
+            except Exception as exc:
+                self.report(where, exc)
+
+        return run

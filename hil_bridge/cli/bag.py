@@ -60,31 +60,41 @@ def _fmt(x: float | None, unit: str) -> str:
 
 
 def _record(args: argparse.Namespace) -> int:
+    from hil_bridge.launch.runner import RunSummary, judge
+
     stop = _stop_on_signals()
     recorder = Recorder(args.file, args.topics, bus=args.bus, chunk_size=args.chunk_size,
                         flush_period_s=args.flush_period, compression=args.compression,
                         overwrite=args.overwrite)
     recorder.start()
-    deadline = None if args.duration is None else time.monotonic() + args.duration
+    t0 = time.monotonic()
+    deadline = None if args.duration is None else t0 + args.duration
+    stopped_by = "signal"
     try:
         print(f"recording {'all topics' if args.topics is None else args.topics} from "
               f"{args.bus} into {args.file} (Ctrl-C stops)", flush=True)
-        while not stop.is_set() and recorder.failure() is None:
+        while not stop.is_set():
+            if recorder.failure() is not None:
+                stopped_by = "failure"
+                break
             left = None if deadline is None else deadline - time.monotonic()
             if left is not None and left <= 0:
+                stopped_by = "duration"
                 break
             stop.wait(0.1 if left is None else min(0.1, left))
     finally:
         recorder.stop()
     s = recorder.stats()
     print(f"recorded {s['messages']} messages ({s['bytes']} payload bytes) into {args.file}")
-    failure = recorder.failure()
-    if failure is not None:
-        print(f"echoloop bag record: error: {args.file}: the recording is incomplete: {failure} "
-              f"({s['lost_after_error'] + s['not_recorded']} messages not recorded)",
-              file=sys.stderr)
-        return 1
-    return 0
+    failure = recorder.failure(final=True)
+    summary = RunSummary(wall_s=time.monotonic() - t0, stopped_by=stopped_by, nodes={},
+                         record=str(args.file), extras={recorder.name: s}, bus=args.bus)
+    reason = (f"{args.file}: the recording is incomplete: {failure} "
+              f"({s['lost_after_error'] + s['not_recorded']} messages not recorded)")
+    summary.failures = judge(summary, failed=[(recorder.name, reason)] if failure else [])
+    for problem in summary.failures:
+        print(f"echoloop bag record: error: {problem.message}", file=sys.stderr)
+    return summary.exit_status
 
 
 def _warn_damage(info: BagInfo) -> None:

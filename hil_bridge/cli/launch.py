@@ -5,9 +5,10 @@ until ``--duration`` seconds have passed or Ctrl-C/SIGTERM arrives, then stops t
 order.
 ``--json`` prints the run summary (messages per topic, drops, stalls, latency percentiles, every
 node's ``stats()``, link states, failures) as one JSON document on stdout; otherwise a short
-human summary is printed. What failed (an ``--expect`` that did not hold, a hardware link that
-never connected) is printed on stderr, one line each, and sets the exit status
-(:attr:`hil_bridge.launch.runner.RunSummary.exit_status`).
+human summary is printed. What failed (a node, an ``--expect`` that did not hold, a hardware
+link that never connected, the ``--plot`` drawn after the run) is printed on stderr, one line
+each, and sets the exit status (:attr:`hil_bridge.launch.runner.RunSummary.exit_status`, judged
+in one place: a failed plot never hides or replaces the run's own status).
 """
 
 from __future__ import annotations
@@ -186,13 +187,19 @@ def report_failures(summary: RunSummary, prog: str = "echoloop launch") -> int:
     return summary.exit_status
 
 
-
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     if args.plot and not args.record:
         raise ValueError("--plot needs --record FILE.mcap (the plot is drawn from the recording)")
+    after_run: dict[str, Any] = {}
     if args.plot:
         check_output(args.plot, overwrite=args.overwrite, inputs=[args.record])
+
+        def plot(_summary: RunSummary) -> None:
+            with atomic_output(args.plot, overwrite=args.overwrite, inputs=[args.record]) as tmp:
+                plot_recording(args.record, tmp)
+
+        after_run["plot"] = plot
     with domain_for_run(args, "echoloop launch") as domain:
         summary = run(
             args.file,
@@ -207,14 +214,12 @@ def main(argv: list[str] | None = None) -> int:
             allow_disconnected=args.allow_disconnected,
             overwrite=args.overwrite,
             allow_modules=args.allow_module,
+            after_run=after_run,
         )
     if args.json:
         print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))
     else:
         print(format_summary(summary, verbose=args.verbose))
-    if args.plot:
-        with atomic_output(args.plot, overwrite=args.overwrite, inputs=[args.record]) as tmp:
-            plot_recording(args.record, tmp)
-        if not args.json:
-            print(f"plot: {args.plot}")
+    if args.plot and not args.json and not any(f.source == "plot" for f in summary.failures):
+        print(f"plot: {args.plot}")
     return report_failures(summary)

@@ -1,6 +1,7 @@
 """Launch: a launch file (plain data) run by a runner that starts, watches and judges nodes.
 
-``runner`` (load, resolve entries, run, judge the exit status), ``monitor`` (the bus monitor's
+``spec`` (the launch file: load, validate, which entries may run), ``runner`` (run it, watch
+every launchable's ``failure()``, judge the exit status), ``monitor`` (the bus monitor's
 topic statistics), ``expect`` (``--expect`` expressions) and ``pytest_plugin`` (the
 ``echoloop_launch`` fixture). ``python -m hil_bridge.launch FILE`` is ``echoloop launch FILE``.
 
@@ -10,6 +11,7 @@ named by entry strings and imported at run time, never at import time.
 """
 
 from hil_bridge.launch.runner import (
+    EXIT_AFTER_RUN,
     EXIT_DISCONNECTED,
     EXIT_EXPECT,
     EXIT_FAILED,
@@ -22,6 +24,7 @@ from hil_bridge.launch.runner import (
 )
 
 __all__ = [
+    "EXIT_AFTER_RUN",
     "EXIT_DISCONNECTED",
     "EXIT_EXPECT",
     "EXIT_FAILED",

@@ -7,6 +7,7 @@ import time
 from collections import deque
 from typing import Any
 
+from hil_bridge.bus.faults import Faults
 from hil_bridge.bus.stats import TopicStats
 
 __all__ = ["BusMonitor"]
@@ -46,14 +47,21 @@ class BusMonitor:
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._pings: dict[tuple[str, int], int] = {}
         self._throttled_s = 0.0
+        #: its receive thread's end by an exception (a failure of the run)
+        self.faults = Faults(name)
 
     def start(self) -> None:
         from hil_bridge.bus.transport import open_transport
 
         self._transport = open_transport(self.bus)
         self._transport.subscribe(b"")
-        self._thread = threading.Thread(target=self._loop, name=f"{self.name}-rx", daemon=True)
+        self._thread = threading.Thread(target=self.faults.guarded("receive loop", self._loop),
+                                        name=f"{self.name}-rx", daemon=True)
         self._thread.start()
+
+    def failure(self, *, final: bool = False) -> str | None:
+        """Why the monitor failed (its receive thread died), or None."""
+        return self.faults.failure(final=final)
 
     def stop(self) -> None:
         self._stop.set()

@@ -17,10 +17,11 @@ python-can virtual channels and pty links under the test's ``tmp_path``, so pyte
 workers, and several runs in one test, never share anything. ``params`` overrides node
 parameters like ``--param``: ``{"NODE.KEY": value}`` or ``{"NODE": {"KEY": value}}`` (dotted
 keys reach nested parameters). It returns the :class:`hil_bridge.launch.runner.RunSummary` (what
-``--json`` prints; ``summary.nodes[name][counter]``). A node that fails to construct or start
-raises its own error; a run with failures (an expectation that did not hold, a hardware link
-that never connected unless ``allow_disconnected``, anything else that would make
-``echoloop launch`` exit non-zero) raises :class:`RunFailed` naming each one.
+``--json`` prints; ``summary.nodes[name][counter]``). A node that refuses its params raises
+the ``ConfigError`` (a ``ValueError``) naming it; a run with failures (a node that failed: its
+constructor or ``start()`` raised, or its ``failure()`` named a fault; an expectation that did
+not hold; a hardware link that never connected unless ``allow_disconnected``; anything else
+that would make ``echoloop launch`` exit non-zero) raises :class:`RunFailed` naming each one.
 """
 
 from __future__ import annotations

@@ -1,29 +1,24 @@
-"""Launch = data + runner: run a YAML node graph as threads of one process.
+"""Launch = data + runner: run a launch file's node graph as threads of one process.
 
-A launch file is plain data (no substitutions, conditions or event handlers)::
+The launch file and its validation are :mod:`hil_bridge.launch.spec` (its names are importable
+from here too); this module runs a :class:`LaunchSpec`, watches it and judges the run.
 
-    bus: mem://demo              # optional; default the domain's (hil_bridge.bus.domain)
-    allow_modules: [my_lab.nodes]   # optional; entries outside hil_bridge/drivers/sim_core
-    duration: 20                 # optional default run time in seconds (CLI --duration wins)
-    record: out/run.mcap         # optional MCAP recording of every topic (CLI --record wins)
-    nodes:
-      - name: server
-        entry: hil_bridge.server:SimServer
-        params: {scene: {...}}
-      - name: sonar_head
-        entry: drivers.serial.adapter:SonarHeadAdapter
-        params: {port: /dev/ttyUSB0}
+Each entry implements the *launchable* contract:
 
-It is validated once, at load, into :class:`LaunchSpec` (unknown keys raise a
-:class:`~sim_core.config.ConfigError` naming the key; every ``entry`` must import and name a
-class). **A launch file runs code**: importing an entry runs its module. Entries may come only
-from the project's packages (the installed ``hil_bridge``, ``drivers``, ``sim_core``) and from
-modules listed under ``allow_modules:`` (or ``--allow-module``), and every entry is checked
-against that list before the first import (:func:`check_entry_module`).
+- ``Cls(name, *, bus, **params)``; ``start()`` (non-blocking); ``stop()`` (idempotent, joins
+  its threads); ``stats() -> dict``;
+- optionally ``failure(*, final: bool = False) -> str | None``: why it failed, naming the place
+  (``"tick loop: RuntimeError: ..."``), or None. The runner asks it while the run goes (every
+  :data:`FAILURE_POLL_S`) and ends the run at the first answer; at the end of the run, before
+  anything is stopped, with ``final=True`` (a fault the launchable declared recoverable and that
+  never recovered is then a failure too), and once more after its ``stop()`` (a failure while
+  stopping, e.g. a recording that could not be committed). A ``failure()`` without the
+  ``final`` parameter is called without it. The project's launchables answer from their
+  :class:`hil_bridge.bus.faults.Faults`, to which their callbacks, timers and threads report.
 
-Each entry implements the *launchable* contract: ``Cls(name, *, bus, **params)``, ``start()``
-(non-blocking), ``stop()`` (idempotent, joins its threads) and ``stats() -> dict``, and
-optionally ``failure() -> str | None`` (why it failed; the run then exits non-zero).
+A node whose constructor or ``start()`` raises fails the run the same way (the nodes already
+built are stopped in reverse order, nothing else starts); only a node that refuses its params
+(``ConfigError``, or a ``TypeError`` for an unknown one) raises, as the launch file's error.
 
 Why threads in one process, not processes: python-can's ``virtual`` interface only connects
 buses of one process (the CAN adapter and the mock autopilot must share it), the mock sonar
@@ -38,22 +33,21 @@ and virtual CAN channel a node picks is the domain's (:mod:`hil_bridge.bus.domai
 
 **Exit status** (:attr:`RunSummary.exit_status`, computed in one place, :func:`judge`, from the
 summary's ``failures``): 0 all well; otherwise the lowest code among the failures —
-:data:`EXIT_FAILED` (1) a node or the recorder failed, :data:`EXIT_DISCONNECTED` (3) a hardware
-link (a node's ``stats()["links"]`` entry) never connected, unless ``allow_disconnected``,
-:data:`EXIT_EXPECT` (4) an expectation (:mod:`hil_bridge.launch.expect`) did not hold.
+:data:`EXIT_FAILED` (1) a node or the recorder failed (its ``failure()``, its constructor,
+``start()``, ``stop()`` or ``stats()`` raised), :data:`EXIT_DISCONNECTED` (3) a hardware link
+(a node's ``stats()["links"]`` entry) never connected, unless ``allow_disconnected``,
+:data:`EXIT_EXPECT` (4) an expectation (:mod:`hil_bridge.launch.expect`) did not hold,
+:data:`EXIT_AFTER_RUN` (5) a step after the run (``run(after_run=...)``: ``--plot``) failed
+while the run itself went well: such a step never hides or replaces the run's own status.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import importlib
-import importlib.util
 import inspect
 import logging
-import math
 import signal
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -63,16 +57,27 @@ from types import FrameType
 from typing import Any, Protocol, runtime_checkable
 
 from hil_bridge.bus.domain import Domain, resolve, use
-from hil_bridge.files.config import load_yaml, parse_override
 from hil_bridge.launch.expect import Expectation, parse_expectations
 from hil_bridge.launch.monitor import BusMonitor
-from sim_core.config import ConfigError, apply_overrides, from_dict
+from hil_bridge.launch.spec import (
+    PROJECT_PACKAGES,
+    LaunchSpec,
+    NodeSpec,
+    check_duration,
+    check_entry_module,
+    load,
+    parse_param_overrides,
+    resolve_entry,
+)
+from sim_core.config import ConfigError
 
 __all__ = [
+    "EXIT_AFTER_RUN",
     "EXIT_DISCONNECTED",
     "EXIT_EXPECT",
     "EXIT_FAILED",
     "EXIT_OK",
+    "FAILURE_POLL_S",
     "PROJECT_PACKAGES",
     "BusMonitor",
     "Failure",
@@ -101,197 +106,23 @@ EXIT_FAILED = 1
 EXIT_DISCONNECTED = 3
 #: an expectation (``--expect``) did not hold
 EXIT_EXPECT = 4
+#: the run went well but a step after it (``--plot``) failed
+EXIT_AFTER_RUN = 5
 
-
-def check_duration(seconds: float | str, *, where: str = "--duration") -> float:
-    """``seconds`` if it is a finite number > 0, else ``ValueError`` naming ``where``."""
-    prefix = f"{where}: " if where else ""
-    try:
-        value = float(seconds)
-    except (TypeError, ValueError):
-        value = math.nan
-    if not (value > 0 and math.isfinite(value)):
-        raise ValueError(f"{prefix}expected a finite number of seconds > 0, got {seconds!r}")
-    return value
+#: how often (wall s) the runner asks every launchable for its ``failure()`` while the run goes
+FAILURE_POLL_S = 0.05
 
 
 @runtime_checkable
 class Launchable(Protocol):
-    """What every launch entry implements (constructor ``Cls(name, *, bus, **params)``)."""
+    """What every launch entry implements (constructor ``Cls(name, *, bus, **params)``); the
+    optional ``failure(*, final=False)`` is described in the module docstring."""
 
     def start(self) -> None: ...
 
     def stop(self) -> None: ...
 
     def stats(self) -> dict[str, Any]: ...
-
-
-@dataclass(frozen=True, slots=True)
-class NodeSpec:
-    """One node of a launch file: a unique ``name``, ``entry`` ``"pkg.module:Class"``, params."""
-
-    name: str
-    entry: str
-    params: dict[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if not self.name or not self.name.replace("_", "a").isalnum():
-            raise ValueError(f"name: expected [A-Za-z0-9_]+, got {self.name!r}")
-        module, sep, attr = self.entry.partition(":")
-        if not sep or not module or not attr:
-            raise ValueError(f"entry: expected 'package.module:Class', got {self.entry!r}")
-
-
-@dataclass(frozen=True, slots=True)
-class LaunchSpec:
-    """A validated launch file (see the module docstring)."""
-
-    nodes: tuple[NodeSpec, ...]
-    bus: str | None = None
-    duration: float | None = None
-    record: str | None = None
-    live: bool = False
-    description: str = ""
-    allow_modules: tuple[str, ...] = ()
-
-    def __post_init__(self) -> None:
-        if not self.nodes:
-            raise ValueError("nodes: expected at least one node")
-        for name in self.allow_modules:
-            if not all(part.isidentifier() for part in name.split(".")):
-                raise ValueError(f"allow_modules: expected dotted module names, got {name!r}")
-        seen: set[str] = set()
-        for node in self.nodes:
-            if node.name in seen:
-                raise ValueError(f"nodes: duplicate node name {node.name!r}")
-            seen.add(node.name)
-        if self.duration is not None:
-            check_duration(self.duration, where="duration")
-
-    def node(self, name: str) -> NodeSpec:
-        for node in self.nodes:
-            if node.name == name:
-                return node
-        raise KeyError(name)
-
-
-#: the project's own packages: launch entries may always come from these
-PROJECT_PACKAGES = ("hil_bridge", "drivers", "sim_core")
-_PROJECT_ROOT = Path(__file__).resolve().parents[2]
-
-
-def _covered(module: str, allowed: Sequence[str]) -> bool:
-    return any(module == a or module.startswith(a + ".") for a in allowed)
-
-
-def check_entry_module(module_name: str, allow_modules: Sequence[str] = (), *,
-                       where: str = "entry") -> None:
-    """Refuse, before anything is imported, an entry module that is neither in the project's
-    packages (:data:`PROJECT_PACKAGES`, and only the installed copy of them: a package of the
-    same name planted in the working directory is refused) nor in ``allow_modules`` (a module
-    or a package, with everything below it). ``ConfigError`` says which and how to allow it."""
-    if _covered(module_name, allow_modules):
-        return
-    top = module_name.split(".")[0]
-    if top in PROJECT_PACKAGES:
-        loaded = sys.modules.get(top)
-        origin = getattr(loaded, "__file__", None) if loaded is not None else None
-        if origin is None:
-            spec = importlib.util.find_spec(top)  # locates the package; runs none of its code
-            origin = spec.origin if spec is not None else None
-        if origin is not None and Path(origin).resolve().is_relative_to(_PROJECT_ROOT / top):
-            return
-        raise ConfigError(
-            f"{where}: module {module_name!r} would be imported from {origin}, not from the "
-            f"installed echoloop ({_PROJECT_ROOT}); refusing to run it"
-        )
-    raise ConfigError(
-        f"{where}: module {module_name!r} is not allowed: launch entries come from the "
-        f"project's packages {list(PROJECT_PACKAGES)} or from modules the launch file lists "
-        f"under 'allow_modules:' (or --allow-module {module_name}); a launch file runs the "
-        "code it names"
-    )
-
-
-def resolve_entry(entry: str, *, where: str = "entry", allow_modules: Sequence[str] = ()) -> type:
-    """Import ``"pkg.module:Class"`` once :func:`check_entry_module` allows it; a refused,
-    missing module or attribute raises ConfigError."""
-    module_name, _, attr = entry.partition(":")
-    check_entry_module(module_name, allow_modules, where=where)
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise ConfigError(f"{where}: cannot import module {module_name!r} ({exc})") from None
-    try:
-        obj = getattr(module, attr)
-    except AttributeError:
-        raise ConfigError(f"{where}: module {module_name!r} has no attribute {attr!r}") from None
-    if not isinstance(obj, type):
-        raise ConfigError(f"{where}: {entry!r} is not a class")
-    for method in ("start", "stop", "stats"):
-        if not callable(getattr(obj, method, None)):
-            raise ConfigError(f"{where}: {entry!r} has no {method}() (not a launchable node)")
-    return obj
-
-
-def parse_param_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
-    """``["server.scene.seed=3", "sonar_head.port=/dev/ttyUSB0"]`` -> per-node dotted overrides."""
-    out: dict[str, dict[str, Any]] = {}
-    for item in items:
-        key, value = parse_override(item)
-        node, sep, rest = key.partition(".")
-        if not sep or not rest:
-            raise ConfigError(f"--param {item!r}: expected NODE.KEY=VALUE")
-        out.setdefault(node, {})[rest] = value
-    return out
-
-
-def load(
-    path: str | Path | Mapping[str, Any],
-    *,
-    params_overrides: Mapping[str, Mapping[str, Any]] | None = None,
-    allow_modules: Sequence[str] = (),
-) -> LaunchSpec:
-    """Load and validate a launch file (or an already parsed mapping).
-
-    ``params_overrides`` maps node name -> {dotted param key: value}; an unknown node name raises.
-    Every entry is checked against the allowed modules (the project's packages, the file's
-    ``allow_modules``, and ``allow_modules`` here, from ``--allow-module``) before any import,
-    then imported here, so a typo fails before any node starts.
-    """
-    data = path if isinstance(path, Mapping) else load_yaml(path)
-    where = "launch" if isinstance(path, Mapping) else str(path)
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"{where}: expected a mapping with a 'nodes' list, got {data!r}")
-    if params_overrides:
-        nodes = data.get("nodes")
-        names = [n.get("name") for n in nodes if isinstance(n, Mapping)] if isinstance(
-            nodes, list
-        ) else []
-        unknown = sorted(set(params_overrides) - set(names))
-        if unknown:
-            raise ConfigError(f"--param: unknown node(s) {unknown}; the file has {names}")
-        new_nodes = []
-        for n in nodes or []:
-            over = params_overrides.get(str(n.get("name"))) if isinstance(n, Mapping) else None
-            if over:
-                n = {**n, "params": apply_overrides(n.get("params") or {}, over)}
-            new_nodes.append(n)
-        data = {**data, "nodes": new_nodes}
-    try:
-        spec = from_dict(LaunchSpec, data)
-    except ConfigError as exc:
-        raise ConfigError(f"{where}: {exc}") from None
-    if allow_modules:
-        spec = dataclasses.replace(
-            spec, allow_modules=(*spec.allow_modules, *allow_modules))
-    for i, node in enumerate(spec.nodes):  # every entry checked before the first import
-        check_entry_module(node.entry.partition(":")[0], spec.allow_modules,
-                           where=f"{where}: nodes[{i}].entry")
-    for i, node in enumerate(spec.nodes):
-        resolve_entry(node.entry, where=f"{where}: nodes[{i}].entry",
-                      allow_modules=spec.allow_modules)
-    return spec
 
 
 @dataclass(frozen=True, slots=True)
@@ -351,11 +182,14 @@ def collect_links(nodes: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str,
 def judge(
     summary: RunSummary, *, expectations: Sequence[Expectation] = (),
     allow_disconnected: bool = False, failed: Sequence[tuple[str, str]] = (),
+    after_run: Sequence[tuple[str, str]] = (),
 ) -> list[Failure]:
     """The one place that decides what failed in a run (and so its exit status).
 
     ``failed`` holds ``(source, reason)`` for launchables (nodes, the recorder) that reported
-    failing (their optional ``failure()``) or whose ``stop()``/``stats()`` raised."""
+    failing (their optional ``failure()``) or whose constructor, ``start()``, ``stop()`` or
+    ``stats()`` raised; ``after_run`` ``(step, reason)`` for steps after the run that failed
+    (:data:`EXIT_AFTER_RUN`, above every code of the run itself)."""
     failures = [Failure(EXIT_FAILED, source, f"{source} failed: {reason}")
                 for source, reason in failed]
     if not allow_disconnected:
@@ -371,32 +205,80 @@ def judge(
         problem = expectation.check(summary.nodes)
         if problem is not None:
             failures.append(Failure(EXIT_EXPECT, "expect", problem))
+    failures += [Failure(EXIT_AFTER_RUN, step, f"{step} failed after the run: {reason}")
+                 for step, reason in after_run]
     return failures
 
 
-def _failure_of(obj: Any) -> str | None:
-    """A launchable's own account of failing: its optional ``failure() -> str | None``."""
+def _describe(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+
+
+def _failure_of(obj: Any, *, final: bool = False) -> str | None:
+    """A launchable's own account of failing: its optional ``failure(*, final=False)``
+    (one without ``final`` is called without it)."""
     report = getattr(obj, "failure", None)
-    return report() if callable(report) else None
-
-
-def _stop_and_collect(name: str, obj: Any, failed: list[tuple[str, str]]) -> dict[str, Any]:
-    """Stop one launchable and take its stats; whatever goes wrong is noted in ``failed``."""
-    stats: dict[str, Any] = {}
-    for step in ("stop", "stats", "failure"):
+    if not callable(report):
+        return None
+    if final:
         try:
-            if step == "stop":
-                obj.stop()
-            elif step == "stats":
-                stats = obj.stats()
-            else:
-                reason = _failure_of(obj)
-                if reason:
-                    failed.append((name, reason))
-        except Exception as exc:  # one broken node must not hide the others' results
-            log.exception("%s: %s() raised", name, step)
-            failed.append((name, f"{step}() raised {type(exc).__name__}: {exc}"))
-    return stats
+            takes_final = "final" in inspect.signature(report).parameters
+        except (TypeError, ValueError):
+            takes_final = False
+        if takes_final:
+            return report(final=True)
+    return report()
+
+
+class _Watch:
+    """The run's launchables by name and what failed among them (``failed``: ``(source,
+    reason)`` for :func:`judge`, at most one ``failure()`` account per launchable)."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[str, Any]] = []
+        self.failed: list[tuple[str, str]] = []
+        self._accounted: set[str] = set()
+
+    def fail(self, name: str, reason: str) -> None:
+        self.failed.append((name, reason))
+
+    def ask(self, name: str, obj: Any, *, final: bool = False) -> str | None:
+        """Ask ``obj`` for its ``failure()`` (once it answered, never again); note it."""
+        if name in self._accounted:
+            return None
+        try:
+            reason = _failure_of(obj, final=final)
+        except Exception as exc:  # a broken failure() is a failure, not a crash of the runner
+            log.exception("%s: failure() raised", name)
+            reason = f"failure() raised {_describe(exc)}"
+        if reason:
+            self._accounted.add(name)
+            self.fail(name, reason)
+        return reason or None
+
+    def poll(self) -> tuple[str, str] | None:
+        """The first launchable that says it failed, as ``(name, reason)``, or None."""
+        for name, obj in self.items:
+            reason = self.ask(name, obj)
+            if reason is not None:
+                return name, reason
+        return None
+
+    def stop_and_collect(self, name: str, obj: Any) -> dict[str, Any]:
+        """Stop one launchable, take its stats and ask it once more whether it failed (while
+        stopping); whatever goes wrong is noted."""
+        stats: dict[str, Any] = {}
+        for step in ("stop", "stats"):
+            try:
+                if step == "stop":
+                    obj.stop()
+                else:
+                    stats = obj.stats()
+            except Exception as exc:  # one broken node must not hide the others' results
+                log.exception("%s: %s() raised", name, step)
+                self.fail(name, f"{step}() raised {_describe(exc)}")
+        self.ask(name, obj)
+        return stats
 
 
 class _StopFlag:
@@ -420,12 +302,15 @@ def _takes_overwrite(cls: type) -> bool:
 
 
 def _instantiate(
-    spec: LaunchSpec, bus: str, made: list[tuple[str, Any]], *, overwrite: bool
-) -> None:
-    """Construct every node into ``made`` (so the caller can stop those built before a failure).
+    spec: LaunchSpec, bus: str, watch: _Watch, made: list[tuple[str, Any]], *, overwrite: bool
+) -> bool:
+    """Construct every node into ``made`` (so the caller can stop those built before a failure);
+    False when a constructor raised (noted in ``watch``; the nodes after it are not built).
 
-    With ``overwrite``, nodes whose constructor takes an ``overwrite`` parameter (those that
-    write files: captures, CAN logs) get ``overwrite=True`` unless their params set it."""
+    A node that refuses its params (``ConfigError``; an unknown param's ``TypeError``) raises
+    ConfigError. With ``overwrite``, nodes whose constructor takes an ``overwrite`` parameter
+    (those that write files: captures, CAN logs) get ``overwrite=True`` unless their params set
+    it."""
     for i, node in enumerate(spec.nodes):
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
                             allow_modules=spec.allow_modules)
@@ -436,7 +321,47 @@ def _instantiate(
             obj = cls(node.name, bus=bus, **params)
         except TypeError as exc:
             raise ConfigError(f"nodes[{i}] ({node.name}).params: {exc}") from None
+        except ConfigError:
+            raise
+        except Exception as exc:
+            log.exception("%s: constructor raised", node.name)
+            watch.fail(node.name, f"constructor raised {_describe(exc)}")
+            return False
         made.append((node.name, obj))
+    return True
+
+
+def _start(made: Sequence[tuple[str, Any]], watch: _Watch) -> bool:
+    """Start the nodes in order; False when one's ``start()`` raised (noted in ``watch``; the
+    nodes after it are not started)."""
+    for name, obj in made:
+        try:
+            obj.start()
+        except Exception as exc:
+            log.exception("%s: start() raised", name)
+            watch.fail(name, f"start() raised {_describe(exc)}")
+            return False
+    return True
+
+
+def _wait(flag: _StopFlag, watch: _Watch, run_for: float | None,
+          stop_event: threading.Event | None) -> None:
+    """Until ``run_for`` seconds passed, a signal, ``stop_event``, or a launchable failed."""
+    deadline = None if run_for is None else time.monotonic() + run_for
+    while not flag.event.is_set():
+        if stop_event is not None and stop_event.is_set():
+            flag.set("stop_event")
+            break
+        failed = watch.poll()
+        if failed is not None:
+            log.error("%s failed (%s): ending the run", *failed)
+            flag.set("failure")
+            break
+        remaining = None if deadline is None else deadline - time.monotonic()
+        if remaining is not None and remaining <= 0:
+            flag.set("duration")
+            break
+        flag.event.wait(FAILURE_POLL_S if remaining is None else min(FAILURE_POLL_S, remaining))
 
 
 def run(
@@ -455,25 +380,29 @@ def run(
     allow_disconnected: bool = False,
     overwrite: bool = False,
     allow_modules: Sequence[str] = (),
+    after_run: Mapping[str, Callable[[RunSummary], object]] | None = None,
 ) -> RunSummary:
-    """Start every node of a launch file in order, wait, stop them in reverse order.
+    """Start every node of a launch file in order, watch them, stop them in reverse order.
 
     The run ends ``duration`` seconds after every node started (argument, else the file's;
     ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
-    main thread and ``handle_signals``), or when ``stop_event`` is set. ``record`` writes every
+    main thread and ``handle_signals``), when ``stop_event`` is set, or as soon as a launchable
+    says it failed (``stopped_by`` ``"failure"``; the module docstring). ``record`` writes every
     topic to MCAP with :class:`hil_bridge.recording.recorder.Recorder`. ``live`` starts the
     Foxglove view (:mod:`hil_bridge.tools.live`). ``bus`` replaces the file's bus URL.
     ``domain`` (default ``ECHOLOOP_DOMAIN``, else 0) gives every default the file leaves out:
     the bus, pty links, virtual CAN channels, the live-view port. ``on_started(spec)`` is called
-    once every node runs, with ``spec.bus`` the bus in use. A node that fails to construct or
-    start stops every node already constructed (reverse order) and re-raises. ``overwrite`` lets
-    ``record`` and the nodes' own outputs (nodes with an ``overwrite`` parameter) replace
-    existing files.
+    once every node runs, with ``spec.bus`` the bus in use. A node whose constructor or
+    ``start()`` raises fails the run (every node already constructed is stopped, in reverse
+    order); one that refuses its params raises ConfigError. ``overwrite`` lets ``record`` and
+    the nodes' own outputs (nodes with an ``overwrite`` parameter) replace existing files.
+    ``after_run`` (step name -> ``step(summary)``) runs once everything stopped (the recording
+    is complete), in order, whatever the run's outcome; a step that raises is a failure of that
+    step (:data:`EXIT_AFTER_RUN`).
 
     ``expect`` (``"NODE.COUNTER OP VALUE"`` strings, checked for unknown nodes before anything
-    starts), ``allow_disconnected`` and the launchables that fail (their optional ``failure()``
-    returns a reason, or ``stop()``/``stats()`` raise) decide the summary's ``failures`` and
-    ``exit_status`` (the module docstring).
+    starts), ``allow_disconnected``, the launchables that fail and the ``after_run`` steps that
+    fail decide the summary's ``failures`` and ``exit_status`` (:func:`judge`).
     """
     spec = path if isinstance(path, LaunchSpec) else load(
         path, params_overrides=params_overrides, allow_modules=allow_modules)
@@ -501,6 +430,7 @@ def run(
 
     made: list[tuple[str, Any]] = []
     extras: list[Any] = []
+    watch = _Watch()
     t0 = time.monotonic()
     held = contextlib.ExitStack()
     held.enter_context(dom.claim())
@@ -516,40 +446,37 @@ def run(
                 recorder.start()
                 extras.append(recorder)
             try:
-                _instantiate(spec, bus_url, made, overwrite=overwrite)
+                started = _instantiate(spec, bus_url, watch, made, overwrite=overwrite)
             except ConfigError as exc:  # a node refused its params: say which launch file
                 if isinstance(path, str | Path) and str(path) not in str(exc):
                     raise ConfigError(f"{path}: {exc}") from None
                 raise
-            for _, obj in made:
-                obj.start()
-            if want_live:
+            started = started and _start(made, watch)
+            if started and want_live:
                 from hil_bridge.tools.live import LiveView
 
                 view = LiveView("live", bus=bus_url)
                 view.start()
                 extras.append(view)
-        if on_started is not None:
-            on_started(spec)
-        deadline = None if run_for is None else time.monotonic() + run_for
-        while not flag.event.is_set():
-            if stop_event is not None and stop_event.is_set():
-                flag.set("stop_event")
-                break
-            remaining = None if deadline is None else deadline - time.monotonic()
-            if remaining is not None and remaining <= 0:
-                flag.set("duration")
-                break
-            flag.event.wait(0.05 if remaining is None else min(0.05, remaining))
+        watch.items = [*made, *((extra.name, extra) for extra in extras)]
+        if not started:
+            flag.set("failure")
+        else:
+            if on_started is not None:
+                on_started(spec)
+            _wait(flag, watch, run_for, stop_event)
     finally:
-        failed: list[tuple[str, str]] = []
+        # a recoverable fault still pending now was never recovered: asked before anything
+        # stops, so a node stopping first cannot make another's link drop look like a failure
+        for name, obj in [*made, *((extra.name, extra) for extra in extras)]:
+            watch.ask(name, obj, final=True)
         node_stats: dict[str, dict[str, Any]] = {}
         for name, obj in reversed(made):
-            node_stats[name] = _stop_and_collect(name, obj, failed)
+            node_stats[name] = watch.stop_and_collect(name, obj)
         monitor_stats: dict[str, Any] = {}
         extra_stats: dict[str, dict[str, Any]] = {}
         for extra in reversed(extras):
-            stats = _stop_and_collect(extra.name, extra, failed)
+            stats = watch.stop_and_collect(extra.name, extra)
             if isinstance(extra, BusMonitor):
                 monitor_stats = stats
             else:
@@ -569,8 +496,15 @@ def run(
         bus=bus_url,
         links=collect_links(nodes),
     )
+    steps_failed: list[tuple[str, str]] = []
+    for step, action in (after_run or {}).items():
+        try:
+            action(summary)
+        except Exception as exc:  # reported and judged; never instead of the run's status
+            log.exception("%s failed after the run", step)
+            steps_failed.append((step, _describe(exc)))
     summary.failures = judge(
         summary, expectations=expectations, allow_disconnected=allow_disconnected,
-        failed=failed,
+        failed=watch.failed, after_run=steps_failed,
     )
     return summary

@@ -19,6 +19,7 @@ from mcap.well_known import MessageEncoding
 
 from hil_bridge.bus.codec import decode_topic_header, encode, topic_frame, validate_topic
 from hil_bridge.bus.domain import current as current_domain
+from hil_bridge.bus.faults import Faults
 from hil_bridge.bus.messages import Diagnostics
 from hil_bridge.bus.transport import Transport, open_transport
 from hil_bridge.errors import CodecError, HilError
@@ -47,7 +48,8 @@ class Recorder:
     file, readable to its last flushed chunk and repaired by ``echoloop bag recover``.
 
     A recorder never fails in silence: a write error (disk full, file size limit, I/O error) or
-    the channel limit makes :meth:`failure` return the reason, is logged at once, sent on
+    the channel limit is reported to its :attr:`faults` (:mod:`hil_bridge.bus.faults`), so
+    :meth:`failure` returns the place and the reason; it is logged at once, sent on
     ``/diagnostics`` (counter ``failed`` = 1) and ends in the run summary (non-zero exit of
     ``echoloop launch`` and ``bag record``); what arrives afterwards is counted
     (``lost_after_error``), and what was written stays readable. ``wait_for(n, timeout)``
@@ -97,8 +99,8 @@ class Recorder:
         self._counters = {"messages": 0, "bytes": 0, "decode_errors": 0, "flushes": 0,
                           "lost_after_error": 0, "not_recorded": 0}
         self._diag_seq = 0
-        #: the first failure (None while all is well)
-        self.error: str | None = None
+        #: what went wrong (write errors, the channel limit, the final rename)
+        self.faults = Faults(name)
 
     def start(self) -> Recorder:
         """Open the file and the transport, subscribe, start the writer thread (idempotent)."""
@@ -137,18 +139,21 @@ class Recorder:
             self._thread.start()
         return self
 
-    def failure(self) -> str | None:
-        """Why the recording is incomplete (first failure), or None."""
-        return self.error
+    @property
+    def error(self) -> str | None:
+        """Why the recording is incomplete (its first failure, with the place), or None."""
+        return self.faults.failure()
 
-    def _fail(self, reason: str, transport: Transport) -> None:
+    def failure(self, *, final: bool = False) -> str | None:
+        """Why the recording is incomplete (first failure), or None."""
+        return self.faults.failure(final=final)
+
+    def _fail(self, where: str, reason: str, transport: Transport) -> None:
         with self._cond:
             first = self.error is None
-            if first:
-                self.error = reason
+            self.faults.report(where, reason)  # logged, one line
             self._cond.notify_all()
         if first:
-            log.error("%s: recording into %s failed: %s", self.name, self.path, reason)
             self._publish_diagnostics(transport)
 
     def _publish_diagnostics(self, transport: Transport) -> None:
@@ -189,7 +194,7 @@ class Recorder:
                         bag.add(topic, header, payload, recv_ns)
                     except ChannelLimitError as exc:
                         self._counters["not_recorded"] += 1
-                        self._fail(str(exc), transport)
+                        self._fail("channels", str(exc), transport)
                         continue
                     dirty = True
                     with self._cond:
@@ -211,16 +216,16 @@ class Recorder:
         except (OSError, ValueError, struct.error) as exc:
             # disk full, a file size limit (EFBIG), an I/O error, or the writer's own limits
             writing = False
-            self._fail(f"{type(exc).__name__}: {exc}", transport)
+            self._fail(f"writing {self.path}", f"{type(exc).__name__}: {exc}", transport)
             self._drain_after_error(transport)
         except BaseException as exc:
-            self._fail(f"{type(exc).__name__}: {exc}", transport)
+            self._fail(f"writing {self.path}", f"{type(exc).__name__}: {exc}", transport)
             raise
         finally:
             try:
                 stream.close()
             except OSError as exc:  # the last buffered bytes could not be written
-                self._fail(f"{type(exc).__name__}: {exc}", transport)
+                self._fail(f"closing {self.path}", f"{type(exc).__name__}: {exc}", transport)
             with self._cond:
                 self._cond.notify_all()
 
@@ -260,10 +265,8 @@ class Recorder:
             try:
                 output.commit()
             except OSError as exc:
-                reason = f"{exc}; the recording is in {output.tmp}"
-                with self._cond:
-                    self.error = self.error or reason
-                log.error("%s: %s", self.name, reason)
+                self.faults.report(f"renaming onto {self.path}",
+                                   f"{exc}; the recording is in {output.tmp}")
         if transport is not None:
             transport.close()
 

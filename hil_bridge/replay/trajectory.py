@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from hil_bridge.bus.faults import Faults
 from hil_bridge.files.config import load_yaml
 from sim_core.config import ConfigError, from_dict
 from sim_core.rng import derive_rng, make_rng
@@ -54,7 +55,8 @@ class Pinger:
     to the echoes and reports how many came back, with ping -> echo latency percentiles (ms).
     ``sonar_ids``: ping several sonars from one node (one clock subscription for all), each
     at ``rate_hz`` from its own phase, drawn uniformly over a period (``seed``); ``max_pings``
-    then counts per sonar.
+    then counts per sonar. ``failure()`` says why it failed (its ping thread or an echo
+    callback raised), or None.
     """
 
     def __init__(
@@ -105,6 +107,8 @@ class Pinger:
                    "echo_samples": 0}
         self._latency_ms: deque[float] = deque(maxlen=10000)
         self._last_echo: Any = None
+        #: what went wrong: its ping thread, its node's callbacks
+        self.faults = Faults(name)
 
     def start(self) -> None:
         from hil_bridge.bus.clock import SimClock
@@ -112,7 +116,8 @@ class Pinger:
         from hil_bridge.bus.node import Node
         from hil_bridge.bus.qos import SENSOR
 
-        self._node = Node(self.name, bus=self.bus, clock=SimClock("lockstep"))
+        self._node = Node(self.name, bus=self.bus, clock=SimClock("lockstep"),
+                          faults=self.faults)
         self._node.follow_bus_clock()
         self._pubs = {
             i: self._node.create_publisher(SonarPing, f"/sonar/{i}/ping", qos=SENSOR)
@@ -122,7 +127,8 @@ class Pinger:
             self._node.create_subscription(SonarEcho, f"/sonar/{i}/echo", self._on_echo,
                                            qos=SENSOR)
         self._node.start()
-        self._thread = threading.Thread(target=self._loop, name=f"{self.name}-ping", daemon=True)
+        self._thread = threading.Thread(target=self.faults.guarded("ping loop", self._loop),
+                                        name=f"{self.name}-ping", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
@@ -141,6 +147,10 @@ class Pinger:
             out: dict[str, Any] = dict(self._c)
             out["ping_echo_ms"] = percentiles(list(self._latency_ms))
         return out
+
+    def failure(self, *, final: bool = False) -> str | None:
+        """Why the pinger failed (:mod:`hil_bridge.bus.faults`), or None."""
+        return self.faults.failure(final=final)
 
     @property
     def last_echo(self) -> Any:

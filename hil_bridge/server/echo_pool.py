@@ -23,8 +23,10 @@ at a time (so an idle worker is known and no job waits behind another), over one
   them before the server's first tick.
 - **Nothing outlives the server.** ``close()`` stops the workers (terminating one that does not
   finish its job within :data:`STOP_TIMEOUT_S`) and removes the shared tiles; a worker exits on
-  its own when the server process is gone (its pipe closes). A worker that dies is replaced (at
-  most :data:`MAX_RESTARTS` times); its echo is reported as an error.
+  its own when the server process is gone (its pipe closes). A worker that dies is reported
+  to the pool's :class:`~hil_bridge.bus.faults.Faults` (a failure of the server: the run
+  exits non-zero) and replaced (at most :data:`MAX_RESTARTS` times); its echo is reported as an
+  error.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
+from hil_bridge.bus.faults import Faults
 from hil_bridge.server.echo_compute import (
     DeadlinePlanner,
     EchoJob,
@@ -210,7 +213,7 @@ class ProcessPool:
     """``n`` worker processes sharing forest tiles (module docstring)."""
 
     def __init__(self, scene: Scene, n: int, stop: threading.Event, *, domain: Any = None,
-                 cost: EchoCost = COST) -> None:
+                 cost: EchoCost = COST, faults: Faults | None = None) -> None:
         from hil_bridge.bus.domain import current
         from hil_bridge.server.shared_tiles import SharedTiles
         from sim_core.world import TiledForest
@@ -218,6 +221,7 @@ class ProcessPool:
         self.scene = scene
         self.n = n
         self.cost = cost
+        self.faults = faults if faults is not None else Faults("echo_pool")
         self._stop = stop
         self._ctx = multiprocessing.get_context("spawn")
         forest = scene.spec.forest
@@ -267,8 +271,8 @@ class ProcessPool:
 
     def _lost(self, slot: _Slot) -> list[Reply]:
         """A worker died: report its echo, replace it (up to MAX_RESTARTS)."""
+        slot.proc.join(timeout=1.0)  # its pipe may close before it is reaped: then the code
         code = slot.proc.exitcode
-        slot.proc.join(timeout=1.0)
         self._forget_slot(slot)
         out: list[Reply] = []
         if slot.job is not None:
@@ -277,7 +281,7 @@ class ProcessPool:
                 self._building.discard(what)
             elif kind in ("echo", "points"):
                 out.append((kind, what, None, f"echo worker exited (code {code})"))
-        log.warning("echo worker %s exited (code %s)", slot.proc.pid, code)
+        self.faults.report(f"echo worker {slot.proc.pid}", f"exited (code {code})")
         self._slots.remove(slot)
         if self._restarts < MAX_RESTARTS and not self._stop.is_set():
             self._restarts += 1

@@ -60,6 +60,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from hil_bridge.bus.faults import Faults
 from hil_bridge.server.echo_compute import (
     MAX_POINT_TILES,
     PUBLISH_MARGIN_S,
@@ -100,8 +101,9 @@ class EchoService:
     domain=None, cost=COST)``: ``on_drop(request)`` for every ping dropped unanswered (full
     queue or deadline); ``lookahead() -> regions`` the sonars will reach; ``domain`` names the
     pool's shared memory (default: the current one); ``cost`` the cost model the deadlines
-    are planned with. ``start()`` starts the workers; ``close()``
-    (idempotent) stops them and removes their shared memory.
+    are planned with; ``faults`` where a scheduler thread or a worker process that dies is
+    reported (the server's; default a record of its own). ``start()`` starts the workers;
+    ``close()`` (idempotent) stops them and removes their shared memory.
     """
 
     def __init__(
@@ -120,6 +122,7 @@ class EchoService:
         lookahead: Callable[[], Sequence[Region]] | None = None,
         domain: Any = None,
         cost: EchoCost = COST,
+        faults: Faults | None = None,
     ) -> None:
         if queue_size < 1:
             raise ValueError(f"queue_size: expected >= 1, got {queue_size}")
@@ -138,6 +141,7 @@ class EchoService:
         self._lookahead = lookahead
         self._domain = domain
         self.cost = cost
+        self.faults = faults if faults is not None else Faults("echo_service")
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._ready = threading.Event()
@@ -301,13 +305,14 @@ class EchoService:
                 self._serve(ThreadWorker(self.scene, self.cost))
             else:
                 self._pool = ProcessPool(self.scene, self.n_workers, self._stop,
-                                         domain=self._domain, cost=self.cost)
+                                         domain=self._domain, cost=self.cost,
+                                         faults=self.faults)
                 try:
                     self._serve(self._pool)
                 finally:
                     self._pool.close()
-        except Exception:  # a scheduler bug must not vanish with its thread
-            log.exception("echo service failed")
+        except Exception as exc:  # a scheduler bug must not vanish with its thread
+            self.faults.report("echo service", exc)
             with self._lock:
                 self._c["errors"] += 1
         finally:

@@ -35,6 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from hil_bridge.bus.faults import Faults
 from hil_bridge.server.fleet import Fleet, VehiclePose
 
 __all__ = ["EMISSION_COUNTERS", "EmissionPoses"]
@@ -85,10 +86,13 @@ class EmissionPoses:
         self._extrapolated_ms: deque[float] = deque(maxlen=10000)
         fleet.add_listener(self.on_tick)
 
-    def start(self) -> None:
+    def start(self, faults: Faults) -> None:
+        """Start the thread that answers held pings; an exception that ends it is reported to
+        ``faults`` (the server's: the run fails naming it)."""
         if self._thread is None and self.wait_s > 0:
-            self._thread = threading.Thread(target=self._run, name="emission-poses",
-                                            daemon=True)
+            self._thread = threading.Thread(
+                target=faults.guarded("emission poses thread", self._run),
+                name="emission-poses", daemon=True)
             self._thread.start()
 
     def on_tick(self, t_ns: int) -> None:

@@ -69,7 +69,6 @@ nanoseconds and never decrease.
 from __future__ import annotations
 
 import functools
-import logging
 import math
 import threading
 import time
@@ -82,6 +81,7 @@ from typing import Any, Literal
 import numpy as np
 
 from hil_bridge.bus.domain import current as current_domain
+from hil_bridge.bus.faults import Faults
 from hil_bridge.bus.messages import (
     Clock,
     Diagnostics,
@@ -100,8 +100,6 @@ from sim_core.config import ConfigError, from_dict
 from sim_core.scene import ClockSpec, Scene
 
 __all__ = ["ServerParams", "SimServer"]
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,6 +200,8 @@ class SimServer:
         self._tick_cpu_s = 0.0
         self._tick_wall = (0.0, 0.0)  # monotonic time of the first and of the last tick
         self._tick_error = ""
+        #: what went wrong: the tick loop, bus callbacks, the echo service and its workers
+        self.faults = Faults(name)
         self._flown_gliders: dict[int, dict[str, Any]] = {}
         self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
         self._vehicle_specs = {v.id: v for v in spec.vehicles}
@@ -252,7 +252,8 @@ class SimServer:
                 self._proxy.start()
         # The server steps the clock itself (it paces realtime ticks against the wall clock).
         self.clock = SimClock("lockstep" if self.clock_spec.mode == "lockstep" else "fast")
-        self._node = Node(self.name, bus=self.bus, clock=self.clock, diagnostics_period_s=0)
+        self._node = Node(self.name, bus=self.bus, clock=self.clock, diagnostics_period_s=0,
+                          faults=self.faults)
         node = self._node
         self._pubs["/clock"] = node.create_publisher(Clock, "/clock", qos=SENSOR)
         self._pubs["/diagnostics"] = node.create_publisher(Diagnostics, "/diagnostics", qos=SENSOR)
@@ -325,10 +326,10 @@ class SimServer:
             out["gliders_alive"] = int(np.count_nonzero(self.fleet.swarm.alive[0]))
         return out
 
-    def failure(self) -> str | None:
-        """Why the server failed (its tick loop died), or None (the launch run summary)."""
-        with self._lock:
-            return f"tick loop failed: {self._tick_error}" if self._tick_error else None
+    def failure(self, *, final: bool = False) -> str | None:
+        """Why the server failed (its tick loop died, a bus callback raised, the echo service
+        or one of its workers died), or None (:mod:`hil_bridge.bus.faults`)."""
+        return self.faults.failure(final=final)
 
     def wait_done(self, timeout: float | None = None) -> bool:
         """Block until the tick loop ended (``stop_after_s`` reached or stopped)."""
@@ -490,8 +491,8 @@ class SimServer:
     def _tick_loop(self) -> None:
         try:
             self._run_ticks()
-        except Exception as exc:  # a bug must not vanish with its thread: report it in stats
-            log.exception("%s: tick loop failed", self.name)
+        except Exception as exc:  # a bug must not vanish with its thread: a failure, in stats
+            self.faults.report("tick loop", exc)
             with self._lock:
                 self._tick_error = f"{type(exc).__name__}: {exc}"
         finally:

@@ -119,6 +119,7 @@ class ServerSonars:
             on_drop=lambda req: self._gate.echo_done(req.sonar_id),
             points=self.points_request(first) if "/forest/points" in self._pubs else None,
             on_points=self._publish_points, lookahead=self.lookahead, domain=self._domain,
+            faults=node.faults,
         )
 
     def start(self) -> None:
@@ -126,7 +127,7 @@ class ServerSonars:
         workers are up and the first tiles built: the server ticks after this."""
         if self.service is None:
             return
-        self.emission.start()
+        self.emission.start(self.service.faults)
         self.service.start()
         if not self.service.wait_ready(ECHO_READY_TIMEOUT_S):
             log.warning("%s: echo workers not ready after %.0f s; ticking anyway", self.name,

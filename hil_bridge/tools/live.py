@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from hil_bridge.bus.faults import Faults
 from sim_core.pose import quat_between
 
 __all__ = ["LiveView", "beam_cone"]
@@ -124,6 +125,8 @@ class LiveView:
         self._echo_count = 0
         self._c = {"received": 0, "bad": 0, "scene_updates": 0, "echoes_sent": 0,
                    "forest_sent": 0, "thermals_sent": 0, "beams_sent": 0}
+        #: its threads' end by an exception (a failure of the run)
+        self.faults = Faults(name)
 
     # ------------------------------------------------------------------ launchable contract
 
@@ -150,8 +153,10 @@ class LiveView:
         for prefix in (b"/glider/", b"/thermals\0", b"/forest/points\0", b"/sonar/"):
             self._transport.subscribe(prefix)
         self._threads = [
-            threading.Thread(target=self._rx_loop, name=f"{self.name}-rx", daemon=True),
-            threading.Thread(target=self._send_loop, name=f"{self.name}-send", daemon=True),
+            threading.Thread(target=self.faults.guarded("receive loop", self._rx_loop),
+                             name=f"{self.name}-rx", daemon=True),
+            threading.Thread(target=self.faults.guarded("send loop", self._send_loop),
+                             name=f"{self.name}-send", daemon=True),
         ]
         for t in self._threads:
             t.start()
@@ -175,6 +180,10 @@ class LiveView:
         (``quat`` world-from-body ``[w, x, y, z]``)."""
         with self._lock:
             return dict(self._poses)
+
+    def failure(self, *, final: bool = False) -> str | None:
+        """Why the live view failed (one of its threads died), or None."""
+        return self.faults.failure(final=final)
 
     def stats(self) -> dict[str, Any]:
         with self._lock:

@@ -117,8 +117,10 @@ def test_unplug_then_replug_reconnects_and_echoes_resume(tmp_path: Path) -> None
         proxy.unplug()
         assert not (tmp_path / "tty_usb").exists()
         assert host.link.wait_for(lambda lk: not lk.connected, 5.0)
+        assert host.link.faults.failure(final=True) is not None  # the drop, not yet recovered
         proxy.replug()
         assert host.link.wait_for(lambda lk: lk.connected and lk.reconnects == 1, 5.0)
+        assert host.link.faults.failure(final=True) is None  # the re-open recovered it
         n = mock.stats()["echoes_complete"]
         assert mock.wait_echoes(n + 3, 10.0)
     finally:

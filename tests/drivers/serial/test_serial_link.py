@@ -102,12 +102,20 @@ def test_unplug_then_replug_reconnects_under_the_same_path(tmp_path: Path) -> No
         dev.unplug()
         assert link.wait_for(lambda lk: not lk.connected, 5.0)
         assert not link.send(b"lost")  # nothing is queued for a vanished port
+        # a drop is a recoverable fault: no failure while the run goes, one if it ends now
+        place = f"serial link {tmp_path / 'ttyFAKE'}"
+        assert link.faults.failure() is None
+        pending = link.faults.failure(final=True)  # what the OS said varies: the place does not
+        assert pending is not None and pending.startswith(f"{place}: ")
+        assert pending.endswith("(declared recoverable, never recovered)")
         dev.replug()
         assert link.wait_for(lambda lk: lk.connected and lk.reconnects == 1, 5.0)
+        assert link.faults.failure(final=True) is None  # recovered by the re-open
         dev.write(b"after\x00")
         assert sink.wait_len(13)
         assert bytes(sink.data) == b"before\x00after\x00"
         assert link.read_errors == 1 and link.tx_dropped_bytes == 4
+        assert link.faults.counts() == {place: 1}
     finally:
         link.stop()
         dev.close()

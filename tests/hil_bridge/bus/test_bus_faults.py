@@ -61,3 +61,17 @@ def test_reports_from_many_threads_are_all_counted() -> None:
         t.join()
     assert faults.counts() == {"worker": 4000}
     assert len(faults.pending()) == 1
+
+
+def test_a_guarded_thread_body_reports_what_escapes_it() -> None:
+    faults = Faults("mock")
+
+    def body() -> None:
+        raise OSError("device gone")
+
+    thread = threading.Thread(target=faults.guarded("rx loop", body))
+    thread.start()
+    thread.join()
+    assert faults.failure() == "rx loop: OSError: device gone"
+    faults.guarded("tx loop", lambda: None)()  # a body that returns reports nothing
+    assert faults.counts() == {"rx loop": 1}

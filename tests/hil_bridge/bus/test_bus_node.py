@@ -188,6 +188,39 @@ def test_callback_errors_are_counted_not_fatal(bus_url: str) -> None:
         pub.publish(Clock(stamp_ns=1))
         assert got.wait_for(1)
         assert a.stats()["callback_errors"] == 1
+        # counted, and a failure of the node naming the place (the launch run exits 1)
+        assert a.failure() == "callback /c: RuntimeError: boom"
+        assert a.faults.counts() == {"callback /c": 1} and a.stats()["faults"] == 1
+
+
+def test_a_timer_that_raises_is_a_failure_naming_it(bus_url: str) -> None:
+    clock = SimClock("lockstep")
+    fired = Collector()
+
+    def tick() -> None:
+        fired(clock.now_ns())
+        raise ValueError("bad tick")
+
+    with Node("ticker", bus=bus_url, clock=clock) as a:
+        a.start()
+        a.create_timer(0.004, tick)
+        clock.advance(4_000_000)
+        assert fired.wait_for(1)
+        assert poll_until(lambda: a.failure() is not None)
+        failure = a.failure()
+        assert failure is not None and failure.startswith("timer ")
+        assert "tick" in failure and failure.endswith("ValueError: bad tick")
+        assert a.stats()["topics"]["/timers"]["callback_errors"] >= 1
+
+
+def test_a_node_shares_the_faults_it_is_given(bus_url: str) -> None:
+    from hil_bridge.bus.faults import Faults
+
+    faults = Faults("owner")
+    with Node("inner", bus=bus_url, faults=faults) as a:
+        assert a.faults is faults
+        faults.report("tick loop", RuntimeError("x"))
+        assert a.failure() == "tick loop: RuntimeError: x"
 
 
 def test_timers_follow_a_lockstep_clock(bus_url: str) -> None:
@@ -215,7 +248,8 @@ def test_diagnostics_are_published_and_stop_is_idempotent(bus_url: str) -> None:
         node.start()
         assert poll_until(lambda: any(
             isinstance(d, Diagnostics) and d.node == "busy" for d in diags.items))
-        threads = list(node._threads)
+        threads = [t for t in threading.enumerate() if t.name in ("busy-w0", "busy-w1")]
+        assert len(threads) == 2
         node.stop()
         node.stop()
         assert not any(t.is_alive() for t in threads)

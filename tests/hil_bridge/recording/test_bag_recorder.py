@@ -105,7 +105,7 @@ def test_launch_record_under_a_file_size_limit_exits_non_zero(proxy: Proxy,
     finally:
         proc.kill()
     assert proc.returncode == 1, err
-    assert "recorder failed: OSError: [Errno 27] File too large" in err
+    assert f"recorder failed: writing {out}: OSError: [Errno 27] File too large" in err
     import json
 
     summary = json.loads(stdout)

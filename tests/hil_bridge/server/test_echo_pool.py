@@ -335,6 +335,8 @@ def test_a_dead_worker_is_replaced_and_its_echo_reported() -> None:
         svc.close()
     assert list(got) == [(0, 5)]
     assert svc.stats()["worker_restarts"] == 1
+    # replaced, but never silent: a failure of the service's owner (the server)
+    assert svc.faults.failure() == f"echo worker {victim.pid}: exited (code -{int(signal.SIGKILL)})"
 
 
 def test_points_and_ahead_of_time_tiles_come_from_the_pool() -> None:

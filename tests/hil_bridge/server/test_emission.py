@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from hil_bridge.bus.faults import Faults
 from hil_bridge.bus.messages import Clock, SonarEcho, SonarPing
 from hil_bridge.bus.node import Node
 from hil_bridge.files.scene import load_scene
@@ -101,7 +102,7 @@ def test_a_ping_stamped_after_the_newest_tick_gets_the_pose_at_its_stamp_once_co
     newest = fleet.recorded_ns
     sink = _Sink()
     poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
-    poses.start()
+    poses.start(Faults("server"))
     try:
         stamp = newest + round(0.6 * TICK_NS)
         poses.request(2, stamp, "ping", time.monotonic())
@@ -125,7 +126,7 @@ def test_a_held_ping_whose_tick_does_not_come_is_extrapolated_and_every_ping_is_
     newest = fleet.recorded_ns
     sink = _Sink()
     poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
-    poses.start()
+    poses.start(Faults("server"))
     try:
         stamps = [newest + round(f * TICK_NS) for f in (0.3, 1.0, 1.9)]
         for s in stamps:
@@ -159,7 +160,7 @@ def test_without_waiting_a_ping_after_the_newest_tick_is_extrapolated_at_once() 
     scene, fleet = _fleet(20)
     sink = _Sink()
     poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=0.0, on_pose=sink)
-    poses.start()
+    poses.start(Faults("server"))
     stamp = fleet.recorded_ns + TICK_NS // 2
     poses.request(2, stamp, "p", time.monotonic())
     (_, pose) = sink.got.get_nowait()

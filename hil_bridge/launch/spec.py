@@ -1,0 +1,230 @@
+"""The launch file: plain data, validated once at load into a :class:`LaunchSpec`.
+
+A launch file is plain data (no substitutions, conditions or event handlers)::
+
+    bus: mem://demo              # optional; default the domain's (hil_bridge.bus.domain)
+    allow_modules: [my_lab.nodes]   # optional; entries outside hil_bridge/drivers/sim_core
+    duration: 20                 # optional default run time in seconds (CLI --duration wins)
+    record: out/run.mcap         # optional MCAP recording of every topic (CLI --record wins)
+    nodes:
+      - name: server
+        entry: hil_bridge.server:SimServer
+        params: {scene: {...}}
+      - name: sonar_head
+        entry: drivers.serial.adapter:SonarHeadAdapter
+        params: {port: /dev/ttyUSB0}
+
+It is validated once, at load, into :class:`LaunchSpec` (unknown keys raise a
+:class:`~sim_core.config.ConfigError` naming the key; every ``entry`` must import and name a
+class with ``start``, ``stop`` and ``stats``). **A launch file runs code**: importing an entry
+runs its module. Entries may come only from the project's packages (the installed
+``hil_bridge``, ``drivers``, ``sim_core``) and from modules listed under ``allow_modules:`` (or
+``--allow-module``), and every entry is checked against that list before the first import
+(:func:`check_entry_module`). :mod:`hil_bridge.launch.runner` runs a spec.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import importlib.util
+import math
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hil_bridge.files.config import load_yaml, parse_override
+from sim_core.config import ConfigError, apply_overrides, from_dict
+
+__all__ = [
+    "PROJECT_PACKAGES",
+    "LaunchSpec",
+    "NodeSpec",
+    "check_duration",
+    "check_entry_module",
+    "load",
+    "parse_param_overrides",
+    "resolve_entry",
+]
+
+
+def check_duration(seconds: float | str, *, where: str = "--duration") -> float:
+    """``seconds`` if it is a finite number > 0, else ``ValueError`` naming ``where``."""
+    prefix = f"{where}: " if where else ""
+    try:
+        value = float(seconds)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise ValueError(f"{prefix}expected a finite number of seconds > 0, got {seconds!r}")
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class NodeSpec:
+    """One node of a launch file: a unique ``name``, ``entry`` ``"pkg.module:Class"``, params."""
+
+    name: str
+    entry: str
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.name.replace("_", "a").isalnum():
+            raise ValueError(f"name: expected [A-Za-z0-9_]+, got {self.name!r}")
+        module, sep, attr = self.entry.partition(":")
+        if not sep or not module or not attr:
+            raise ValueError(f"entry: expected 'package.module:Class', got {self.entry!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class LaunchSpec:
+    """A validated launch file (see the module docstring)."""
+
+    nodes: tuple[NodeSpec, ...]
+    bus: str | None = None
+    duration: float | None = None
+    record: str | None = None
+    live: bool = False
+    description: str = ""
+    allow_modules: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.nodes:
+            raise ValueError("nodes: expected at least one node")
+        for name in self.allow_modules:
+            if not all(part.isidentifier() for part in name.split(".")):
+                raise ValueError(f"allow_modules: expected dotted module names, got {name!r}")
+        seen: set[str] = set()
+        for node in self.nodes:
+            if node.name in seen:
+                raise ValueError(f"nodes: duplicate node name {node.name!r}")
+            seen.add(node.name)
+        if self.duration is not None:
+            check_duration(self.duration, where="duration")
+
+    def node(self, name: str) -> NodeSpec:
+        for node in self.nodes:
+            if node.name == name:
+                return node
+        raise KeyError(name)
+
+
+#: the project's own packages: launch entries may always come from these
+PROJECT_PACKAGES = ("hil_bridge", "drivers", "sim_core")
+_PROJECT_ROOT = Path(__file__).resolve().parents[2]
+
+
+def _covered(module: str, allowed: Sequence[str]) -> bool:
+    return any(module == a or module.startswith(a + ".") for a in allowed)
+
+
+def check_entry_module(module_name: str, allow_modules: Sequence[str] = (), *,
+                       where: str = "entry") -> None:
+    """Refuse, before anything is imported, an entry module that is neither in the project's
+    packages (:data:`PROJECT_PACKAGES`, and only the installed copy of them: a package of the
+    same name planted in the working directory is refused) nor in ``allow_modules`` (a module
+    or a package, with everything below it). ``ConfigError`` says which and how to allow it."""
+    if _covered(module_name, allow_modules):
+        return
+    top = module_name.split(".")[0]
+    if top in PROJECT_PACKAGES:
+        loaded = sys.modules.get(top)
+        origin = getattr(loaded, "__file__", None) if loaded is not None else None
+        if origin is None:
+            spec = importlib.util.find_spec(top)  # locates the package; runs none of its code
+            origin = spec.origin if spec is not None else None
+        if origin is not None and Path(origin).resolve().is_relative_to(_PROJECT_ROOT / top):
+            return
+        raise ConfigError(
+            f"{where}: module {module_name!r} would be imported from {origin}, not from the "
+            f"installed echoloop ({_PROJECT_ROOT}); refusing to run it"
+        )
+    raise ConfigError(
+        f"{where}: module {module_name!r} is not allowed: launch entries come from the "
+        f"project's packages {list(PROJECT_PACKAGES)} or from modules the launch file lists "
+        f"under 'allow_modules:' (or --allow-module {module_name}); a launch file runs the "
+        "code it names"
+    )
+
+
+def resolve_entry(entry: str, *, where: str = "entry", allow_modules: Sequence[str] = ()) -> type:
+    """Import ``"pkg.module:Class"`` once :func:`check_entry_module` allows it; a refused,
+    missing module or attribute raises ConfigError."""
+    module_name, _, attr = entry.partition(":")
+    check_entry_module(module_name, allow_modules, where=where)
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(f"{where}: cannot import module {module_name!r} ({exc})") from None
+    try:
+        obj = getattr(module, attr)
+    except AttributeError:
+        raise ConfigError(f"{where}: module {module_name!r} has no attribute {attr!r}") from None
+    if not isinstance(obj, type):
+        raise ConfigError(f"{where}: {entry!r} is not a class")
+    for method in ("start", "stop", "stats"):
+        if not callable(getattr(obj, method, None)):
+            raise ConfigError(f"{where}: {entry!r} has no {method}() (not a launchable node)")
+    return obj
+
+
+def parse_param_overrides(items: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``["server.scene.seed=3", "sonar_head.port=/dev/ttyUSB0"]`` -> per-node dotted overrides."""
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        key, value = parse_override(item)
+        node, sep, rest = key.partition(".")
+        if not sep or not rest:
+            raise ConfigError(f"--param {item!r}: expected NODE.KEY=VALUE")
+        out.setdefault(node, {})[rest] = value
+    return out
+
+
+def load(
+    path: str | Path | Mapping[str, Any],
+    *,
+    params_overrides: Mapping[str, Mapping[str, Any]] | None = None,
+    allow_modules: Sequence[str] = (),
+) -> LaunchSpec:
+    """Load and validate a launch file (or an already parsed mapping).
+
+    ``params_overrides`` maps node name -> {dotted param key: value}; an unknown node name raises.
+    Every entry is checked against the allowed modules (the project's packages, the file's
+    ``allow_modules``, and ``allow_modules`` here, from ``--allow-module``) before any import,
+    then imported here, so a typo fails before any node starts.
+    """
+    data = path if isinstance(path, Mapping) else load_yaml(path)
+    where = "launch" if isinstance(path, Mapping) else str(path)
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: expected a mapping with a 'nodes' list, got {data!r}")
+    if params_overrides:
+        nodes = data.get("nodes")
+        names = [n.get("name") for n in nodes if isinstance(n, Mapping)] if isinstance(
+            nodes, list
+        ) else []
+        unknown = sorted(set(params_overrides) - set(names))
+        if unknown:
+            raise ConfigError(f"--param: unknown node(s) {unknown}; the file has {names}")
+        new_nodes = []
+        for n in nodes or []:
+            over = params_overrides.get(str(n.get("name"))) if isinstance(n, Mapping) else None
+            if over:
+                n = {**n, "params": apply_overrides(n.get("params") or {}, over)}
+            new_nodes.append(n)
+        data = {**data, "nodes": new_nodes}
+    try:
+        spec = from_dict(LaunchSpec, data)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    if allow_modules:
+        spec = dataclasses.replace(
+            spec, allow_modules=(*spec.allow_modules, *allow_modules))
+    for i, node in enumerate(spec.nodes):  # every entry checked before the first import
+        check_entry_module(node.entry.partition(":")[0], spec.allow_modules,
+                           where=f"{where}: nodes[{i}].entry")
+    for i, node in enumerate(spec.nodes):
+        resolve_entry(node.entry, where=f"{where}: nodes[{i}].entry",
+                      allow_modules=spec.allow_modules)
+    return spec
