@@ -75,11 +75,12 @@ _BUS_DOWN = {errno.ENETDOWN, errno.ENETUNREACH, errno.ENODEV}
 class CanBusConfig:
     """Where the CAN bus is: python-can ``interface``, ``channel`` and ``bitrate``.
 
-    :meth:`from_params` (what launch parameters go through) gives a ``virtual`` bus without a
-    channel the domain's channel ``glider`` (``glider.d<N>``, :mod:`hil_bridge.bus.domain`), so two
-    runs in one process never share a virtual bus by accident, and a ``udp_multicast`` bus
-    (on loopback: :mod:`drivers.can.loopback`) without a channel the domain's group and port;
-    other interfaces need one.
+    :meth:`from_params` (what launch parameters go through) makes a ``virtual`` bus without a
+    channel the domain's virtual CAN bus: in a numbered domain, whose nodes may be processes,
+    the domain's ``udp_multicast`` group and port on loopback (:mod:`drivers.can.loopback`);
+    in a private domain (one process) python-can's ``virtual`` channel ``glider.<token>``
+    (:mod:`hil_bridge.bus.domain`), so two runs never share a bus by accident. A ``virtual`` bus
+    with a channel is python-can's in-process one; other interfaces need a channel.
     ``bitrate`` None leaves the interface's own setting (socketcan takes it from
     ``ip link set can0 type can bitrate ...``). ``options`` are further ``can.Bus`` keyword
     arguments (e.g. ``{receive_own_messages: true}``). ``faults`` injects bus faults.
@@ -117,10 +118,13 @@ class CanBusConfig:
         if isinstance(faults, dict):
             faults = from_dict(CanFaultConfig, faults, path="faults")
         opts = dict(options or {})
-        if channel is None and interface == "virtual":
-            channel = current_domain().can_channel("glider")
+        domain = current_domain()
+        if interface == "virtual" and channel is None and domain.number is not None:
+            interface = "udp_multicast"  # the domain's virtual bus crosses its processes
+        if interface == "virtual" and channel is None:
+            channel = domain.can_channel("glider")
         if interface == "udp_multicast":
-            group, port = current_domain().can_multicast()
+            group, port = domain.can_multicast()
             channel = group if channel is None else channel
             opts.setdefault("port", port)
         return cls(

@@ -65,6 +65,7 @@ from typing import Any, Protocol, runtime_checkable
 from hil_bridge.bus.domain import Domain, resolve, use
 from hil_bridge.launch.expect import Expectation, parse_expectations
 from hil_bridge.launch.monitor import BusMonitor
+from hil_bridge.launch.process import ContainerProcess
 from sim_core.config import ConfigError, apply_overrides, from_dict, load_yaml, parse_override
 
 __all__ = [
@@ -127,15 +128,19 @@ class Launchable(Protocol):
 
 @dataclass(frozen=True, slots=True)
 class NodeSpec:
-    """One node of a launch file: a unique ``name``, ``entry`` ``"pkg.module:Class"``, params."""
+    """One node of a launch file: a unique ``name``, ``entry`` ``"pkg.module:Class"``, params,
+    and the ``container`` whose process it shares (default: a process of its own)."""
 
     name: str
     entry: str
     params: dict[str, Any] = field(default_factory=dict)
+    container: str = ""
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "a").isalnum():
             raise ValueError(f"name: expected [A-Za-z0-9_]+, got {self.name!r}")
+        if self.container and not self.container.replace("_", "a").isalnum():
+            raise ValueError(f"container: expected [A-Za-z0-9_]+, got {self.container!r}")
         module, sep, attr = self.entry.partition(":")
         if not sep or not module or not attr:
             raise ValueError(f"entry: expected 'package.module:Class', got {self.entry!r}")
@@ -307,8 +312,9 @@ class Failure:
 class RunSummary:
     """What a run produced: wall time, why it stopped, per-node stats, bus-level monitor counts,
     the stats of the recorder / live view when they ran (``extras``, by name), the run's domain
-    and bus, every hardware link's state (``links``, ``"node.label"`` -> the node's report) and
-    the ``failures`` that decide :attr:`exit_status`."""
+    and bus, every hardware link's state (``links``, ``"node.label"`` -> the node's report),
+    the ``failures`` that decide :attr:`exit_status`, and whether the nodes ran as
+    ``"processes"`` or ``"threads"`` (``mode``)."""
 
     wall_s: float
     stopped_by: str
@@ -320,6 +326,7 @@ class RunSummary:
     bus: str = ""
     links: dict[str, dict[str, Any]] = field(default_factory=dict)
     failures: list[Failure] = field(default_factory=list)
+    mode: str = "threads"
 
     @property
     def exit_status(self) -> int:
@@ -373,10 +380,17 @@ def judge(
     return failures
 
 
-def _failure_of(obj: Any) -> str | None:
-    """A launchable's own account of failing: its optional ``failure() -> str | None``."""
+def failure_of(obj: Any, *, final: bool = False) -> str | None:
+    """A launchable's own account of failing: its optional ``failure() -> str | None``
+    (``failure(final=True)`` at the end of the run, when it takes ``final``)."""
     report = getattr(obj, "failure", None)
-    return report() if callable(report) else None
+    if not callable(report):
+        return None
+    if final and "final" in inspect.signature(report).parameters:
+        answer: str | None = report(final=True)
+        return answer
+    answer = report()
+    return answer
 
 
 def _stop_and_collect(name: str, obj: Any, failed: list[tuple[str, str]]) -> dict[str, Any]:
@@ -389,7 +403,7 @@ def _stop_and_collect(name: str, obj: Any, failed: list[tuple[str, str]]) -> dic
             elif step == "stats":
                 stats = obj.stats()
             else:
-                reason = _failure_of(obj)
+                reason = failure_of(obj, final=True)
                 if reason:
                     failed.append((name, reason))
         except Exception as exc:  # one broken node must not hide the others' results
@@ -418,6 +432,13 @@ def _takes_overwrite(cls: type) -> bool:
         return False
 
 
+def _node_params(i: int, node: NodeSpec, cls: type, *, overwrite: bool) -> dict[str, Any]:
+    params = dict(node.params)
+    if overwrite and "overwrite" not in params and _takes_overwrite(cls):
+        params["overwrite"] = True
+    return params
+
+
 def _instantiate(
     spec: LaunchSpec, bus: str, made: list[tuple[str, Any]], *, overwrite: bool
 ) -> None:
@@ -428,14 +449,61 @@ def _instantiate(
     for i, node in enumerate(spec.nodes):
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
                             allow_modules=spec.allow_modules)
-        params = dict(node.params)
-        if overwrite and "overwrite" not in params and _takes_overwrite(cls):
-            params["overwrite"] = True
+        params = _node_params(i, node, cls, overwrite=overwrite)
         try:
             obj = cls(node.name, bus=bus, **params)
         except TypeError as exc:
             raise ConfigError(f"nodes[{i}] ({node.name}).params: {exc}") from None
         made.append((node.name, obj))
+
+
+def _spawn(
+    spec: LaunchSpec, bus: str, made: list[tuple[str, Any]], *, overwrite: bool, domain: Domain,
+    log_dir: Path | None,
+) -> None:
+    """Start every container's process in the order of its first node, each once the one
+    before reported its nodes started; ``made`` gets a :class:`RemoteNode` per node."""
+    containers: dict[str, list[dict[str, Any]]] = {}
+    for i, node in enumerate(spec.nodes):
+        cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
+                            allow_modules=spec.allow_modules)
+        containers.setdefault(node.container or node.name, []).append(
+            {"name": node.name, "entry": node.entry,
+             "params": _node_params(i, node, cls, overwrite=overwrite)})
+    assert domain.number is not None
+    procs = [ContainerProcess(key, nodes, bus=bus, domain=domain.number,
+                              allow_modules=spec.allow_modules, log_dir=log_dir)
+             for key, nodes in containers.items()]
+    try:
+        for proc in procs:  # every host imports its nodes' modules at once
+            proc.spawn()
+        for proc in procs:  # and starts them in the file's order
+            proc.start()
+            made.extend((n["name"], proc.node(n["name"])) for n in proc.nodes)
+    finally:
+        for proc in procs:
+            if not any(name == proc.nodes[0]["name"] for name, _ in made):
+                proc.kill()
+
+
+def processes_for(bus: str, domain: Domain) -> bool:
+    """Whether a launch on ``bus`` in ``domain`` can run its nodes as processes."""
+    return not bus.startswith("mem://") and domain.number is not None
+
+
+def select_nodes(spec: LaunchSpec, *, only: Sequence[str] = (),
+                 skip: Sequence[str] = ()) -> LaunchSpec:
+    """``spec`` with only the nodes named in ``only`` (all when empty), less those in ``skip``;
+    a name the file does not have raises ConfigError."""
+    names = [n.name for n in spec.nodes]
+    unknown = sorted(set(only) - set(names)) + sorted(set(skip) - set(names))
+    if unknown:
+        raise ConfigError(f"--only/--skip: unknown node(s) {unknown}; the file has {names}")
+    kept = tuple(n for n in spec.nodes
+                 if (not only or n.name in only) and n.name not in skip)
+    if not kept:
+        raise ConfigError(f"--only/--skip leave no node to run (the file has {names})")
+    return dataclasses.replace(spec, nodes=kept)
 
 
 def run(
@@ -454,8 +522,20 @@ def run(
     allow_disconnected: bool = False,
     overwrite: bool = False,
     allow_modules: Sequence[str] = (),
+    processes: bool | None = None,
+    only: Sequence[str] = (),
+    skip: Sequence[str] = (),
+    log_dir: str | Path | None = None,
+    monitor: bool = True,
 ) -> RunSummary:
     """Start every node of a launch file in order, wait, stop them in reverse order.
+
+    ``processes`` (default: whenever the bus crosses processes, i.e. it is not ``mem://``, and
+    the domain is numbered) runs each container, by default each node, in a process of its own
+    (:mod:`hil_bridge.launch.process`); otherwise every node is a thread of this process.
+    ``only``/``skip`` name the nodes to run or leave out; ``log_dir`` receives one log file per
+    process. ``monitor`` False runs no bus monitor (``echoloop run``: a node alone must not
+    decode every message of the bus in its own process).
 
     The run ends ``duration`` seconds after every node started (argument, else the file's;
     ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
@@ -475,9 +555,16 @@ def run(
     """
     spec = path if isinstance(path, LaunchSpec) else load(
         path, params_overrides=params_overrides, allow_modules=allow_modules)
+    if only or skip:
+        spec = select_nodes(spec, only=only, skip=skip)
     dom = resolve(domain)
     bus_url = bus if bus is not None else spec.bus or dom.bus_url
     spec = dataclasses.replace(spec, bus=bus_url)
+    in_processes = processes_for(bus_url, dom) if processes is None else processes
+    if in_processes and processes_for(bus_url, dom) is False:
+        raise ConfigError(f"nodes as processes need a bus that crosses processes (tcp:// or "
+                          f"ipc://) in a numbered domain; {bus_url} in {dom} lives in one "
+                          "process: run the nodes as threads")
     expectations = parse_expectations(
         [e for e in expect if isinstance(e, str)], nodes=[n.name for n in spec.nodes]
     ) + [e for e in expect if isinstance(e, Expectation)]
@@ -504,9 +591,10 @@ def run(
     held.enter_context(dom.claim())
     try:
         with use(dom):
-            monitor = BusMonitor("launch_monitor", bus=bus_url)
-            monitor.start()
-            extras.append(monitor)
+            if monitor:
+                bus_monitor = BusMonitor("launch_monitor", bus=bus_url)
+                bus_monitor.start()
+                extras.append(bus_monitor)
             if record_path is not None:
                 from hil_bridge.recording.recorder import Recorder
 
@@ -514,7 +602,11 @@ def run(
                 recorder.start()
                 extras.append(recorder)
             try:
-                _instantiate(spec, bus_url, made, overwrite=overwrite)
+                if in_processes:
+                    _spawn(spec, bus_url, made, overwrite=overwrite, domain=dom,
+                           log_dir=None if log_dir is None else Path(log_dir))
+                else:
+                    _instantiate(spec, bus_url, made, overwrite=overwrite)
             except ConfigError as exc:  # a node refused its params: say which launch file
                 if isinstance(path, str | Path) and str(path) not in str(exc):
                     raise ConfigError(f"{path}: {exc}") from None
@@ -566,6 +658,7 @@ def run(
         domain=str(dom),
         bus=bus_url,
         links=collect_links(nodes),
+        mode="processes" if in_processes else "threads",
     )
     summary.failures = judge(
         summary, expectations=expectations, allow_disconnected=allow_disconnected,
