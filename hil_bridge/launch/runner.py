@@ -393,6 +393,21 @@ def failure_of(obj: Any, *, final: bool = False) -> str | None:
     return answer
 
 
+#: how often (s) a running launch asks its nodes whether they failed
+FAILURE_POLL_S = 0.25
+
+
+def _first_failing(made: Sequence[tuple[str, Any]]) -> str | None:
+    """The name of the first node that reports a failure while the run goes, or None."""
+    for name, obj in made:
+        try:
+            if failure_of(obj):
+                return name
+        except Exception:  # a node that cannot even answer has failed
+            return name
+    return None
+
+
 def _stop_and_collect(name: str, obj: Any, failed: list[tuple[str, str]]) -> dict[str, Any]:
     """Stop one launchable and take its stats; whatever goes wrong is noted in ``failed``."""
     stats: dict[str, Any] = {}
@@ -622,6 +637,7 @@ def run(
         if on_started is not None:
             on_started(spec)
         deadline = None if run_for is None else time.monotonic() + run_for
+        next_check = time.monotonic() + FAILURE_POLL_S
         while not flag.event.is_set():
             if stop_event is not None and stop_event.is_set():
                 flag.set("stop_event")
@@ -630,6 +646,12 @@ def run(
             if remaining is not None and remaining <= 0:
                 flag.set("duration")
                 break
+            if time.monotonic() >= next_check:
+                next_check = time.monotonic() + FAILURE_POLL_S
+                failing = _first_failing(made)
+                if failing is not None:
+                    flag.set(f"failure of {failing}")
+                    break
             flag.event.wait(0.05 if remaining is None else min(0.05, remaining))
     finally:
         failed: list[tuple[str, str]] = []
