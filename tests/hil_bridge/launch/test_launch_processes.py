@@ -127,7 +127,9 @@ def _children(pid: int) -> list[int]:
 
 
 def _port_free(port: int) -> bool:
+    """As ZeroMQ binds (SO_REUSEADDR: connections in TIME_WAIT do not hold the port)."""
     with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind(("127.0.0.1", port))
         except OSError:
