@@ -8,9 +8,12 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
 1. the runner sends ``("nodes", {"domain": str, "bus": str, "allow_modules": [...],
    "nodes": [{"name", "entry", "params"}, ...]})``; the host imports the nodes' modules and
    answers ``("prepared", None)`` (hosts of one launch import at the same time);
-2. on ``("start", None)`` (the runner starts containers in the launch file's order) the host
-   activates the domain, constructs and starts the nodes in order and answers
-   ``("ready", None)``, or ``("error", "node: traceback text")`` after stopping those it started;
+2. on ``("construct", None)`` the host activates the domain and constructs the nodes in order,
+   answering ``("constructed", None)``; on ``("start", None)`` it starts them in order, answering
+   ``("ready", None)``. The runner constructs every container's nodes in the launch file's
+   order before it starts any, as it does with threads, so no node runs (a server's clock
+   ticking) while the next ones are still being built. A node that fails is answered with
+   ``("error", "node: traceback text")``, after the host stopped those of its nodes it started;
 3. then it answers requests until told to stop: ``("stats", name)`` -> ``("stats", dict)``,
    ``("failure", name)`` -> ``("failure", str | None)``, ``("stop", name)`` ->
    ``("stopped", (stats, failure(final)))``; it exits once every node stopped, or stops them
@@ -67,38 +70,58 @@ def _prepare(nodes: list[dict[str, Any]], allow_modules: list[str]) -> list[type
                           allow_modules=allow_modules) for node in nodes]
 
 
-def _start_all(nodes: list[dict[str, Any]], classes: list[type],
+def _construct(nodes: list[dict[str, Any]], classes: list[type],
                bus: str) -> tuple[dict[str, Any], str | None]:
-    """Construct and start ``nodes`` in order; on a failure stop those started (reverse) and
-    return the error text naming the node."""
+    """Construct ``nodes`` in order: the nodes, or the error text naming the node that failed."""
     made: dict[str, Any] = {}
     for node, cls in zip(nodes, classes, strict=True):
-        name = node["name"]
         try:
-            obj = cls(name, bus=bus, **node["params"])
-            made[name] = obj
+            made[node["name"]] = cls(node["name"], bus=bus, **node["params"])
+        except BaseException:
+            return made, f"{node['name']}: {traceback.format_exc(limit=8).rstrip()}"
+    return made, None
+
+
+def _start(made: dict[str, Any]) -> str | None:
+    """Start the nodes in order; on a failure stop them all (reverse) and name the one."""
+    for name, obj in made.items():
+        try:
             obj.start()
         except BaseException:
             text = f"{name}: {traceback.format_exc(limit=8).rstrip()}"
             for other in reversed(list(made.values())):
                 with contextlib.suppress(Exception):
                     other.stop()
-            return {}, text
-    return made, None
+            return text
+    return None
 
 
-def _serve(conn: Connection, made: dict[str, Any], stop_all: threading.Event) -> None:
-    """Answer the runner's requests until every node stopped or the runner is gone."""
+def _next(conn: Connection) -> tuple[str, Any] | None:
+    """The runner's next request, or None when it is gone."""
+    try:
+        kind, detail = conn.recv()
+    except (EOFError, OSError):
+        return None
+    return kind, detail
+
+
+def _serve(conn: Connection, made: dict[str, Any], stop_all: threading.Event,
+           first: tuple[str, Any] | None = None) -> None:
+    """Answer the runner's requests (``first``, then what comes) until every node stopped or
+    the runner is gone; nodes left are stopped in reverse order."""
     running = dict(made)
     while running:
-        if stop_all.is_set():
+        if first is not None:
+            (kind, name), first = first, None
+        elif stop_all.is_set():
             break
-        try:
-            if not conn.poll(0.2):
-                continue
-            kind, name = conn.recv()
-        except (EOFError, OSError):
-            break
+        else:
+            try:
+                if not conn.poll(0.2):
+                    continue
+                kind, name = conn.recv()
+            except (EOFError, OSError):
+                break
         obj = running.get(name)
         if obj is None:
             conn.send(("error", f"no running node {name!r} in this host"))
@@ -150,18 +173,26 @@ def main(argv: list[str] | None = None) -> int:
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return 1
     conn.send(("prepared", None))
-    try:
-        kind, _ = conn.recv()
-    except (EOFError, OSError):
-        return 1
-    if kind != "start" or stop_all.is_set():
+    if _next(conn) != ("construct", None) or stop_all.is_set():
         return 1
     with use(resolve(request["domain"])):
-        made, error = _start_all(request["nodes"], classes, request["bus"])
-    if error is not None:
-        conn.send(("error", error))
-        return 1
-    conn.send(("ready", None))
+        made, error = _construct(request["nodes"], classes, request["bus"])
+        if error is not None:
+            for obj in reversed(list(made.values())):
+                with contextlib.suppress(Exception):
+                    obj.stop()
+            conn.send(("error", error))
+            return 1
+        conn.send(("constructed", None))
+        request_ = _next(conn)
+        if request_ != ("start", None):  # the launch stops before it started these nodes
+            _serve(conn, made, stop_all, first=request_)
+            return 0
+        error = _start(made)
+        if error is not None:
+            conn.send(("error", error))
+            return 1
+        conn.send(("ready", None))
     _serve(conn, made, stop_all)
     conn.close()
     return 0

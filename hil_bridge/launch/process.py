@@ -1,11 +1,12 @@
 """Nodes in their own processes: the runner's side of a node host (:mod:`hil_bridge.launch.host`).
 
 :class:`ContainerProcess` spawns one host process for a container (by default every node is
-its own container; nodes that share a ``container:`` name share a process), sends it the nodes,
-and waits until it reports them started (``ready_timeout_s``; a host that does not come up is
-named with its last log lines). :meth:`ContainerProcess.node` gives the runner one
-:class:`RemoteNode` per node, which keeps the launchable contract (``start``, ``stop``,
-``stats``, ``failure``) over the control channel.
+its own container; nodes that share a ``container:`` name share a process) and sends it the
+nodes; :meth:`~ContainerProcess.construct` and :meth:`~ContainerProcess.start` have the host
+construct, then start them, each waiting for the host's answer (``ready_timeout_s``; a host
+that does not come up is named with its last log lines). :meth:`ContainerProcess.node` gives
+the runner one :class:`RemoteNode` per node, which keeps the launchable contract (``start``,
+``stop``, ``stats``, ``failure``) over the control channel.
 
 A host that dies (an exception that ends it, ``os.abort``, SIGKILL, the kernel's OOM killer)
 is a failure of each of its nodes that had not stopped: ``failure()`` names the exit code or
@@ -70,6 +71,7 @@ class ContainerProcess:
         self._tail: deque[str] = deque(maxlen=TAIL_LINES)
         self._pump: threading.Thread | None = None
         self._stopped: dict[str, tuple[dict[str, Any], str | None]] = {}
+        self._started = False
         self._prefix = f"[{nodes[0]['name']}] " if len(nodes) == 1 else f"[{name}] "
 
     # ------------------------------------------------------------------ process
@@ -98,13 +100,22 @@ class ContainerProcess:
         self._conn.send(("nodes", {"domain": str(self.domain), "bus": self.bus,
                                    "allow_modules": self.allow_modules, "nodes": self.nodes}))
 
-    def start(self) -> None:
-        """Have the host construct and start its nodes (:meth:`spawn` first, if not yet); wait
-        until it reports them started, at most ``ready_timeout_s`` in all."""
+    def construct(self) -> None:
+        """Have the host construct its nodes (:meth:`spawn` first, if not yet) and wait for it,
+        at most ``ready_timeout_s`` for the imports and as long again for the construction."""
         if self._proc is None:
             self.spawn()
         assert self._conn is not None
         self._expect("prepared")
+        self._conn.send(("construct", None))
+        self._expect("constructed")
+
+    def start(self) -> None:
+        """Have the host start its constructed nodes; wait until it reports them running."""
+        if self._started:
+            return
+        self._started = True
+        assert self._conn is not None
         self._conn.send(("start", None))
         self._expect("ready")
 
@@ -256,7 +267,8 @@ class RemoteNode:
         self.name = name
 
     def start(self) -> None:
-        """Started with its container (:meth:`ContainerProcess.start`)."""
+        """Start the container's nodes (once, with the first of them)."""
+        self.container.start()
 
     def stop(self) -> None:
         self.container.stop_node(self.name)

@@ -476,8 +476,9 @@ def _spawn(
     spec: LaunchSpec, bus: str, made: list[tuple[str, Any]], *, overwrite: bool, domain: Domain,
     log_dir: Path | None,
 ) -> None:
-    """Start every container's process in the order of its first node, each once the one
-    before reported its nodes started; ``made`` gets a :class:`RemoteNode` per node."""
+    """Spawn every container's process at once (they import their nodes' modules meanwhile),
+    then have each construct its nodes in the order of its first node; ``made`` gets a
+    :class:`~hil_bridge.launch.process.RemoteNode` per node, whose ``start()`` starts them."""
     containers: dict[str, list[dict[str, Any]]] = {}
     for i, node in enumerate(spec.nodes):
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
@@ -492,8 +493,8 @@ def _spawn(
     try:
         for proc in procs:  # every host imports its nodes' modules at once
             proc.spawn()
-        for proc in procs:  # and starts them in the file's order
-            proc.start()
+        for proc in procs:  # and constructs them in the file's order
+            proc.construct()
             made.extend((n["name"], proc.node(n["name"])) for n in proc.nodes)
     finally:
         for proc in procs:
