@@ -7,8 +7,9 @@ process of its own (a numbered domain's ZeroMQ bus and loopback CAN). Six proces
 loaded 2-core machine can be descheduled for a second, so that run waits up to 10 s for a step
 (`lockstep_timeout_s`; it only bounds a hang, and a stall would still fail the test). Two runs
 of different (wall) lengths must agree wherever both have data: every glider state at every
-common stamp, every sim-time ping and every echo, bit for bit. Each run ends at a sim time (a watcher on the bus stops it), so a loaded machine shortens nothing: the sonar
-vehicle first has leaves in its beam from the ping at 5.2 s.
+common stamp, every sim-time ping and every echo, bit for bit. Each run ends at a sim time (a
+watcher on the bus stops it), so a loaded machine shortens nothing: the sonar vehicle first has
+leaves in its beam from the ping at 5.2 s.
 """
 
 from __future__ import annotations
