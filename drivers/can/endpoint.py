@@ -7,8 +7,8 @@ The bridge (:class:`drivers.can.adapter.AutopilotAdapter`) and the autopilot emu
 * a receive thread decodes every frame the link delivers and hands it to the owner's
   ``handle``; a frame that does not decode is counted (``rx_decode_errors``) and dropped;
 * a transmit thread runs the owner's periodic tasks ``(period_s, task(now))`` in order, each
-  when it is due (``now``: monotonic seconds); a task that fell behind runs once and is due a
-  period later, it never runs twice to catch up;
+  when it is due (``now``: monotonic seconds); a task that fell more than a period behind is due
+  again at once and then every period: the periods it missed are not made up;
 * an exception raised by ``handle`` or a task is counted (``loop_errors``) and reported to the
   owner's ``faults`` naming the frame or the cycle, and the loop goes on; anything that ends a
   thread is reported naming the loop (:meth:`~hil_bridge.bus.faults.Faults.guarded`).
