@@ -190,9 +190,11 @@ def test_diagnostics_and_stats_report_the_link(sim: Sim, make_adapter: Any,
                                   for d in seen))
     diag = next(d for d in reversed(seen) if d.node == "autopilot")
     assert diag.counters["can_state"] == 0 and diag.counters["can_tx_frames"] > 0
-    # the first command can beat the mock's first heartbeat; wait for the heartbeat itself
-    assert wait_until(lambda: ad.stats().get("ap_alive:3") == 1)
+    # the first command can beat the mock's first heartbeat, and that heartbeat its switch to
+    # AUTO: wait for a heartbeat that says AUTO
+    assert wait_until(lambda: ad.stats().get("ap_mode:3") == 1)
     stats = ad.stats()
+    assert stats["ap_alive:3"] == 1
     assert stats["can_link"] == "up" and stats["cmd_state:3"] == CMD_STATES["FRESH"]
     assert stats["ap_heartbeats_in"] > 0
     assert stats["ap_mode:3"] == 1  # the mock flies it: AUTO
