@@ -125,7 +125,9 @@ def headline(summary: RunSummary) -> list[str]:
         lines.append(
             f"server: {srv['ticks']} ticks ({srv['sim_time_s']:.1f} s sim), "
             f"{srv['cmd_applied']} commands applied ({srv['cmd_rejected']} rejected), "
-            f"{srv['echoes_published']} echoes, {srv['stalls']} lockstep stalls"
+            f"{srv['echoes_published']} echoes"
+            + (f" ({srv['echo_worker']} echo worker)" if srv.get("echo_worker") else "")
+            + f", {srv['stalls']} lockstep stalls"
             + (f", gliders alive {alive}" if alive is not None else "")
         )
     return lines
