@@ -34,7 +34,9 @@ from drivers.can.adapter import AutopilotAdapter
 from drivers.can.busload import frame_bits, worst_case_bits
 from drivers.can.codec import GliderCanCodec
 from drivers.faults.can_bus import FaultInjectingBus
-from drivers.mocks.autopilot import MockAutopilot, ProfileReceiver, figure_eight_waypoints
+from drivers.mocks.autopilot import MockAutopilot
+from drivers.mocks.path_follower import figure_eight_waypoints
+from drivers.mocks.profile_receiver import ProfileReceiver
 from hil_bridge.bus.messages import GliderCmd, GliderState
 from hil_bridge.bus.node import Node
 from hil_bridge.errors import CodecError

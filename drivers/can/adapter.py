@@ -13,16 +13,9 @@ bus carrying the "raw" profile of ``drivers/can/glider.dbc``:
 * AUTOPILOT_CMD (``bank_cmd_rad``, ``airspeed_cmd_mps``) → ``/glider/<id>/cmd`` at once;
 * BRIDGE_HEARTBEAT out and AUTOPILOT_HEARTBEAT in, per node, at ``heartbeat_hz``.
 
-Command supervision, per glider, evaluated at ``heartbeat_hz`` (``cmd_state`` in the bridge
-heartbeat and in ``/diagnostics``):
-
-``WAITING``  no command yet, less than ``failsafe_after_s`` since start: nothing is published;
-``FRESH``    the last command is at most ``cmd_timeout_s`` old;
-``HOLD``     older than ``cmd_timeout_s``: the last command is re-published (hold last);
-``FAILSAFE`` older than ``failsafe_after_s`` (or never any), or the autopilot's heartbeat
-             reports ``FAULT``: the failsafe command is published — wings level
-             (``failsafe_bank_rad`` = 0) at best-glide speed (``failsafe_airspeed_mps``, default
-             sqrt(Sink_C / Sink_A) of the seed polar = 11.36 m/s). The next command frame ends it.
+The frames' signal values come from :mod:`drivers.can.bridge_frames`. Command supervision, per
+glider at ``heartbeat_hz``, publishes the last command again (``HOLD``) or the failsafe command
+(``FAILSAFE``) when commands stop: :mod:`drivers.can.supervision`.
 
 **Lockstep** (``/clock`` says ``lockstep``; docs/can.md). The periodic state stream stops;
 instead each new state *step* of a glider is sent at once as one lockstep sample:
@@ -41,10 +34,11 @@ neighbour lists, and malformed bus messages are dropped and counted before they 
 (:mod:`hil_bridge.bus.node`), so a flood on one topic cannot hold states back.
 
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
-recovery, re-open); no exception leaves the adapter's threads: anything unexpected is counted
-as ``loop_errors`` and reported to the node's ``faults`` (a failure of the node, naming the
-loop: the launch run exits non-zero). Counters are in :meth:`stats`
-and published on ``/diagnostics`` (by the node, every ``diagnostics_period_s``).
+recovery, re-open); no exception leaves the adapter's CAN threads
+(:class:`drivers.can.endpoint.CanEndpoint`): anything unexpected is counted as ``loop_errors``
+and reported to the node's ``faults`` (a failure of the node, naming the loop: the launch run
+exits non-zero). Counters are in :meth:`stats` and published on ``/diagnostics`` (by the node,
+every ``diagnostics_period_s``).
 """
 
 from __future__ import annotations
@@ -53,51 +47,37 @@ import math
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from drivers.can.bus import CanBusConfig, CanLink, LinkPolicy
-from drivers.can.codec import MAX_NODE_ID, DecodedFrame, GliderCanCodec
+from drivers.can.bridge_frames import (
+    MAX_NEIGHBOURS,
+    Frame,
+    attitude_frames,
+    bridge_mode,
+    has_attitude,
+    heartbeat_frame,
+    motion_frame,
+    neighbour_frames,
+    pos_frame,
+)
+from drivers.can.bus import CanBusConfig
+from drivers.can.codec import MAX_NODE_ID, DecodedFrame
+from drivers.can.endpoint import CanEndpoint
+from drivers.can.supervision import AP_FAULT, CMD_STATES, best_glide_speed, next_cmd_state
 from hil_bridge.bus.clock import SimClock
 from hil_bridge.bus.codec import Envelope
 from hil_bridge.bus.messages import Clock, GliderCmd, GliderNeighbors, GliderState
 from hil_bridge.bus.node import Node, Publisher
 from hil_bridge.bus.qos import SENSOR, QoSProfile
-from hil_bridge.errors import CodecError
+from hil_bridge.bus.stats import percentiles
 from hil_bridge.outputs import check_output
-from sim_core.soaring.law import Law
 
-__all__ = [
-    "BRIDGE_MODES",
-    "CMD_STATES",
-    "MAX_NEIGHBOURS",
-    "AutopilotAdapter",
-    "best_glide_speed",
-    "parse_gliders",
-]
+__all__ = ["AutopilotAdapter", "parse_gliders"]
 
-#: cmd_state values (BRIDGE_HEARTBEAT.cmd_state, the DBC's value table).
-CMD_STATES = {"WAITING": 0, "FRESH": 1, "HOLD": 2, "FAILSAFE": 3}
-#: bridge_mode values (BRIDGE_HEARTBEAT.bridge_mode).
-BRIDGE_MODES = {"INIT": 0, "RUN": 1, "DEGRADED": 2, "BUS_OFF": 3}
-#: Neighbours per list the profile carries (nb_count is 4 bits).
-MAX_NEIGHBOURS = 15
 _LINK_STATE_CODES = {"up": 0, "degraded": 1, "bus_off": 2, "down": 3, "closed": 4}
-_AP_FAULT = 3
-
-
-def best_glide_speed(law: Law | None = None) -> float:
-    """Airspeed of the best glide ratio of the law's polar, m/s: sqrt(Sink_C / Sink_A).
-
-    The sink polar is A v² + B v + C (< 0); the glide ratio v / |sink| peaks where
-    d/dv (A v + B + C / v) = 0, i.e. v² = C / A. Seed law: sqrt(2.3782 / 0.01843) = 11.36 m/s.
-    """
-    law = law if law is not None else Law()
-    return math.sqrt(law.Sink_C / law.Sink_A)
 
 
 def parse_gliders(gliders: Any) -> dict[int, int]:
@@ -157,19 +137,6 @@ class _Glider:
     cmd_step: int = -1
     cmd_sim_ns: int = 0
     sample_steps: dict[int, tuple[int, int]] = field(default_factory=dict)
-
-
-def _has_attitude(st: GliderState) -> bool:
-    """Whether the state carries an attitude (publishers older than it leave NaN)."""
-    return all(math.isfinite(v) for v in (st.qw, st.qx, st.qy, st.qz, st.roll_rate,
-                                          st.pitch_rate, st.yaw_rate))
-
-
-def _percentiles(ms: np.ndarray) -> dict[str, float]:
-    if not ms.size:
-        return {"n": 0}
-    p50, p99, top = np.percentile(ms, [50, 99, 100])
-    return {"n": int(ms.size), "p50": float(p50), "p99": float(p99), "max": float(top)}
 
 
 def _positive(name: str, value: float) -> float:
@@ -243,21 +210,18 @@ class AutopilotAdapter(Node):
             interface=interface, channel=channel, bitrate=bitrate,
             options=dict(can_options or {}), faults=dict(faults) if faults else None,
         )
-        self.can_log = can_log
-        self.overwrite = overwrite
         if can_log is not None:
             check_output(can_log, overwrite=overwrite)
         super().__init__(
             name, bus=bus, clock=SimClock("lockstep"), diagnostics_period_s=diagnostics_period_s
         )
-        self.codec = GliderCanCodec()
         self._glider = {gid: _Glider(gid, node) for gid, node in self.gliders.items()}
         self._by_node = {g.node: g for g in self._glider.values()}
         self._glock = threading.Lock()
         self._c: Counter[str] = Counter()
-        self._stop_evt = threading.Event()
-        self._can_threads: list[threading.Thread] = []
-        self._link: CanLink | None = None
+        #: its CAN side: codec, link, receive and transmit threads
+        self.can = CanEndpoint(self.name, self.bus_config, faults=self.faults, count=self._inc,
+                               log_path=can_log, overwrite=overwrite, loop_prefix="can-")
         self._start_wall = time.monotonic()
         self._lockstep = False
         self._lockstep_since_ns = 0
@@ -282,37 +246,29 @@ class AutopilotAdapter(Node):
     # -- launchable contract ------------------------------------------------------------------
     def start(self) -> AutopilotAdapter:
         """Start the bus node, open the CAN bus and start the CAN threads (non-blocking)."""
-        if self._can_threads or self._stop_evt.is_set():
+        if not self.can.open():
             return self
-        self._link = CanLink(
-            self.bus_config, policy=LinkPolicy(), log_path=self.can_log,
-            stop_event=self._stop_evt, overwrite=self.overwrite,
-        )
         super().start()
         self._start_wall = time.monotonic()
-        for target, suffix in ((self._can_rx_loop, "can-rx"), (self._can_tx_loop, "can-tx")):
-            t = threading.Thread(target=self.faults.guarded(f"{suffix} loop", target),
-                                 name=f"{self.name}-{suffix}", daemon=True)
-            t.start()
-            self._can_threads.append(t)
+        self.can.run(  # methods looked up at each call, as a patched one would be
+            lambda frame: self._on_frame(frame),
+            [(1.0 / self.state_rate_hz, lambda now: self._send_states(now)),
+             (1.0 / self.heartbeat_hz, lambda now: self._heartbeat_cycle(now))],
+            rx_place="handling CAN frame", tx_place="CAN transmit cycle",
+        )
         return self
 
     def stop(self) -> None:
         """Stop the CAN threads, close the CAN bus (flushing the log) and the node (idempotent)."""
-        self._stop_evt.set()
-        for t in self._can_threads:
-            t.join(timeout=5.0)
-        self._can_threads.clear()
-        if self._link is not None:
-            self._link.close()
+        self.can.stop()
         super().stop()
 
     def stats(self) -> dict[str, Any]:
         """Node counters plus ``can_*`` (link), adapter counters, saturation, per-glider
         ``cmd_state:<id>`` / ``ap_alive:<id>`` / ``ap_mode:<id>`` (numbers, so they reach
         ``/diagnostics``) and ``state_latency_ms`` (bus publish -> state callback percentiles
-        over the last 10,000 states, also ``state_latency_ms_by_glider``; meaningful when the
-        publisher runs on this host)."""
+        over the last 10,000 states, :func:`hil_bridge.bus.stats.percentiles`; also
+        ``state_latency_ms_by_glider``; meaningful when the publisher runs on this host)."""
         out = super().stats()
         with self._glock:
             out.update(self._c)
@@ -320,21 +276,18 @@ class AutopilotAdapter(Node):
                 out[f"cmd_state:{g.gid}"] = g.cmd_state
                 out[f"ap_alive:{g.gid}"] = int(g.ap_alive)
                 out[f"ap_mode:{g.gid}"] = g.ap_mode
-        if self._link is not None:
-            link = self._link.stats()
-            state = str(link.pop("state"))
-            out.update({f"can_{k}": v for k, v in link.items()})
-            out["can_state"] = _LINK_STATE_CODES.get(state, -1)
-            out["can_link"] = state
-            out["links"] = {"can": self._link.report()}
+        out.update(self.can.stats())
+        if "can_state" in out:  # a number for /diagnostics, the name as can_link
+            out["can_link"] = str(out["can_state"])
+            out["can_state"] = _LINK_STATE_CODES.get(out["can_link"], -1)
         with self._glock:
-            samples = np.asarray(self._state_ms, dtype=np.float64).reshape(-1, 2)
-        out["state_latency_ms"] = _percentiles(samples[:, 1])
+            samples = list(self._state_ms)
+        by_glider: dict[int, list[float]] = {gid: [] for gid in self.gliders}
+        for gid, ms in samples:
+            by_glider[gid].append(ms)
+        out["state_latency_ms"] = percentiles([ms for _, ms in samples])
         out["state_latency_ms_by_glider"] = {
-            str(gid): _percentiles(samples[samples[:, 0] == gid, 1]) for gid in self.gliders}
-        sat = self.codec.saturation_counts()
-        out["saturated_tx"] = sum(sat["tx"].values())
-        out["saturated_rx"] = sum(sat["rx"].values())
+            str(gid): percentiles(ms) for gid, ms in by_glider.items()}
         return out
 
     def cmd_state(self, gid: int) -> str:
@@ -385,35 +338,25 @@ class AutopilotAdapter(Node):
         return max(t, g.state.stamp_ns) if g.state is not None else t
 
     # -- CAN transmit -------------------------------------------------------------------------
-    def _can_tx_loop(self) -> None:
-        now = time.monotonic()
-        next_state = next_hb = now
-        state_period, hb_period = 1.0 / self.state_rate_hz, 1.0 / self.heartbeat_hz
-        while not self._stop_evt.is_set():
-            now = time.monotonic()
-            try:
-                if now >= next_state:
-                    next_state = max(next_state + state_period, now)
-                    self._send_states(now)
-                if now >= next_hb:
-                    next_hb = max(next_hb + hb_period, now)
-                    self._supervise(now)
-                    self._send_heartbeats()
-            except Exception as exc:
-                self._inc("loop_errors")
-                self.faults.report("CAN transmit cycle", exc)
-            self._stop_evt.wait(max(0.0, min(next_state, next_hb) - time.monotonic()))
+    def _heartbeat_cycle(self, now: float) -> None:
+        self._supervise(now)
+        self._send_heartbeats()
 
     def _send(self, name: str, node: int, values: Mapping[str, float]) -> bool:
-        link = self._link
-        if link is None:
-            return False
         try:
-            msg = self.codec.encode(name, node, values)
+            return self.can.send(name, node, values)
         except ValueError:
             self._inc("tx_encode_errors")
             return False
-        return link.send(msg)
+
+    def _send_frames(self, node: int, frames: Sequence[Frame]) -> bool:
+        """Send ``frames`` in order, every one even after one failed; whether all went out."""
+        return all([self._send(name, node, values) for name, values in frames])
+
+    def _attitude_frames(self, st: GliderState, counter: int) -> list[Frame]:
+        if not has_attitude(st):
+            self._inc("attitude_missing")
+        return attitude_frames(st, counter)
 
     def _inc(self, key: str, n: int = 1) -> None:
         with self._glock:
@@ -431,22 +374,12 @@ class AutopilotAdapter(Node):
             g.state_counter = (g.state_counter + 1) % 16
             counter = g.state_counter
             g.sample_steps[counter] = (st.step, st.stamp_ns)
-        ok = self._send(
-            "GLIDER_STATE_POS", g.node, {"x_m": st.x, "y_m": st.y, "z_m": st.z, "lockstep": 1}
-        )
+        ok = self._send_frames(g.node, [pos_frame(st, lockstep=True)])
         if nbs is not None:
             self._send_neighbours(g, st, nbs, nb_set)
-        ok &= self._send_attitude(g, st, counter)
-        ok &= self._send_motion(g, st, counter)
+        ok &= self._send_frames(
+            g.node, [*self._attitude_frames(st, counter), motion_frame(st, counter)])
         self._inc("lockstep_samples_sent" if ok else "states_dropped")
-
-    def _send_motion(self, g: _Glider, st: GliderState, counter: int) -> bool:
-        """GLIDER_STATE_MOTION, the frame that completes a state sample."""
-        return self._send(
-            "GLIDER_STATE_MOTION", g.node,
-            {"heading_rad": st.heading, "bank_rad": st.bank, "airspeed_mps": st.airspeed,
-             "vz_mps": st.vz, "alive": float(st.alive), "state_counter": counter},
-        )
 
     def _send_states(self, now: float) -> None:
         if self._lockstep:
@@ -464,86 +397,31 @@ class AutopilotAdapter(Node):
                     nbs, g.nb_new, g.nb_sent_wall = g.neighbours, False, now
                     g.nb_set = (g.nb_set + 1) % 16
                 nb_set = g.nb_set
-            ok = self._send(
-                "GLIDER_STATE_POS", g.node, {"x_m": st.x, "y_m": st.y, "z_m": st.z}
-            )
-            ok &= self._send_attitude(g, st, counter)
-            ok &= self._send_motion(g, st, counter)
+            ok = self._send_frames(g.node, [pos_frame(st), *self._attitude_frames(st, counter),
+                                            motion_frame(st, counter)])
             self._inc("states_sent" if ok else "states_dropped")
             if nbs is not None:
                 self._send_neighbours(g, st, nbs, nb_set)
 
-    def _send_attitude(self, g: _Glider, st: GliderState, counter: int) -> bool:
-        """GLIDER_STATE_QUAT and GLIDER_STATE_RATES of a state that carries an attitude (sent
-        before its MOTION, which completes the sample; both carry its ``counter``); nothing for
-        one that does not. The quaternion goes out with ``qw >= 0`` (-q is the same rotation)."""
-        if not _has_attitude(st):
-            self._inc("attitude_missing")
-            return True
-        sign = -1.0 if st.qw < 0 else 1.0
-        ok = self._send(
-            "GLIDER_STATE_QUAT", g.node,
-            {"qw": sign * st.qw, "qx": sign * st.qx, "qy": sign * st.qy, "qz": sign * st.qz,
-             "state_counter": counter},
-        )
-        return ok & self._send(
-            "GLIDER_STATE_RATES", g.node,
-            {"roll_rate_rps": st.roll_rate, "pitch_rate_rps": st.pitch_rate,
-             "yaw_rate_rps": st.yaw_rate, "state_counter": counter},
-        )
-
     def _send_neighbours(
         self, g: _Glider, own: GliderState, nbs: GliderNeighbors, nb_set: int
     ) -> None:
-        k = len(nbs.ids)
-        if k > MAX_NEIGHBOURS:
+        if len(nbs.ids) > MAX_NEIGHBOURS:
             self._inc("nb_truncated")
-            k = MAX_NEIGHBOURS
-        if k == 0:
-            ok = self._send(
-                "NEIGHBOR_MOTION", g.node,
-                {"nb_slot": 0, "nb_count": 0, "nb_heading_rad": 0.0, "nb_airspeed_mps": 0.0,
-                 "nb_vz_mps": 0.0, "nb_set": nb_set},
-            )
-            self._inc("nb_lists_sent" if ok else "nb_lists_dropped")
-            return
-        ok = True
-        for i in range(k):
-            ok &= self._send(
-                "NEIGHBOR_POS", g.node,
-                {"nb_slot": i, "nb_dx_m": float(nbs.x[i]) - own.x,
-                 "nb_dy_m": float(nbs.y[i]) - own.y, "nb_dz_m": float(nbs.z[i]) - own.z},
-            )
-            ok &= self._send(
-                "NEIGHBOR_MOTION", g.node,
-                {"nb_slot": i, "nb_count": k, "nb_heading_rad": float(nbs.heading[i]),
-                 "nb_airspeed_mps": float(nbs.airspeed[i]), "nb_vz_mps": float(nbs.vz[i]),
-                 "nb_set": nb_set},
-            )
+        ok = self._send_frames(g.node, neighbour_frames(own, nbs, nb_set))
         self._inc("nb_lists_sent" if ok else "nb_lists_dropped")
 
     def _send_heartbeats(self) -> None:
-        link = self._link
+        link = self.can.link
         link_state = link.state if link is not None else "down"
         for g in self._glider.values():
             with self._glock:
                 g.hb_counter = (g.hb_counter + 1) % 256
-                counter, cmd_state = g.hb_counter, g.cmd_state
+                counter, state = g.hb_counter, g.cmd_state
                 has_state = g.state is not None
                 sim_ms = (g.state.stamp_ns // 1_000_000) % (1 << 32) if g.state is not None else 0
-            if not has_state:
-                mode = BRIDGE_MODES["INIT"]
-            elif link_state == "bus_off":
-                mode = BRIDGE_MODES["BUS_OFF"]
-            elif link_state == "up":
-                mode = BRIDGE_MODES["RUN"]
-            else:
-                mode = BRIDGE_MODES["DEGRADED"]
-            ok = self._send(
-                "BRIDGE_HEARTBEAT", g.node,
-                {"bridge_counter": counter, "bridge_mode": mode, "cmd_state": cmd_state,
-                 "sim_time_ms": sim_ms},
-            )
+            mode = bridge_mode(has_state, link_state)
+            ok = self._send_frames(g.node, [heartbeat_frame(counter, mode, state, sim_ms)])
             self._inc("heartbeats_sent" if ok else "heartbeats_dropped")
 
     # -- command supervision ------------------------------------------------------------------
@@ -561,15 +439,11 @@ class AutopilotAdapter(Node):
                 if g.ap_alive and not ap_alive:
                     self._c["ap_heartbeat_lost"] += 1
                 g.ap_alive = ap_alive
-                age = self._cmd_age(g, now)
-                if ap_alive and g.ap_mode == _AP_FAULT:
-                    state = CMD_STATES["FAILSAFE"]
-                elif g.last_cmd is not None and age <= self.cmd_timeout_s:
-                    state = CMD_STATES["FRESH"]
-                elif age <= self.failsafe_after_s:
-                    state = CMD_STATES["HOLD"] if g.last_cmd is not None else CMD_STATES["WAITING"]
-                else:
-                    state = CMD_STATES["FAILSAFE"]
+                state = next_cmd_state(
+                    has_cmd=g.last_cmd is not None, age_s=self._cmd_age(g, now),
+                    ap_fault=ap_alive and g.ap_mode == AP_FAULT,
+                    cmd_timeout_s=self.cmd_timeout_s, failsafe_after_s=self.failsafe_after_s,
+                )
                 if state != g.cmd_state:
                     if state == CMD_STATES["HOLD"]:
                         self._c["hold_entries"] += 1
@@ -591,26 +465,7 @@ class AutopilotAdapter(Node):
             )
         )
 
-    # -- CAN receive --------------------------------------------------------------------------
-    def _can_rx_loop(self) -> None:
-        while not self._stop_evt.is_set():
-            link = self._link
-            if link is None:
-                return
-            msg = link.recv(0.05)
-            if msg is None:
-                continue
-            try:
-                frame = self.codec.decode(msg)
-            except CodecError:
-                self._inc("rx_decode_errors")
-                continue
-            try:
-                self._on_frame(frame)
-            except Exception as exc:
-                self._inc("loop_errors")
-                self.faults.report(f"handling CAN frame {frame.name}", exc)
-
+    # -- CAN receive (the endpoint's receive thread) -----------------------------------------------
     def _on_frame(self, frame: DecodedFrame) -> None:
         g = self._by_node.get(frame.node_id)
         s = frame.signals

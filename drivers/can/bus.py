@@ -1,9 +1,13 @@
 """A python-can bus from config that survives bus errors: :class:`CanLink`.
 
 ``CanBusConfig`` names the python-can interface, channel and bitrate, so the same code runs on
-``virtual`` (in-process, tests and the demo), ``socketcan`` (``can0``/``vcan0``), ``pcan``
-(``PCAN_USBBUS1``), ... with no code change; ``faults`` wraps the bus in
-:class:`drivers.faults.can_bus.FaultInjectingBus`.
+``virtual`` (in one process: tests), ``udp_multicast`` (across the processes of one host: the
+launch's nodes; the domain's group and port, kept on loopback by
+:class:`~drivers.can.loopback.LoopbackMulticastBus`),
+``socketcan`` (``can0``/``vcan0``), ``pcan`` (``PCAN_USBBUS1``), ... with no code change;
+``faults`` wraps the bus in :class:`drivers.faults.can_bus.FaultInjectingBus`. python-can's
+``udp_multicast`` hands a sender its own frames back; the link tags what it sends with a token
+of its own (the frame's ``channel``) and drops those on receive, as a ``virtual`` bus does.
 
 :class:`CanLink` contracts (one receive thread and one send thread may use it at once):
 
@@ -33,6 +37,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
 import threading
 import time
 from collections import Counter
@@ -44,6 +49,7 @@ import can
 import numpy as np
 from can import BusABC, BusState
 
+from drivers.can.loopback import LoopbackMulticastBus
 from drivers.faults.can_bus import (
     CAN_ERR_BUSOFF,
     CAN_ERR_RESTARTED,
@@ -69,9 +75,12 @@ _BUS_DOWN = {errno.ENETDOWN, errno.ENETUNREACH, errno.ENODEV}
 class CanBusConfig:
     """Where the CAN bus is: python-can ``interface``, ``channel`` and ``bitrate``.
 
-    :meth:`from_params` (what launch parameters go through) gives a ``virtual`` bus without a
-    channel the domain's channel ``glider`` (``glider.d<N>``, :mod:`hil_bridge.bus.domain`), so two
-    runs in one process never share a virtual bus by accident; other interfaces need one.
+    :meth:`from_params` (what launch parameters go through) makes a ``virtual`` bus without a
+    channel the domain's virtual CAN bus: in a numbered domain, whose nodes may be processes,
+    the domain's ``udp_multicast`` group and port on loopback (:mod:`drivers.can.loopback`);
+    in a private domain (one process) python-can's ``virtual`` channel ``glider.<token>``
+    (:mod:`hil_bridge.bus.domain`), so two runs never share a bus by accident. A ``virtual`` bus
+    with a channel is python-can's in-process one; other interfaces need a channel.
     ``bitrate`` None leaves the interface's own setting (socketcan takes it from
     ``ip link set can0 type can bitrate ...``). ``options`` are further ``can.Bus`` keyword
     arguments (e.g. ``{receive_own_messages: true}``). ``faults`` injects bus faults.
@@ -108,12 +117,19 @@ class CanBusConfig:
         """Build from launch-style params (``faults`` may be a mapping of CanFaultConfig)."""
         if isinstance(faults, dict):
             faults = from_dict(CanFaultConfig, faults, path="faults")
-        if channel is None and interface == "virtual":
-            channel = current_domain().can_channel("glider")
+        opts = dict(options or {})
+        domain = current_domain()
+        if interface == "virtual" and channel is None and domain.number is not None:
+            interface = "udp_multicast"  # the domain's virtual bus crosses its processes
+        if interface == "virtual" and channel is None:
+            channel = domain.can_channel("glider")
+        if interface == "udp_multicast":
+            group, port = domain.can_multicast()
+            channel = group if channel is None else channel
+            opts.setdefault("port", port)
         return cls(
             interface=str(interface), channel="" if channel is None else str(channel),
-            bitrate=bitrate,
-            options=dict(options or {}), faults=faults,
+            bitrate=bitrate, options=opts, faults=faults,
         )
 
 
@@ -172,6 +188,9 @@ class CanLink:
         self._rx_fail = 0
         self._tx_fail = 0
         self._closed = False
+        #: the ``channel`` this link's frames carry on a bus that echoes them back to it
+        self._own_tag = (f"echoloop-{os.getpid()}-{id(self):x}"
+                         if config.interface == "udp_multicast" else None)
         self._ever_open = False
         self._final_state: LinkState = "down"
         self.last_error = ""
@@ -227,7 +246,12 @@ class CanLink:
         kwargs: dict[str, Any] = dict(cfg.options)
         if cfg.bitrate is not None:
             kwargs["bitrate"] = cfg.bitrate
-        bus: BusABC = can.Bus(interface=cfg.interface, channel=cfg.channel, **kwargs)
+        bus: BusABC
+        if cfg.interface == "udp_multicast":
+            kwargs.pop("hop_limit", None)
+            bus = LoopbackMulticastBus(cfg.channel, **kwargs)
+        else:
+            bus = can.Bus(interface=cfg.interface, channel=cfg.channel, **kwargs)
         if cfg.faults is not None:
             bus = FaultInjectingBus(bus, cfg.faults, rngs=self._rngs)
         return bus
@@ -305,6 +329,8 @@ class CanLink:
         """Send ``msg``; True if the bus took it (see contract 1–2). Never raises a bus error."""
         if self._closed:
             return False
+        if self._own_tag is not None:
+            msg.channel = self._own_tag
         bus = self._ensure_open()
         if bus is None:
             self._inc("tx_dropped_down")
@@ -411,7 +437,7 @@ class CanLink:
                 )
             return None
         self._rx_fail = 0
-        if msg is None:
+        if msg is None or (self._own_tag is not None and msg.channel == self._own_tag):
             return None
         self._log(msg)
         if msg.is_error_frame:

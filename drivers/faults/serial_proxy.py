@@ -27,7 +27,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from drivers.mocks.device_port import SerialDevicePort
+from drivers.serial.device_port import SerialDevicePort
 from drivers.serial.ptyport import PtyPort
 from hil_bridge.bus.faults import Faults
 from sim_core.config import from_dict

@@ -30,7 +30,7 @@ that ends its receive or transmit thread is reported to its ``faults`` (``failur
 
 This module holds the device's protocol state machine; its parameters are
 :class:`~drivers.mocks.sonar_head_config.SonarHeadConfig`, its port and UART pacing are in
-:mod:`drivers.mocks.device_port`, its range estimate in :mod:`drivers.mocks.echo_range`.
+:mod:`drivers.serial.device_port`, its range estimate in :mod:`drivers.mocks.echo_range`.
 """
 
 from __future__ import annotations
@@ -43,9 +43,9 @@ from typing import Any
 
 import numpy as np
 
-from drivers.mocks.device_port import DevicePort, SerialDevicePort, UartPacer
 from drivers.mocks.echo_range import first_return_range
 from drivers.mocks.sonar_head_config import BEAMWIDTH_RANGE_DEG, SonarHeadConfig
+from drivers.serial.device_port import DevicePort, SerialDevicePort, UartPacer
 from drivers.serial.framing import FrameDecoder, MsgType, frame_bytes
 from drivers.serial.protocol import (
     AssembledEcho,

@@ -43,17 +43,29 @@ from typing import Any, BinaryIO, TextIO
 
 import serial
 
-from drivers import urlhandlers
 from hil_bridge.bus.faults import Faults
 from hil_bridge.errors import TransportTimeout
 from hil_bridge.outputs import AtomicOutput, check_output
 
-__all__ = ["KNOWN_SCHEMES", "PORT_ERRORS", "Capture", "Link", "capture_paths", "check_capture",
-           "check_url", "open_link"]
+__all__ = ["KNOWN_SCHEMES", "PORT_ERRORS", "URL_HANDLERS", "Capture", "Link", "capture_paths",
+           "check_capture", "check_url", "open_link"]
 
 log = logging.getLogger(__name__)
 
-urlhandlers.register()
+#: echoloop's own URL schemes -> the package holding each one's pyserial handler module
+#: ``protocol_<scheme>``. pyserial imports that module by name when a URL of the scheme is opened,
+#: so the handler (a device mock) is never imported by the host side until it is used.
+URL_HANDLERS = {"sonarsim": "drivers.urlhandlers"}
+
+
+def _register_url_handlers() -> None:
+    """Put the packages of :data:`URL_HANDLERS` on pyserial's search list (idempotent)."""
+    for package in URL_HANDLERS.values():
+        if package not in serial.protocol_handler_packages:
+            serial.protocol_handler_packages.append(package)
+
+
+_register_url_handlers()
 
 try:
     import termios
@@ -68,7 +80,7 @@ PORT_ERRORS: tuple[type[Exception], ...] = (
 
 #: URL schemes pyserial ships plus ours; a path without ``scheme://`` is an OS serial device.
 KNOWN_SCHEMES = frozenset({"loop", "socket", "rfc2217", "spy", "alt", "hwgrep", "cp2110",
-                           *urlhandlers.SCHEMES})
+                           *URL_HANDLERS})
 
 
 def check_url(url: str) -> str:

@@ -1,20 +1,9 @@
-"""pyserial URL handlers of echoloop (``sonarsim://``), found via ``protocol_<scheme>`` modules.
+"""pyserial URL handlers of echoloop: one ``protocol_<scheme>`` module per scheme (``sonarsim://``,
+an in-process mock sonar head).
 
-:func:`register` appends this package to ``serial.protocol_handler_packages`` (idempotent), after
-which ``serial.serial_for_url("sonarsim://?seed=3")`` returns an in-process mock sonar head.
+pyserial imports ``drivers.urlhandlers.protocol_<scheme>`` by name when ``serial_for_url`` opens
+a URL of the scheme; :mod:`drivers.serial.link` puts this package on
+``serial.protocol_handler_packages`` from its ``URL_HANDLERS`` table, without importing it.
+A handler may import :mod:`drivers.mocks` (the device it plays), :mod:`drivers.serial`,
+hil_bridge and sim_core; nothing imports this package but pyserial.
 """
-
-from __future__ import annotations
-
-import serial
-
-__all__ = ["SCHEMES", "register"]
-
-#: schemes implemented here (module ``protocol_<scheme>``)
-SCHEMES = ("sonarsim",)
-
-
-def register() -> None:
-    """Make pyserial's ``serial_for_url`` find the handlers of this package."""
-    if __name__ not in serial.protocol_handler_packages:
-        serial.protocol_handler_packages.append(__name__)

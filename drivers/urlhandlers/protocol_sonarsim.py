@@ -1,11 +1,12 @@
 """pyserial URL handler ``sonarsim://``: a mock sonar head (``MockSonarHead``) in-process.
 
-``serial.serial_for_url("sonarsim://?seed=3&rate_hz=20&encoding=iq16")`` (after
-:func:`drivers.urlhandlers.register`) returns a port whose far end is a mock sonar head running
-on its own threads, so driver code is byte-identical against the mock and a real head. Query
-options are :class:`~drivers.mocks.sonar_head_config.SonarHeadConfig` fields (``rate_hz``,
-``beamwidth`` (deg or ``random``), ``encoding``, ``channels``, ``seed``, ``throttle``, ...);
-``baudrate`` defaults to the port's. An unknown option raises ``ValueError`` naming it.
+``serial.serial_for_url("sonarsim://?seed=3&rate_hz=20&encoding=iq16")`` (once
+:mod:`drivers.serial.link` is imported: it registers the handler package) returns a port whose
+far end is a mock sonar head running on its own threads, so driver code is byte-identical
+against the mock and a real head. Query options are
+:class:`~drivers.mocks.sonar_head_config.SonarHeadConfig` fields (``rate_hz``, ``beamwidth``
+(deg or ``random``), ``encoding``, ``channels``, ``seed``, ``throttle``, ...); ``baudrate``
+defaults to the port's. An unknown option raises ``ValueError`` naming it.
 
 The pipe between host and mock holds at most ``fifo`` bytes per direction (default 4096, like
 a UART FIFO plus driver buffer); a host write blocks while the mock drains it at the baud rate.

@@ -10,6 +10,8 @@ live view (Foxglove)           ``ws://127.0.0.1:{8765 + 10 N}``
 pty links, temporary files     ``{runtime}/{N}/`` (e.g. ``{runtime}/{N}/sonar0``)
 files shared in memory         ``{shared}/d{N}/{tag}-{pid}-{random}/`` (:meth:`Domain.shared_dir`)
 python-can virtual channels    ``{name}.d{N}`` (e.g. ``glider.d0``)
+CAN across processes           python-can ``udp_multicast`` group ``239.255.74.{N}``, port
+                               ``{7402 + 10 N}``, hop limit 0 (never leaves the host)
 =============================  ==========================================================
 
 so domain 0 keeps the defaults of ``docs/spec/protocols.md`` (7400/7401) and Foxglove's 8765,
@@ -226,6 +228,14 @@ class Domain:
     def can_channel(self, name: str = "glider") -> str:
         """The python-can ``virtual`` channel called ``name`` in this domain."""
         return f"{name}.{self.token}"
+
+    def can_multicast(self) -> tuple[str, int]:
+        """The python-can ``udp_multicast`` group and port of this domain's CAN bus across
+        processes (a private domain has none: its nodes share one process)."""
+        if self.number is None:
+            raise ValueError(f"{self} has no CAN multicast group: its nodes share one process; "
+                             "use interface 'virtual'")
+        return f"239.255.74.{self.number}", BUS_PORT_BASE + DOMAIN_STRIDE * self.number + 2
 
     @contextlib.contextmanager
     def claim(self) -> Iterator[Domain]:

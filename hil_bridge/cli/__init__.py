@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scenario": ("hil_bridge.cli.scenario", "run the seed 000 sonar scenarios (Figs 6-7, Table 1)"),
     "swarm": ("hil_bridge.cli.swarm", "run or sweep thermal-soaring swarms (sim_core.soaring)"),
     "launch": ("hil_bridge.cli.launch", "run a YAML launch file (a node graph)"),
+    "run": ("hil_bridge.cli.run", "run one node (a launch entry) alone against a bus"),
     "bus": ("hil_bridge.cli.bus", "run the XSUB/XPUB bus proxy alone"),
     "topic": ("hil_bridge.cli.topic", "list|echo|hz|bw|info: inspect live topics"),
     "bag": ("hil_bridge.cli.bag", "record|play|info|export MCAP recordings"),

@@ -1,8 +1,10 @@
 """``echoloop launch FILE [--param NODE.KEY=VALUE ...] [--duration S] [--expect CHECK ...]``.
 
-Runs the nodes of a launch file as threads of this process (see :mod:`hil_bridge.launch.runner`)
-until ``--duration`` seconds have passed or Ctrl-C/SIGTERM arrives, then stops them in reverse
-order.
+Runs the nodes of a launch file, each in a process of its own (nodes that share a
+``container:`` share one; ``--threads``, or a ``mem://`` bus, runs them as threads of this
+process instead: see :mod:`hil_bridge.launch.runner`), until ``--duration`` seconds have passed
+or Ctrl-C/SIGTERM arrives, then stops them in reverse order. ``--only``/``--skip`` leave nodes
+out (to run one elsewhere, e.g. with ``echoloop run``).
 ``--json`` prints the run summary (messages per topic, drops, stalls, latency percentiles, every
 node's ``stats()``, link states, failures) as one JSON document on stdout; otherwise a short
 human summary is printed. What failed (a node, an ``--expect`` that did not hold, a hardware
@@ -27,7 +29,8 @@ from hil_bridge.plots.recording import plot_recording
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="echoloop launch", description="Run a YAML launch file (a node graph) as threads."
+        prog="echoloop launch",
+        description="Run a YAML launch file (a node graph), each node in its own process.",
     )
     p.add_argument("file", help="launch file, e.g. launch/demo.yaml")
     p.add_argument(
@@ -54,6 +57,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--bus", default=None, metavar="URL",
                    help="bus URL replacing the file's and the domain's (e.g. mem://demo)")
     add_domain_argument(p, auto=True)
+    p.add_argument("--threads", action="store_true",
+                   help="run every node as a thread of this process (as a mem:// bus must)")
+    p.add_argument("--only", action="append", default=[], metavar="NODE",
+                   help="run only this node of the file; repeatable")
+    p.add_argument("--skip", action="append", default=[], metavar="NODE",
+                   help="leave this node of the file out; repeatable")
+    p.add_argument("--log-dir", default=None, metavar="DIR",
+                   help="also write each node process's log lines to DIR/<node>.log")
     p.add_argument("--live", action="store_true", help="serve a Foxglove live view on 127.0.0.1")
     p.add_argument("--json", action="store_true", help="print the run summary as JSON")
     p.add_argument("--verbose", "-v", action="store_true",
@@ -114,7 +125,9 @@ def headline(summary: RunSummary) -> list[str]:
         lines.append(
             f"server: {srv['ticks']} ticks ({srv['sim_time_s']:.1f} s sim), "
             f"{srv['cmd_applied']} commands applied ({srv['cmd_rejected']} rejected), "
-            f"{srv['echoes_published']} echoes, {srv['stalls']} lockstep stalls"
+            f"{srv['echoes_published']} echoes"
+            + (f" ({srv['echo_worker']} echo worker)" if srv.get("echo_worker") else "")
+            + f", {srv['stalls']} lockstep stalls"
             + (f", gliders alive {alive}" if alive is not None else "")
         )
     return lines
@@ -215,6 +228,10 @@ def main(argv: list[str] | None = None) -> int:
             overwrite=args.overwrite,
             allow_modules=args.allow_module,
             after_run=after_run,
+            processes=False if args.threads else None,
+            only=args.only,
+            skip=args.skip,
+            log_dir=args.log_dir,
         )
     if args.json:
         print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))

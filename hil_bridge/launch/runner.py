@@ -1,4 +1,4 @@
-"""Launch = data + runner: run a launch file's node graph as threads of one process.
+"""Launch = data + runner: run a launch file's node graph, each node in a process of its own.
 
 The launch file and its validation are :mod:`hil_bridge.launch.spec` (its names are importable
 from here too); this module runs a :class:`LaunchSpec`, watches it and judges the run.
@@ -20,11 +20,16 @@ A node whose constructor or ``start()`` raises fails the run the same way (the n
 built are stopped in reverse order, nothing else starts); only a node that refuses its params
 (``ConfigError``, or a ``TypeError`` for an unknown one) raises, as the launch file's error.
 
-Why threads in one process, not processes: python-can's ``virtual`` interface only connects
-buses of one process (the CAN adapter and the mock autopilot must share it), the mock sonar
-head owns the master side of a pty whose slave path the serial adapter opens (both ends are
-created and torn down together), and the ``mem://`` bus used by tests is in-process. The heavy
-work (echo synthesis) is numpy/finufft code that releases the GIL.
+**Processes or threads.** On a bus that crosses processes (``tcp://``, ``ipc://``) in a
+numbered domain, every *container* (by default each node; nodes naming one ``container:``
+share it) runs in a host process of its own (:mod:`hil_bridge.launch.process`,
+:mod:`hil_bridge.launch.host`): all hosts import their nodes' modules at once, then construct
+their nodes in the file's order, then start them, as the threads runner does. What used to tie
+nodes to one process crosses processes now: the domain's virtual CAN bus is loopback multicast
+(:mod:`drivers.can.loopback`), the sonar head's pty is a path. A host that dies fails its nodes
+(the exit code or signal and its last log lines); hosts die with the runner. A ``mem://`` bus or
+a private domain (the pytest fixture's) keeps every node a thread of this process
+(``processes=False``, ``echoloop launch --threads``), through the same launchable contract.
 
 Precedence of settings: CLI arguments (``--param``, ``--duration``, ``--record``, ``--bus``) >
 the file > the domain's defaults. The run's domain (``run(domain=...)``, ``--domain``, else
@@ -59,6 +64,7 @@ from typing import Any, Protocol, runtime_checkable
 from hil_bridge.bus.domain import Domain, resolve, use
 from hil_bridge.launch.expect import Expectation, parse_expectations
 from hil_bridge.launch.monitor import BusMonitor
+from hil_bridge.launch.process import ContainerProcess, NodeStartError
 from hil_bridge.launch.spec import (
     PROJECT_PACKAGES,
     LaunchSpec,
@@ -68,6 +74,7 @@ from hil_bridge.launch.spec import (
     load,
     parse_param_overrides,
     resolve_entry,
+    select_nodes,
 )
 from sim_core.config import ConfigError
 
@@ -88,9 +95,11 @@ __all__ = [
     "check_duration",
     "check_entry_module",
     "collect_links",
+    "failure_of",
     "judge",
     "load",
     "parse_param_overrides",
+    "processes_for",
     "resolve_entry",
     "run",
 ]
@@ -139,8 +148,9 @@ class Failure:
 class RunSummary:
     """What a run produced: wall time, why it stopped, per-node stats, bus-level monitor counts,
     the stats of the recorder / live view when they ran (``extras``, by name), the run's domain
-    and bus, every hardware link's state (``links``, ``"node.label"`` -> the node's report) and
-    the ``failures`` that decide :attr:`exit_status`."""
+    and bus, every hardware link's state (``links``, ``"node.label"`` -> the node's report),
+    the ``failures`` that decide :attr:`exit_status`, and whether the nodes ran as
+    ``"processes"`` or ``"threads"`` (``mode``)."""
 
     wall_s: float
     stopped_by: str
@@ -152,6 +162,7 @@ class RunSummary:
     bus: str = ""
     links: dict[str, dict[str, Any]] = field(default_factory=dict)
     failures: list[Failure] = field(default_factory=list)
+    mode: str = "threads"
 
     @property
     def exit_status(self) -> int:
@@ -214,7 +225,7 @@ def _describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
-def _failure_of(obj: Any, *, final: bool = False) -> str | None:
+def failure_of(obj: Any, *, final: bool = False) -> str | None:
     """A launchable's own account of failing: its optional ``failure(*, final=False)``
     (one without ``final`` is called without it)."""
     report = getattr(obj, "failure", None)
@@ -247,7 +258,7 @@ class _Watch:
         if name in self._accounted:
             return None
         try:
-            reason = _failure_of(obj, final=final)
+            reason = failure_of(obj, final=final)
         except Exception as exc:  # a broken failure() is a failure, not a crash of the runner
             log.exception("%s: failure() raised", name)
             reason = f"failure() raised {_describe(exc)}"
@@ -301,6 +312,13 @@ def _takes_overwrite(cls: type) -> bool:
         return False
 
 
+def _node_params(i: int, node: NodeSpec, cls: type, *, overwrite: bool) -> dict[str, Any]:
+    params = dict(node.params)
+    if overwrite and "overwrite" not in params and _takes_overwrite(cls):
+        params["overwrite"] = True
+    return params
+
+
 def _instantiate(
     spec: LaunchSpec, bus: str, watch: _Watch, made: list[tuple[str, Any]], *, overwrite: bool
 ) -> bool:
@@ -314,9 +332,7 @@ def _instantiate(
     for i, node in enumerate(spec.nodes):
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
                             allow_modules=spec.allow_modules)
-        params = dict(node.params)
-        if overwrite and "overwrite" not in params and _takes_overwrite(cls):
-            params["overwrite"] = True
+        params = _node_params(i, node, cls, overwrite=overwrite)
         try:
             obj = cls(node.name, bus=bus, **params)
         except TypeError as exc:
@@ -364,6 +380,48 @@ def _wait(flag: _StopFlag, watch: _Watch, run_for: float | None,
         flag.event.wait(FAILURE_POLL_S if remaining is None else min(FAILURE_POLL_S, remaining))
 
 
+def _spawn(
+    spec: LaunchSpec, bus: str, watch: _Watch, made: list[tuple[str, Any]], *, overwrite: bool,
+    domain: Domain, log_dir: Path | None,
+) -> bool:
+    """Spawn every container's process at once (they import their nodes' modules meanwhile),
+    then have each construct its nodes in the order of its first node; ``made`` gets a
+    :class:`~hil_bridge.launch.process.RemoteNode` per node, whose ``start()`` starts them.
+    False when a container did not come up (noted in ``watch``; the ones after it are killed)."""
+    containers: dict[str, list[dict[str, Any]]] = {}
+    for i, node in enumerate(spec.nodes):
+        cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
+                            allow_modules=spec.allow_modules)
+        containers.setdefault(node.container or node.name, []).append(
+            {"name": node.name, "entry": node.entry,
+             "params": _node_params(i, node, cls, overwrite=overwrite)})
+    if domain.number is None:
+        raise ConfigError(f"{domain} has no number: its nodes cannot be processes")
+    procs = [ContainerProcess(key, nodes, bus=bus, domain=domain.number,
+                              allow_modules=spec.allow_modules, log_dir=log_dir)
+             for key, nodes in containers.items()]
+    try:
+        for proc in procs:  # every host imports its nodes' modules at once
+            proc.spawn()
+        for proc in procs:  # and constructs them in the file's order
+            try:
+                proc.construct()
+            except NodeStartError as exc:
+                watch.fail(proc.nodes[0]["name"], str(exc))
+                return False
+            made.extend((n["name"], proc.node(n["name"])) for n in proc.nodes)
+    finally:
+        for proc in procs:
+            if not any(name == proc.nodes[0]["name"] for name, _ in made):
+                proc.kill()
+    return True
+
+
+def processes_for(bus: str, domain: Domain) -> bool:
+    """Whether a launch on ``bus`` in ``domain`` can run its nodes as processes."""
+    return not bus.startswith("mem://") and domain.number is not None
+
+
 def run(
     path: str | Path | Mapping[str, Any] | LaunchSpec,
     *,
@@ -381,8 +439,20 @@ def run(
     overwrite: bool = False,
     allow_modules: Sequence[str] = (),
     after_run: Mapping[str, Callable[[RunSummary], object]] | None = None,
+    processes: bool | None = None,
+    only: Sequence[str] = (),
+    skip: Sequence[str] = (),
+    log_dir: str | Path | None = None,
+    monitor: bool = True,
 ) -> RunSummary:
     """Start every node of a launch file in order, watch them, stop them in reverse order.
+
+    ``processes`` (default: whenever the bus crosses processes, i.e. it is not ``mem://``, and
+    the domain is numbered) runs each container, by default each node, in a process of its own
+    (:mod:`hil_bridge.launch.process`); otherwise every node is a thread of this process.
+    ``only``/``skip`` name the nodes to run or leave out; ``log_dir`` receives one log file per
+    process. ``monitor`` False runs no bus monitor (``echoloop run``: a node alone must not
+    decode every message of the bus in its own process).
 
     The run ends ``duration`` seconds after every node started (argument, else the file's;
     ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
@@ -406,9 +476,16 @@ def run(
     """
     spec = path if isinstance(path, LaunchSpec) else load(
         path, params_overrides=params_overrides, allow_modules=allow_modules)
+    if only or skip:
+        spec = select_nodes(spec, only=only, skip=skip)
     dom = resolve(domain)
     bus_url = bus if bus is not None else spec.bus or dom.bus_url
     spec = dataclasses.replace(spec, bus=bus_url)
+    in_processes = processes_for(bus_url, dom) if processes is None else processes
+    if in_processes and processes_for(bus_url, dom) is False:
+        raise ConfigError(f"nodes as processes need a bus that crosses processes (tcp:// or "
+                          f"ipc://) in a numbered domain; {bus_url} in {dom} lives in one "
+                          "process: run the nodes as threads")
     expectations = parse_expectations(
         [e for e in expect if isinstance(e, str)], nodes=[n.name for n in spec.nodes]
     ) + [e for e in expect if isinstance(e, Expectation)]
@@ -436,9 +513,10 @@ def run(
     held.enter_context(dom.claim())
     try:
         with use(dom):
-            monitor = BusMonitor("launch_monitor", bus=bus_url)
-            monitor.start()
-            extras.append(monitor)
+            if monitor:
+                bus_monitor = BusMonitor("launch_monitor", bus=bus_url)
+                bus_monitor.start()
+                extras.append(bus_monitor)
             if record_path is not None:
                 from hil_bridge.recording.recorder import Recorder
 
@@ -446,7 +524,11 @@ def run(
                 recorder.start()
                 extras.append(recorder)
             try:
-                started = _instantiate(spec, bus_url, watch, made, overwrite=overwrite)
+                if in_processes:
+                    started = _spawn(spec, bus_url, watch, made, overwrite=overwrite, domain=dom,
+                                     log_dir=None if log_dir is None else Path(log_dir))
+                else:
+                    started = _instantiate(spec, bus_url, watch, made, overwrite=overwrite)
             except ConfigError as exc:  # a node refused its params: say which launch file
                 if isinstance(path, str | Path) and str(path) not in str(exc):
                     raise ConfigError(f"{path}: {exc}") from None
@@ -495,6 +577,7 @@ def run(
         domain=str(dom),
         bus=bus_url,
         links=collect_links(nodes),
+        mode="processes" if in_processes else "threads",
     )
     steps_failed: list[tuple[str, str]] = []
     for step, action in (after_run or {}).items():

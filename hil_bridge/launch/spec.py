@@ -47,6 +47,7 @@ __all__ = [
     "load",
     "parse_param_overrides",
     "resolve_entry",
+    "select_nodes",
 ]
 
 
@@ -64,15 +65,19 @@ def check_duration(seconds: float | str, *, where: str = "--duration") -> float:
 
 @dataclass(frozen=True, slots=True)
 class NodeSpec:
-    """One node of a launch file: a unique ``name``, ``entry`` ``"pkg.module:Class"``, params."""
+    """One node of a launch file: a unique ``name``, ``entry`` ``"pkg.module:Class"``, params,
+    and the ``container`` whose process it shares (default: a process of its own)."""
 
     name: str
     entry: str
     params: dict[str, Any] = field(default_factory=dict)
+    container: str = ""
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "a").isalnum():
             raise ValueError(f"name: expected [A-Za-z0-9_]+, got {self.name!r}")
+        if self.container and not self.container.replace("_", "a").isalnum():
+            raise ValueError(f"container: expected [A-Za-z0-9_]+, got {self.container!r}")
         module, sep, attr = self.entry.partition(":")
         if not sep or not module or not attr:
             raise ValueError(f"entry: expected 'package.module:Class', got {self.entry!r}")
@@ -228,3 +233,18 @@ def load(
         resolve_entry(node.entry, where=f"{where}: nodes[{i}].entry",
                       allow_modules=spec.allow_modules)
     return spec
+
+
+def select_nodes(spec: LaunchSpec, *, only: Sequence[str] = (),
+                 skip: Sequence[str] = ()) -> LaunchSpec:
+    """``spec`` with only the nodes named in ``only`` (all when empty), less those in ``skip``;
+    a name the file does not have raises ConfigError."""
+    names = [n.name for n in spec.nodes]
+    unknown = sorted(set(only) - set(names)) + sorted(set(skip) - set(names))
+    if unknown:
+        raise ConfigError(f"--only/--skip: unknown node(s) {unknown}; the file has {names}")
+    kept = tuple(n for n in spec.nodes
+                 if (not only or n.name in only) and n.name not in skip)
+    if not kept:
+        raise ConfigError(f"--only/--skip leave no node to run (the file has {names})")
+    return dataclasses.replace(spec, nodes=kept)

@@ -43,8 +43,7 @@ loop, at most ``pose_wait_ticks`` tick periods) for the tick that covers it
 (``ping_stamp_extrapolated``); stamps more than ``pose_history_s`` after the latest tick, or
 before the history, use the newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``).
 Echoes are computed off the tick loop by
-:class:`hil_bridge.server.echo_service.EchoService`: on a thread (default), or ``echo_worker:
-pool``,
+:class:`hil_bridge.server.echo_service.EchoService`: on a thread, or ``echo_worker: pool``,
 ``echo_workers`` processes (default one per core) sharing the forest's tiles in shared memory at
 a lower CPU priority than the tick loop (``process``: a pool of one; the launching script must
 be import-safe). In ``realtime`` mode a ping's echo is due before its sonar's next ping
@@ -117,7 +116,7 @@ class ServerParams:
     stop_after_s: float | None = None
     publish_thermals: bool = True
     forest_points: int = 20000
-    echo_worker: Literal["thread", "process", "pool"] = "thread"
+    echo_worker: Literal["auto", "thread", "process", "pool"] = "auto"
     echo_workers: int | None = None
     echo_deadlines: bool = True
     pose_history_s: float = 2.0
@@ -160,7 +159,7 @@ class SimServer:
 
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
-    publish_thermals=True, forest_points=20000, echo_worker="thread", echo_workers=None,
+    publish_thermals=True, forest_points=20000, echo_worker="auto", echo_workers=None,
     echo_deadlines=True, pose_history_s=2.0, pose_wait_ticks=2.0)``.
     ``scene`` is a scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and
     ``state_rate_hz`` override the scene's. ``stop_after_s``: stop ticking at that sim time

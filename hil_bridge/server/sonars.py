@@ -18,12 +18,13 @@ import logging
 import threading
 import time
 from collections import deque
-from typing import Any
+from typing import Any, Literal, cast
 
 import numpy as np
 
 from hil_bridge.bus.messages import PointCloud, SonarEcho, SonarPing
 from hil_bridge.server.echo_compute import EchoRequest, EchoResult, Region, SonarPose
+from hil_bridge.server.echo_pool import usable_cores
 from hil_bridge.server.echo_service import EchoService
 from hil_bridge.server.emission import EmissionPoses
 from hil_bridge.server.fleet import Fleet, FleetStates, VehiclePose
@@ -51,6 +52,21 @@ ECHO_COUNTERS = {
     "tiles_built": "echo_tiles_built", "tiles_prefetched": "echo_tiles_prefetched",
     "tile_bytes": "echo_tile_bytes",
 }
+
+
+Worker = Literal["thread", "process", "pool"]
+
+
+def choose_worker(asked: str, sonars: int, cores: int) -> Worker:
+    """The echo worker ``echo_worker: auto`` means: a pool when several sonars ping and there is
+    a core for each of two workers (their echoes then compute side by side), else a thread
+    (one sonar's echoes never overlap, and a thread costs no start-up); any other choice as
+    asked."""
+    if asked in ("thread", "process", "pool"):
+        return cast(Worker, asked)
+    if asked != "auto":
+        raise ValueError(f"echo_worker: expected auto, thread, process or pool, got {asked!r}")
+    return "pool" if sonars >= 2 and cores >= 2 else "thread"
 
 
 class ServerSonars:
@@ -90,6 +106,7 @@ class ServerSonars:
         self._last_error = ""
         self._pubs: dict[str, Any] = {}
         self.service: EchoService | None = None
+        self.worker: str = ""
 
     def attach(self, node: Any, first: FleetStates) -> None:
         """Publishers, ping subscriptions and the (not yet started) echo service on ``node``;
@@ -112,8 +129,9 @@ class ServerSonars:
                 qos=SENSOR,
             )
         p = self._params
+        self.worker = choose_worker(p.echo_worker, len(sonars), usable_cores())
         self.service = EchoService(
-            self.scene, worker=p.echo_worker, workers=p.echo_workers, queue_size=p.echo_queue,
+            self.scene, worker=self.worker, workers=p.echo_workers, queue_size=p.echo_queue,
             deadlines=p.echo_deadlines and self._clock.mode == "realtime",
             on_echo=self._publish_echo, on_error=self._echo_failed,
             on_drop=lambda req: self._gate.echo_done(req.sonar_id),
@@ -152,6 +170,7 @@ class ServerSonars:
         with self._lock:
             out: dict[str, Any] = dict(self._c)
             out["last_echo_error"] = self._last_error
+            out["echo_worker"] = self.worker
             out["ping_echo_ms"] = list(self._ping_echo_ms)
         out.update(self.emission.stats())
         for key, name in ECHO_COUNTERS.items():

@@ -2,23 +2,30 @@
 
 `launch/demo.yaml` with `server.scene.clock.mode=lockstep`: the mock autopilots answer each
 state step over CAN, the mock sonar head pings on sim time over the pty, the server waits for
-both. Two runs of different (wall) lengths must agree wherever both have data: every glider
-state at every common stamp, every sim-time ping and every echo, bit for bit. Each run ends at
-a sim time (a watcher on the bus stops it), so a loaded machine shortens nothing: the sonar
-vehicle first has leaves in its beam from the ping at 5.2 s.
+both; with every node a thread of the test's process (a mem:// bus), and with every node a
+process of its own (a numbered domain's ZeroMQ bus and loopback CAN). Six processes on a
+loaded 2-core machine can be descheduled for a second, so that run waits up to 10 s for a step
+(`lockstep_timeout_s`; it only bounds a hang, and a stall would still fail the test). Two runs
+of different (wall) lengths must agree wherever both have data: every glider state at every
+common stamp, every sim-time ping and every echo, bit for bit. Each run ends at a sim time (a
+watcher on the bus stops it), so a loaded machine shortens nothing: the sonar vehicle first has
+leaves in its beam from the ping at 5.2 s.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from hil_bridge.bus.codec import decode_payload
-from hil_bridge.bus.domain import current
+from hil_bridge.bus.domain import Domain, claim_first_free, current, use
 from hil_bridge.bus.messages import Clock
 from hil_bridge.bus.node import Node
 from hil_bridge.bus.qos import SENSOR
@@ -28,11 +35,25 @@ from hil_bridge.recording.bag import read_bag
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _run(tmp_path: Path, name: str, sim_s: float) -> tuple[RunSummary, dict[str, Any]]:
+@pytest.fixture(params=["threads", "processes"])
+def mode(request: pytest.FixtureRequest) -> Iterator[str]:
+    """Where the nodes run; processes need a numbered domain (claimed for the test)."""
+    with contextlib.ExitStack() as stack:
+        if request.param == "processes":
+            dom, _ = stack.enter_context(claim_first_free(Domain(60)))
+            stack.enter_context(use(dom))
+        yield request.param
+
+
+def _run(tmp_path: Path, name: str, sim_s: float,
+         mode: str) -> tuple[RunSummary, dict[str, Any]]:
     """The lockstep demo until ``/clock`` reaches ``sim_s``, recorded; its summary and what
     the recording holds."""
+    overrides = ["server.scene.clock.mode=lockstep"]
+    if mode == "processes":
+        overrides.append("server.scene.clock.lockstep_timeout_s=10")
     spec = load(ROOT / "launch" / "demo.yaml",
-                params_overrides=parse_param_overrides(["server.scene.clock.mode=lockstep"]))
+                params_overrides=parse_param_overrides(overrides))
     mcap = tmp_path / f"{name}.mcap"
     reached = threading.Event()
     watcher = Node("sim_time_watcher", bus=current().bus_url)
@@ -41,7 +62,7 @@ def _run(tmp_path: Path, name: str, sim_s: float) -> tuple[RunSummary, dict[str,
     watcher.start()
     try:
         summary = run(spec, duration=120.0, record=mcap, handle_signals=False,
-                      stop_event=reached)
+                      stop_event=reached, domain=current())
     finally:
         watcher.stop()
     assert reached.is_set(), f"the run ended before sim time {sim_s} s"
@@ -68,10 +89,12 @@ def _echo_content(msg: Any) -> dict[str, Any]:
             if f.name not in ("stamp_ns", "compute_ns")}
 
 
-def test_lockstep_demo_twice_gives_identical_states_pings_and_echoes(tmp_path: Path) -> None:
-    first, a = _run(tmp_path, "a", 8.4)
-    second, b = _run(tmp_path, "b", 7.0)
+def test_lockstep_demo_twice_gives_identical_states_pings_and_echoes(tmp_path: Path,
+                                                                    mode: str) -> None:
+    first, a = _run(tmp_path, "a", 8.4, mode)
+    second, b = _run(tmp_path, "b", 7.0, mode)
     for summary in (first, second):
+        assert summary.mode == mode
         server = summary.nodes["server"]
         assert server["clock_mode"] == "lockstep" and server["tick_error"] == ""
         assert server["stalls"] == 0, server

@@ -66,7 +66,8 @@ def test_two_demo_launches_in_two_domains_run_at_once_without_interfering() -> N
         assert summary["exit_status"] == 0 and summary["failures"] == []
         links = summary["links"]
         assert links["sonar_head.serial"]["target"] == str(domain.path("sonar0"))
-        assert links["autopilot.can"]["target"] == f"virtual:{domain.can_channel('glider')}"
+        group, _ = domain.can_multicast()
+        assert links["autopilot.can"]["target"] == f"udp_multicast:{group}"
         assert all(link["connected"] for link in links.values())
         nodes = summary["nodes"]
         server, head, adapter = nodes["server"], nodes["sonar_head_mock"], nodes["sonar_head"]

@@ -13,8 +13,9 @@ import can
 import numpy as np
 import pytest
 
-from drivers.can.adapter import CMD_STATES, AutopilotAdapter, best_glide_speed, parse_gliders
+from drivers.can.adapter import AutopilotAdapter, parse_gliders
 from drivers.can.codec import GliderCanCodec
+from drivers.can.supervision import CMD_STATES, best_glide_speed
 from drivers.faults.can_bus import FaultInjectingBus
 from drivers.mocks.autopilot import MockAutopilot
 from hil_bridge.bus.messages import GliderCmd, GliderNeighbors, GliderState
@@ -189,9 +190,11 @@ def test_diagnostics_and_stats_report_the_link(sim: Sim, make_adapter: Any,
                                   for d in seen))
     diag = next(d for d in reversed(seen) if d.node == "autopilot")
     assert diag.counters["can_state"] == 0 and diag.counters["can_tx_frames"] > 0
-    # the first command can beat the mock's first heartbeat; wait for the heartbeat itself
-    assert wait_until(lambda: ad.stats().get("ap_alive:3") == 1)
+    # the first command can beat the mock's first heartbeat, and that heartbeat its switch to
+    # AUTO: wait for a heartbeat that says AUTO
+    assert wait_until(lambda: ad.stats().get("ap_mode:3") == 1)
     stats = ad.stats()
+    assert stats["ap_alive:3"] == 1
     assert stats["can_link"] == "up" and stats["cmd_state:3"] == CMD_STATES["FRESH"]
     assert stats["ap_heartbeats_in"] > 0
     assert stats["ap_mode:3"] == 1  # the mock flies it: AUTO
@@ -290,7 +293,7 @@ def test_adapter_keeps_commanding_through_faults(sim: Sim, make_adapter: Any,
     sim.publish_state(3)
     sim.publish_state(5)
     assert wait_until(lambda: len(sim.got(3)) >= 20)
-    link = ad._link
+    link = ad.can.link
     assert link is not None
     bus = link.bus
     assert isinstance(bus, FaultInjectingBus)
@@ -303,7 +306,7 @@ def test_adapter_keeps_commanding_through_faults(sim: Sim, make_adapter: Any,
     assert stats["can_error_frames"] > 0 and stats["rx_decode_errors"] > 0
     assert stats["can_tx_buffer_full"] > 0
     assert stats.get("cmd_failsafe_published", 0) == 0
-    assert all(t.is_alive() for t in ad._can_threads)
+    assert all(t.is_alive() for t in ad.can.threads)
 
 
 def test_candump_log_of_the_adapter(sim: Sim, make_adapter: Any, make_mock: Any,
@@ -381,7 +384,7 @@ def test_unexpected_errors_are_counted_and_loops_survive(sim: Sim, make_adapter:
     raw.command(0, 0.2, 10.0)
     assert wait_until(lambda: ad.stats().get("cmd_forwarded", 0) == 1)
     assert ad.stats()["loop_errors"] == 1
-    assert all(t.is_alive() for t in ad._can_threads)
+    assert all(t.is_alive() for t in ad.can.threads)
 
 
 @pytest.mark.parametrize("forged", [(1 << 64) - 1, 0], ids=["max", "zero"])

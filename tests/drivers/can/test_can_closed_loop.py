@@ -43,7 +43,7 @@ def test_swarm_flies_on_can_commands_through_faults() -> None:
         for node in nodes:
             node.start()
         assert wait_until(lambda: server.stats()["cmd_applied"] >= 40, timeout=20.0)
-        link = adapter._link
+        link = adapter.can.link
         assert link is not None and isinstance(link.bus, FaultInjectingBus)
         link.bus.inject_bus_off(30.0)
         assert wait_until(lambda: adapter.stats().get("can_bus_off_recoveries", 0) >= 1)
@@ -56,7 +56,7 @@ def test_swarm_flies_on_can_commands_through_faults() -> None:
         assert len(set(flown)) >= 2  # the bank changes with the commands
         stats = adapter.stats()
         assert stats["can_error_frames"] > 0 and stats["rx_decode_errors"] > 0
-        assert stats["cmd_state:0"] == 1 and all(t.is_alive() for t in adapter._can_threads)
+        assert stats["cmd_state:0"] == 1 and all(t.is_alive() for t in adapter.can.threads)
         assert server.stats()["gliders_alive"] == 4 and server.stats()["cmd_rejected"] == 0
     finally:
         for node in reversed(nodes):

@@ -11,8 +11,9 @@ import can
 import numpy as np
 import pytest
 
-from drivers.can.adapter import CMD_STATES, AutopilotAdapter
+from drivers.can.adapter import AutopilotAdapter
 from drivers.can.codec import DecodedFrame, GliderCanCodec
+from drivers.can.supervision import CMD_STATES
 from drivers.mocks.autopilot import MockAutopilot
 from hil_bridge.bus.messages import Clock, GliderCmd, GliderNeighbors, GliderState
 from hil_bridge.bus.node import Node

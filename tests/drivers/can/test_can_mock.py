@@ -11,14 +11,10 @@ import numpy as np
 import pytest
 
 from drivers.can.codec import DecodedFrame, GliderCanCodec
-from drivers.mocks.autopilot import (
-    AP_MODES,
-    MockAutopilot,
-    PathFollower,
-    ProfileReceiver,
-    figure_eight_waypoints,
-)
+from drivers.mocks.autopilot import AP_MODES, MockAutopilot
 from drivers.mocks.autopilot_cli import main as cli_main
+from drivers.mocks.path_follower import PathFollower, figure_eight_waypoints
+from drivers.mocks.profile_receiver import ProfileReceiver
 from tests.drivers.can._util import unique, wait_until
 
 G = 9.81

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from drivers.can.adapter import AutopilotAdapter
 from drivers.can.codec import DecodedFrame, GliderCanCodec
 from drivers.can.samples import STATE_FRAMES, SampleAssembler, StateSample
-from drivers.mocks.autopilot import ProfileReceiver
+from drivers.mocks.profile_receiver import ProfileReceiver
 from hil_bridge.bus.messages import GliderState
 from hil_bridge.bus.node import Node
 from sim_core.pose import quat_from_euler

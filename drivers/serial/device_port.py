@@ -1,10 +1,11 @@
-"""The device end of a serial link as a mock device uses it.
+"""The device end of a serial link, as a program playing the device uses it (the mock sonar head,
+the fault proxy's upstream side).
 
-:class:`DevicePort` is what a mock needs of its port (read with a timeout, write, wake a blocked
-read, close); a :class:`drivers.serial.ptyport.PtyPort` is one, and :class:`SerialDevicePort`
-makes one of any pyserial URL or device (re-opened with back-off when it fails).
-:class:`UartPacer` paces one direction to a baud rate: ptys and pipes move bytes at once, a UART
-does not, so a mock paced by it shows the latencies of the real link.
+:class:`DevicePort` is what such a program needs of its port (read with a timeout, write, wake a
+blocked read, close); a :class:`drivers.serial.ptyport.PtyPort` is one, and
+:class:`SerialDevicePort` makes one of any pyserial URL or device (re-opened with back-off when
+it fails). :class:`UartPacer` paces one direction to a baud rate: ptys and pipes move bytes at
+once, a UART does not, so a mock paced by it shows the latencies of the real link.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ __all__ = ["DevicePort", "SerialDevicePort", "UartPacer"]
 
 
 class DevicePort(Protocol):
-    """The device side of a serial link as the mock uses it."""
+    """The device side of a serial link as a device program uses it."""
 
     def read(self, max_bytes: int, timeout: float) -> bytes: ...
 

@@ -1,0 +1,124 @@
+"""The process model's cost: the demo with every node a process against every node a thread.
+
+``echoloop launch launch/demo.yaml --duration RUN_S --json`` runs as a child of this benchmark in
+a free domain (its own loopback ZeroMQ bus), once with each node in its own process (the
+default) and once with ``--threads``, interleaved ``REPEAT`` times. Measured per run: start-up
+(command start -> every node running, the "running" line), stop (the end of the duration ->
+the command's exit), the resident memory of each process halfway through the run
+(``/proc/PID/status`` VmRSS: per node host, and the launcher), the CPU seconds of the command
+and all its processes (``RUSAGE_CHILDREN``) per sim second, and what the loop delivered: sim
+seconds, echoes, ping -> echo and state latency percentiles from the launch's monitor.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from bench._util import median, table
+from hil_bridge.bus.domain import claim_first_free
+
+TITLE = "Nodes as processes: start-up, memory and CPU against threads"
+
+ROOT = Path(__file__).resolve().parent.parent
+RUN_S = 10.0
+REPEAT = 2
+MODES: dict[str, list[str]] = {"threads": ["--threads"], "processes": []}
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return float("nan")
+
+
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    try:
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task}/children") as f:
+                out += [int(c) for c in f.read().split()]
+    except OSError:
+        pass
+    return out
+
+
+def _once(mode: str, domain: int) -> dict[str, Any]:
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.monotonic()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil_bridge.cli", "launch", str(ROOT / "launch" / "demo.yaml"),
+         "--domain", str(domain), "--duration", str(RUN_S), "--json", *MODES[mode]],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stderr is not None and proc.stdout is not None
+    started = float("nan")
+    for line in proc.stderr:
+        if "echoloop launch: running" in line:
+            started = time.monotonic() - t0
+            break
+    time.sleep(RUN_S / 2)
+    rss = {pid: _rss_mb(pid) for pid in [proc.pid, *_children(proc.pid)]}
+    out, _ = proc.communicate(timeout=300)
+    ended = time.monotonic() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    summary = json.loads(out)
+    nodes = summary["nodes"]
+    server = nodes["server"]
+    sim_s = float(server["sim_time_s"])
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    per_node = {name: rss.get(stats.get("pid", -1), float("nan")) for name, stats in
+                nodes.items()} if mode == "processes" else {}
+    mon = summary["monitor"]
+    return {
+        "start_s": started, "stop_s": ended - started - RUN_S, "launcher_mb": rss[proc.pid],
+        "total_mb": sum(v for v in rss.values() if v == v), "per_node_mb": per_node,
+        "cpu_per_sim_s": cpu / sim_s if sim_s else float("nan"), "sim_s": sim_s,
+        "echoes": int(server["echoes_published"]), "exit": summary["exit_status"],
+        "ping_echo_p99": mon.get("ping_echo_ms", {}).get("p99", float("nan")),
+        "state_p99": mon.get("state_latency_ms", {}).get("p99", float("nan")),
+    }
+
+
+def run(out_dir: Path) -> str:
+    results: dict[str, list[dict[str, Any]]] = {m: [] for m in MODES}
+    with claim_first_free() as (dom, _):
+        assert dom.number is not None
+        for _ in range(REPEAT):
+            for mode in MODES:
+                results[mode].append(_once(mode, dom.number))
+    rows = []
+    for mode, runs in results.items():
+        def med(key: str, runs: list[dict[str, Any]] = runs) -> float:
+            return median([r[key] for r in runs])
+        rows.append([mode, f"{med('start_s'):.2f}", f"{med('stop_s'):.2f}",
+                     f"{med('total_mb'):.0f}", f"{med('launcher_mb'):.0f}",
+                     f"{med('cpu_per_sim_s'):.2f}", f"{med('sim_s'):.1f}", f"{med('echoes'):.0f}",
+                     f"{med('ping_echo_p99'):.1f}", f"{med('state_p99'):.2f}",
+                     ", ".join(str(r["exit"]) for r in runs)])
+    thr, prc = results["threads"], results["processes"]
+    ratio = median([r["cpu_per_sim_s"] for r in prc]) / median([r["cpu_per_sim_s"] for r in thr])
+    node_rows = []
+    names = sorted({n for r in prc for n in r["per_node_mb"]})
+    for name in names:
+        node_rows.append([name, f"{median([r['per_node_mb'][name] for r in prc]):.0f}"])
+    return (
+        f"{__doc__.split(chr(10) + chr(10), 1)[1].strip()}\n\n"
+        f"### The demo for {RUN_S:.0f} s, medians of {REPEAT} interleaved runs per mode\n\n"
+        + table(["mode", "start-up s", "stop s", "RSS all MB", "RSS launcher MB",
+                 "CPU s per sim s", "sim s", "echoes", "ping→echo p99 ms",
+                 "state p99 ms", "exit"], rows)
+        + f"\n\nCPU per sim second, processes / threads (same run): **{ratio:.2f}**.\n\n"
+        "### Resident memory of each node's process (processes mode, MB)\n\n"
+        + table(["node", "RSS MB"], node_rows) + "\n"
+    )

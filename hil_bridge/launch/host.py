@@ -1,0 +1,211 @@
+"""The node host: the process that runs a container's nodes (``python -m hil_bridge.launch.host``).
+
+The launch runner (:class:`hil_bridge.launch.process.ContainerProcess`) spawns one host per
+container: a fresh interpreter (``subprocess``, never a ``fork`` of a process holding threads
+and sockets), with the runner's end of a socket pair as its control channel (file descriptor
+``FD``, the only argument). Over it, as pickled tuples:
+
+1. the runner sends ``("nodes", {"domain": str, "bus": str, "allow_modules": [...],
+   "nodes": [{"name", "entry", "params"}, ...]})``; the host imports the nodes' modules and
+   answers ``("prepared", None)`` (hosts of one launch import at the same time);
+2. on ``("construct", None)`` the host activates the domain and constructs the nodes in order,
+   answering ``("constructed", None)``; on ``("start", None)`` it starts them in order, answering
+   ``("ready", None)``. The runner constructs every container's nodes in the launch file's
+   order before it starts any, as it does with threads, so no node runs (a server's clock
+   ticking) while the next ones are still being built. A node that fails is answered with
+   ``("error", "node: traceback text")``, after the host stopped those of its nodes it started;
+3. then it answers requests until told to stop: ``("stats", name)`` -> ``("stats", dict)``,
+   ``("failure", name)`` and ``("final_failure", name)`` (the end of the run) -> ``("failure",
+   str | None)``, ``("stop", name)`` -> ``("stopped", (stats, failure))``; it exits once every
+   node stopped, or stops them all and exits if the channel closes (the runner is gone).
+
+A host outlives no runner: the kernel sends it SIGTERM when the runner dies, however it dies
+(``PR_SET_PDEATHSIG``; a runner killed with -9 included). SIGTERM, like a closed channel, makes
+the host stop its nodes (so they remove their pty links and shared-memory tile stores) and exit;
+one that has not exited :data:`STOP_GRACE_S` seconds later is ended by SIGALRM. Ctrl-C reaches
+every process of the terminal's group: the host ignores SIGINT, and the runner decides the order
+in which nodes stop. Log records go to
+standard error as ``LEVEL logger: message``; the runner prefixes each line with the node's
+name (or the container's).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import logging
+import os
+import signal
+import sys
+import threading
+import traceback
+from multiprocessing.connection import Connection
+from typing import Any
+
+from hil_bridge.bus.domain import resolve, use
+from hil_bridge.launch.runner import failure_of
+from hil_bridge.launch.spec import resolve_entry
+
+__all__ = ["die_with_parent", "main"]
+
+log = logging.getLogger(__name__)
+
+_PR_SET_PDEATHSIG = 1
+#: seconds a host has to stop its nodes after SIGTERM before SIGALRM ends it
+STOP_GRACE_S = 20
+
+
+def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> None:
+    """Have the kernel send ``sig`` to this process when its parent dies (Linux ``prctl``; the
+    parent is the thread that spawned it); exit now if the parent is already gone."""
+    with contextlib.suppress(OSError, AttributeError):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def _prepare(nodes: list[dict[str, Any]], allow_modules: list[str]) -> list[type]:
+    """Import every node's class (the slow part of starting: numpy, scipy, numba...)."""
+    return [resolve_entry(node["entry"], where=f"{node['name']}.entry",
+                          allow_modules=allow_modules) for node in nodes]
+
+
+def _report(where: str) -> str:
+    """Log the exception being handled with its traceback (the runner shows the host's last
+    lines) and return one line naming ``where`` and the exception."""
+    log.error("%s raised", where, exc_info=True)
+    last = traceback.format_exc().rstrip().splitlines()[-1]
+    return f"{where} raised {last}"
+
+
+def _construct(nodes: list[dict[str, Any]], classes: list[type],
+               bus: str) -> tuple[dict[str, Any], str | None]:
+    """Construct ``nodes`` in order: the nodes, or the error text naming the node that failed."""
+    made: dict[str, Any] = {}
+    for node, cls in zip(nodes, classes, strict=True):
+        try:
+            made[node["name"]] = cls(node["name"], bus=bus, **node["params"])
+        except BaseException:
+            return made, _report(f"{node['name']}: constructor")
+    return made, None
+
+
+def _start(made: dict[str, Any]) -> str | None:
+    """Start the nodes in order; on a failure stop them all (reverse) and name the one."""
+    for name, obj in made.items():
+        try:
+            obj.start()
+        except BaseException:
+            text = _report(f"{name}: start()")
+            for other in reversed(list(made.values())):
+                with contextlib.suppress(Exception):
+                    other.stop()
+            return text
+    return None
+
+
+def _next(conn: Connection) -> tuple[str, Any] | None:
+    """The runner's next request, or None when it is gone."""
+    try:
+        kind, detail = conn.recv()
+    except (EOFError, OSError):
+        return None
+    return kind, detail
+
+
+def _serve(conn: Connection, made: dict[str, Any], stop_all: threading.Event,
+           first: tuple[str, Any] | None = None) -> None:
+    """Answer the runner's requests (``first``, then what comes) until every node stopped or
+    the runner is gone; nodes left are stopped in reverse order."""
+    running = dict(made)
+    while running:
+        if first is not None:
+            (kind, name), first = first, None
+        elif stop_all.is_set():
+            break
+        else:
+            try:
+                if not conn.poll(0.2):
+                    continue
+                kind, name = conn.recv()
+            except (EOFError, OSError):
+                break
+        obj = running.get(name)
+        if obj is None:
+            conn.send(("error", f"no running node {name!r} in this host"))
+            continue
+        try:
+            if kind == "stats":
+                conn.send(("stats", obj.stats()))
+            elif kind in ("failure", "final_failure"):
+                conn.send(("failure", failure_of(obj, final=kind == "final_failure")))
+            elif kind == "stop":
+                del running[name]
+                obj.stop()
+                conn.send(("stopped", (obj.stats(), failure_of(obj))))
+            else:
+                conn.send(("error", f"unknown request {kind!r}"))
+        except Exception as exc:  # the runner names the node and the call
+            conn.send(("error", f"{kind}() raised {type(exc).__name__}: {exc}"))
+    for obj in reversed(list(running.values())):
+        with contextlib.suppress(Exception):
+            obj.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 2:
+        sys.stderr.write("usage: python -m hil_bridge.launch.host FD PARENT_PID\n")
+        return 2
+    stop_all = threading.Event()
+
+    def _on_term(_signum: int, _frame: object) -> None:
+        stop_all.set()
+        signal.alarm(STOP_GRACE_S)
+
+    signal.signal(signal.SIGTERM, _on_term)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(int(args[1]))
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr,
+                        format="%(levelname)s %(name)s: %(message)s")
+    conn = Connection(int(args[0]))
+    try:
+        kind, request = conn.recv()
+    except (EOFError, OSError):
+        return 1
+    if kind != "nodes":
+        return 2
+    try:
+        classes = _prepare(request["nodes"], request["allow_modules"])
+    except Exception as exc:
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return 1
+    conn.send(("prepared", None))
+    if _next(conn) != ("construct", None) or stop_all.is_set():
+        return 1
+    with use(resolve(request["domain"])):
+        made, error = _construct(request["nodes"], classes, request["bus"])
+        if error is not None:
+            for obj in reversed(list(made.values())):
+                with contextlib.suppress(Exception):
+                    obj.stop()
+            conn.send(("error", error))
+            return 1
+        conn.send(("constructed", None))
+        request_ = _next(conn)
+        if request_ != ("start", None):  # the launch stops before it started these nodes
+            _serve(conn, made, stop_all, first=request_)
+            return 0
+        error = _start(made)
+        if error is not None:
+            conn.send(("error", error))
+            return 1
+        conn.send(("ready", None))
+    _serve(conn, made, stop_all)
+    conn.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,196 @@
+"""Nodes as processes (hil_bridge.launch.process, hil_bridge.launch.host): a node whose process
+dies in any way ends the run with exit 1 naming it and its last log lines; containers share a
+process; --only/--skip; echoloop run joins another launch's bus; a killed launcher leaves
+nothing behind."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from hil_bridge.bus.domain import Domain, claim_first_free, use
+from hil_bridge.launch.runner import EXIT_FAILED, run
+from hil_bridge.server.shared_tiles import stores_of
+from sim_core.config import ConfigError
+
+ROOT = Path(__file__).resolve().parents[3]
+CRASH = "tests.hil_bridge.launch.crashnodes:Crasher"
+ALLOW = ["tests.hil_bridge.launch.crashnodes"]
+
+
+@pytest.fixture
+def domain() -> Iterator[Domain]:
+    """A free numbered domain, claimed for the test (its bus crosses processes)."""
+    with claim_first_free(Domain(int.from_bytes(os.urandom(1)) % 60 + 20)) as (dom, _), \
+            use(dom):
+        yield dom
+
+
+def _launch(*nodes: dict[str, Any]) -> dict[str, Any]:
+    return {"allow_modules": ALLOW, "nodes": list(nodes)}
+
+
+def _crasher(name: str, how: str, **extra: Any) -> dict[str, Any]:
+    return {"name": name, "entry": CRASH, "params": {"how": how}, **extra}
+
+
+@pytest.mark.parametrize(("how", "why"), [
+    ("abort", "killed by SIGABRT"),
+    ("sigkill", "killed by SIGKILL"),
+    ("exit", "exit code 3"),
+])
+def test_a_node_process_that_dies_ends_the_run_naming_it(domain: Domain, how: str,
+                                                         why: str) -> None:
+    summary = run(_launch(_crasher("calm", "none"), _crasher("doomed", how)),
+                  duration=120.0, handle_signals=False, domain=domain)
+    assert summary.mode == "processes"
+    assert summary.stopped_by == "failure"
+    assert summary.exit_status == EXIT_FAILED
+    [failure] = summary.failures
+    assert failure.source == "doomed"
+    assert why in failure.message
+    assert f"doomed: about to die by {how}" in failure.message  # its last log lines
+    assert summary.nodes["calm"]["pid"] != os.getpid()
+
+
+def test_a_node_that_fails_to_start_is_named(domain: Domain) -> None:
+    summary = run(_launch(_crasher("calm", "none"), _crasher("doomed", "raise")),
+                  duration=30.0, handle_signals=False, domain=domain)
+    assert summary.exit_status == EXIT_FAILED
+    assert summary.stopped_by == "failure"
+    [failure] = summary.failures
+    assert failure.source == "doomed"
+    assert "doomed: start() raised RuntimeError: doomed refuses to start" in failure.message
+
+
+def test_nodes_of_one_container_share_a_process(domain: Domain) -> None:
+    summary = run(_launch(_crasher("a", "none", container="pair"),
+                          _crasher("b", "none", container="pair"), _crasher("c", "none")),
+                  duration=0.5, handle_signals=False, domain=domain)
+    assert summary.exit_status == 0, summary.failures
+    pids = {name: stats["pid"] for name, stats in summary.nodes.items()}
+    assert pids["a"] == pids["b"] != pids["c"]
+    assert os.getpid() not in pids.values()
+
+
+def test_only_and_skip_choose_the_nodes(domain: Domain) -> None:
+    nodes = (_crasher("a", "none"), _crasher("b", "none"), _crasher("c", "none"))
+    assert list(run(_launch(*nodes), duration=0.3, handle_signals=False, domain=domain,
+                    only=["a", "c"]).nodes) == ["a", "c"]
+    assert list(run(_launch(*nodes), duration=0.3, handle_signals=False, domain=domain,
+                    skip=["a"]).nodes) == ["b", "c"]
+    with pytest.raises(ConfigError, match="unknown node"):
+        run(_launch(*nodes), duration=0.3, handle_signals=False, domain=domain, skip=["zz"])
+
+
+def test_a_mem_bus_keeps_the_threads() -> None:
+    summary = run(_launch(_crasher("a", "none")), duration=0.2, handle_signals=False,
+                  bus="mem://threads_only")
+    assert summary.mode == "threads"
+    assert summary.nodes["a"]["pid"] == os.getpid()
+    with pytest.raises(ConfigError, match="crosses processes"):
+        run(_launch(_crasher("a", "none")), duration=0.2, handle_signals=False,
+            bus="mem://threads_only", processes=True)
+
+
+def _cli(*args: str, domain: Domain) -> subprocess.Popen[str]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "ECHOLOOP_DOMAIN": str(domain.number)}
+    return subprocess.Popen([sys.executable, "-m", "hil_bridge.cli", *args], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_line(proc: subprocess.Popen[str], needle: str, timeout: float = 120.0) -> None:
+    assert proc.stderr is not None
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if not line and proc.poll() is not None:
+            break
+        if needle in line:
+            return
+    raise AssertionError(f"no {needle!r} on stderr (exit {proc.poll()})")
+
+
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    with contextlib.suppress(OSError):
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task}/children") as f:
+                out += [int(c) for c in f.read().split()]
+    return out
+
+
+def _port_free(port: int) -> bool:
+    """As ZeroMQ binds (SO_REUSEADDR: connections in TIME_WAIT do not hold the port)."""
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_echoloop_run_joins_the_bus_of_a_launch_that_skips_its_node(domain: Domain) -> None:
+    launch = _cli("launch", str(ROOT / "launch" / "demo.yaml"), "--duration", "60",
+                  "--skip", "autopilot", "--expect", "server.cmd_applied > 0", domain=domain)
+    try:
+        _wait_for_line(launch, "running server")
+        node = _cli("run", "drivers.can.adapter:AutopilotAdapter", "--name", "autopilot",
+                    "--param", "gliders={0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 5: 5, 6: 6, 7: 7}",
+                    "--duration", "6", "--expect", "autopilot.cmd_forwarded > 0",
+                    domain=domain)
+        out, err = node.communicate(timeout=120)
+        assert node.returncode == 0, out + err
+    finally:
+        launch.send_signal(signal.SIGTERM)
+        out, err = launch.communicate(timeout=120)
+    assert launch.returncode == 0, out + err[-3000:]
+
+
+def test_a_launcher_killed_with_sigkill_leaves_nothing_behind(domain: Domain) -> None:
+    launch = _cli("launch", str(ROOT / "launch" / "demo.yaml"), "--duration", "120",
+                  "--param", "server.echo_worker=pool", "--param", "server.echo_workers=1",
+                  domain=domain)
+    try:
+        _wait_for_line(launch, "running server")
+        hosts = _children(launch.pid)
+        workers = [c for h in hosts for c in _children(h)]
+        assert len(hosts) == 6, hosts
+        assert workers, "the server's echo pool has no worker process"
+        link = domain.path("sonar0")
+        assert link.is_symlink()
+        stores = [s for h in hosts for s in stores_of(h)]
+        assert stores, "the server's echo pool shares no tile store"
+    finally:
+        launch.kill()
+        launch.communicate(timeout=60)
+    deadline = time.monotonic() + 60
+    left: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        left = {"processes": [p for p in hosts + workers if _alive(p)],
+                "link": link.is_symlink() or link.exists(),
+                "tile stores": [s for s in stores if s.exists()],
+                "bus ports": [p for p in domain.ports if not _port_free(p)]}
+        if not any(left.values()):
+            break
+        time.sleep(0.2)
+    assert not any(left.values()), left
