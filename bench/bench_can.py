@@ -265,7 +265,7 @@ def _bus_off_recovery() -> str:
     try:
         time.sleep(1.0)
         for i in range(10):
-            link = adapter._link
+            link = adapter.can.link
             assert link is not None and isinstance(link.bus, FaultInjectingBus)
             t0 = time.monotonic()
             link.bus.inject_bus_off(30.0)
