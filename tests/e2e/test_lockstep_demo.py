@@ -35,7 +35,7 @@ from hil_bridge.recording.bag import read_bag
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(params=["threads", "processes"])
+@pytest.fixture(params=["threads", pytest.param("processes", marks=pytest.mark.processes)])
 def mode(request: pytest.FixtureRequest) -> Iterator[str]:
     """Where the nodes run; processes need a numbered domain (claimed for the test)."""
     with contextlib.ExitStack() as stack:

@@ -15,7 +15,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from hil_bridge.bus.domain import DOMAIN_ENV, MAX_DOMAIN, Domain, claim_first_free
+
+pytestmark = pytest.mark.processes
 
 ROOT = Path(__file__).resolve().parents[2]
 

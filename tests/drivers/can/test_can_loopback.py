@@ -15,6 +15,8 @@ import pytest
 from drivers.can.bus import CanBusConfig, CanLink
 from hil_bridge.bus.domain import Domain, use
 
+pytestmark = pytest.mark.processes
+
 
 @pytest.fixture
 def domain() -> Domain:

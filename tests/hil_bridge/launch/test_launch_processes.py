@@ -23,6 +23,8 @@ from hil_bridge.launch.runner import EXIT_FAILED, run
 from hil_bridge.server.shared_tiles import stores_of
 from sim_core.config import ConfigError
 
+pytestmark = pytest.mark.processes
+
 ROOT = Path(__file__).resolve().parents[3]
 CRASH = "tests.hil_bridge.launch.crashnodes:Crasher"
 ALLOW = ["tests.hil_bridge.launch.crashnodes"]
