@@ -2,9 +2,9 @@
 
 ``launch/bench_multisonar.yaml`` (8 sonar vehicles on figure-eights in a 978,432-leaf tiled
 maple forest, each pinged at 20 Hz with beamwidths U(30°, 65°), states at 250 Hz, realtime
-clock) is launched as ``echoloop launch`` does (a claimed domain, its ZeroMQ bus, every node in
-one process) for ``RUN_S`` wall seconds, twice in the same run: ``echo_worker: thread`` (one
-worker: the server's echo thread, the single-worker path) and ``echo_worker: pool`` (one
+clock) is launched as ``echoloop launch`` does (a claimed domain, its ZeroMQ bus, every node a
+process of its own) for ``RUN_S`` wall seconds, twice in the same run: ``echo_worker: thread``
+(one worker: the server's echo thread, the single-worker path) and ``echo_worker: pool`` (one
 worker process per usable core, tiles shared in memory, deadlines). Figures are the server's
 summary over the whole run, start-up included: *answered* = ``echoes_published /
 pings_received``; ping → echo is the server's (ping received → echo published);
@@ -12,9 +12,9 @@ pings_received``; ping → echo is the server's (ping received → echo publishe
 = ``pings_dropped`` (full queue) + ``pings_dropped_deadline`` (superseded by the sonar's next
 ping or out of time), *degraded* = echoes computed at ``realtime`` fidelity within the time
 left, *late echoes* = published after their sonar's next ping was due. CPU is user + system
-time of the server process and of its (reaped) child processes over the run: the echo
-workers, and in the third row the pinger, run there in its own process as hardware sonar heads
-are (the server's interpreter then carries only the server and the launch's bus monitor).
+time of this process (the launcher and its bus monitor) and of its (reaped) child processes
+over the run: the node processes (server, pinger) and the echo workers; the third row starts
+the pinger apart from the launch, with no launcher of its own, as a hardware head would be.
 Issue 14's goal on 2 cores: ≥ 99 % answered, p99 ≤ 25 ms, late ticks ≤ 1 %.
 """
 
@@ -114,7 +114,8 @@ def row(r: dict[str, Any]) -> list[Any]:
 
 HEADER = ["echo workers", "pings", "answered %", "ping → echo p50 / p99 ms",
           "echo compute p50 ms", "ticks", "late ticks %", "dropped (queue + deadline)",
-          "degraded", "late echoes", "errors", "tiles built ahead", "CPU s (server + workers)"]
+          "degraded", "late echoes", "errors", "tiles built ahead",
+          "CPU s (launcher + node processes)"]
 
 
 
