@@ -1,18 +1,8 @@
 """Topic introspection shared by ``echoloop topic`` and ``echoloop bag info``.
 
-:class:`~hil_bridge.bus.stats.TopicStats` folds the headers seen on one topic into counts, rates
-and gaps:
-
-- ``gaps`` / ``lost``: publisher ``seq`` jumps (per publisher ``src``): a jump from 7 to 10 is one
-  gap of 2 lost messages; repeats (latched re-sends, retransmissions) count as ``duplicates``;
-  a sequence that goes back or jumps by more than :data:`~hil_bridge.bus.seq.MAX_GAP` (a restart,
-  a wrap, a forged value) starts a new ``epochs`` and is counted like any other message
-  (:class:`~hil_bridge.bus.seq.SeqTracker`);
-- ``rate_hz``: messages per second of the publishers' sim time (from ``stamp_ns``), and
-  ``recv_rate_hz`` per second of receive time; ``bandwidth_bps`` payload+header bytes per
-  receive second.
-
-:class:`TopicMonitor` subscribes a raw transport to a prefix and feeds a ``TopicStats`` per topic.
+:class:`TopicMonitor` subscribes a raw transport to a prefix and feeds one
+:class:`~hil_bridge.bus.stats.TopicStats` per topic (counts, rates, gaps, lost and duplicate
+messages, epochs: its docstring says how each is counted).
 """
 
 from __future__ import annotations
