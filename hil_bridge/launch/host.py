@@ -207,5 +207,19 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _exit(code: int) -> None:
+    """End the host once its nodes stopped, whatever threads they leaked: a non-daemon thread
+    left running would keep the interpreter waiting for it at exit, beyond the reach of the
+    launcher's death and of SIGALRM. The leak is logged, by thread name."""
+    left = [t.name for t in threading.enumerate()
+            if t is not threading.main_thread() and t.is_alive() and not t.daemon]
+    if left:
+        log.warning("threads still running after every node stopped: %s", ", ".join(left))
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    _exit(main())
