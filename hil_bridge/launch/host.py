@@ -6,14 +6,19 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
 ``FD``, the only argument). Over it, as pickled tuples:
 
 1. the runner sends ``("nodes", {"domain": str, "bus": str, "allow_modules": [...],
-   "nodes": [{"name", "entry", "params"}, ...]})``; the host imports the nodes' modules and
-   answers ``("prepared", None)`` (hosts of one launch import at the same time);
+   "sync": bool, "nodes": [{"name", "entry", "params"}, ...]})``; the host imports the nodes'
+   modules and answers ``("prepared", None)`` (hosts of one launch import at the same time);
 2. on ``("construct", None)`` the host activates the domain and constructs the nodes in order,
    answering ``("constructed", None)``; on ``("start", None)`` it starts them in order, answering
    ``("ready", None)``. The runner constructs every container's nodes in the launch file's
    order before it starts any, as it does with threads, so no node runs (a server's clock
    ticking) while the next ones are still being built. A node that fails is answered with
-   ``("error", "node: traceback text")``, after the host stopped those of its nodes it started;
+   ``("error", "node: traceback text")``, after the host stopped those of its nodes it started.
+   When the launch runs the bus's proxy (``sync``), before it answers "constructed" and again
+   before it starts its nodes, the host syncs every bus endpoint of the process
+   (:func:`~hil_bridge.bus.transport.sync_open`, up to ``SYNC_TIMEOUT_S``): a node starts only
+   once its endpoint knows the subscriptions the proxy held (the recorder's, those of the nodes
+   constructed earlier), so none of those misses the first messages it publishes;
 3. then it answers requests until told to stop: ``("stats", name)`` -> ``("stats", dict)``,
    ``("failure", name)`` and ``("final_failure", name)`` (the end of the run) -> ``("failure",
    str | None)``, ``("stop", name)`` -> ``("stopped", (stats, failure))``; it exits once every
@@ -43,7 +48,8 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from hil_bridge.bus.domain import resolve, use
-from hil_bridge.launch.runner import failure_of
+from hil_bridge.bus.transport import sync_open
+from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of
 from hil_bridge.launch.spec import resolve_entry
 
 __all__ = ["die_with_parent", "main"]
@@ -91,8 +97,25 @@ def _construct(nodes: list[dict[str, Any]], classes: list[type],
     return made, None
 
 
-def _start(made: dict[str, Any]) -> str | None:
-    """Start the nodes in order; on a failure stop them all (reverse) and name the one."""
+def _sync(bus: str | None) -> str | None:
+    """Sync this process's endpoints on ``bus`` (None: the launch runs no proxy, nothing to
+    sync with); the error text naming those that did not get in sync."""
+    late = [] if bus is None else sync_open(SYNC_TIMEOUT_S, url=bus)
+    if late:
+        return (f"bus endpoint(s) {', '.join(sorted(set(late)))} not in sync with the proxy "
+                f"after {SYNC_TIMEOUT_S:g} s")
+    return None
+
+
+def _start(made: dict[str, Any], sync: str | None) -> str | None:
+    """Start the nodes in order (once in ``sync``, :func:`_sync`); on a failure stop them all
+    (reverse) and name the one."""
+    error = _sync(sync)
+    if error is not None:
+        for other in reversed(list(made.values())):
+            with contextlib.suppress(Exception):
+                other.stop()
+        return error
     for name, obj in made.items():
         try:
             obj.start()
@@ -186,6 +209,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     with use(resolve(request["domain"])):
         made, error = _construct(request["nodes"], classes, request["bus"])
+        sync = request["bus"] if request["sync"] else None
+        if error is None:
+            error = _sync(sync)
         if error is not None:
             for obj in reversed(list(made.values())):
                 with contextlib.suppress(Exception):
@@ -197,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         if request_ != ("start", None):  # the launch stops before it started these nodes
             _serve(conn, made, stop_all, first=request_)
             return 0
-        error = _start(made)
+        error = _start(made, sync)
         if error is not None:
             conn.send(("error", error))
             return 1

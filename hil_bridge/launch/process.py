@@ -56,13 +56,15 @@ class ContainerProcess:
 
     def __init__(self, name: str, nodes: Sequence[dict[str, Any]], *, bus: str, domain: int,
                  allow_modules: Sequence[str] = (), log_dir: Path | None = None,
-                 ready_timeout_s: float = 60.0, stream: IO[str] | None = None) -> None:
+                 sync: bool = False, ready_timeout_s: float = 60.0,
+                 stream: IO[str] | None = None) -> None:
         self.name = name
         self.nodes = [dict(n) for n in nodes]
         self.bus = bus
         self.domain = domain
         self.allow_modules = list(allow_modules)
         self.log_dir = log_dir
+        self.sync = sync
         self.ready_timeout_s = ready_timeout_s
         self._stream = stream if stream is not None else sys.stderr
         self._proc: subprocess.Popen[bytes] | None = None
@@ -98,7 +100,8 @@ class ContainerProcess:
                                       daemon=True)
         self._pump.start()
         self._conn.send(("nodes", {"domain": str(self.domain), "bus": self.bus,
-                                   "allow_modules": self.allow_modules, "nodes": self.nodes}))
+                                   "allow_modules": self.allow_modules, "sync": self.sync,
+                                   "nodes": self.nodes}))
 
     def construct(self) -> None:
         """Have the host construct its nodes (:meth:`spawn` first, if not yet) and wait for it,

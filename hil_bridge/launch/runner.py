@@ -62,6 +62,8 @@ from types import FrameType
 from typing import Any, Protocol, runtime_checkable
 
 from hil_bridge.bus.domain import Domain, resolve, use
+from hil_bridge.bus.proxy import proxy_for
+from hil_bridge.bus.transport import sync_open
 from hil_bridge.launch.expect import Expectation, parse_expectations
 from hil_bridge.launch.monitor import BusMonitor
 from hil_bridge.launch.process import ContainerProcess, NodeStartError
@@ -71,7 +73,9 @@ from hil_bridge.launch.spec import (
     NodeSpec,
     check_duration,
     check_entry_module,
+    launch_proxy,
     load,
+    node_params,
     parse_param_overrides,
     resolve_entry,
     select_nodes,
@@ -120,6 +124,9 @@ EXIT_AFTER_RUN = 5
 
 #: how often (wall s) the runner asks every launchable for its ``failure()`` while the run goes
 FAILURE_POLL_S = 0.05
+#: seconds the launcher (and each node host) waits for its bus endpoints to be in sync with
+#: the proxy before it starts nodes (:func:`~hil_bridge.bus.transport.sync_open`)
+SYNC_TIMEOUT_S = 30.0
 
 
 @runtime_checkable
@@ -305,20 +312,6 @@ class _StopFlag:
             self.event.set()
 
 
-def _takes_overwrite(cls: type) -> bool:
-    try:
-        return "overwrite" in inspect.signature(cls).parameters
-    except (TypeError, ValueError):
-        return False
-
-
-def _node_params(i: int, node: NodeSpec, cls: type, *, overwrite: bool) -> dict[str, Any]:
-    params = dict(node.params)
-    if overwrite and "overwrite" not in params and _takes_overwrite(cls):
-        params["overwrite"] = True
-    return params
-
-
 def _instantiate(
     spec: LaunchSpec, bus: str, watch: _Watch, made: list[tuple[str, Any]], *, overwrite: bool
 ) -> bool:
@@ -332,7 +325,7 @@ def _instantiate(
     for i, node in enumerate(spec.nodes):
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
                             allow_modules=spec.allow_modules)
-        params = _node_params(i, node, cls, overwrite=overwrite)
+        params = node_params(node, cls, overwrite=overwrite)
         try:
             obj = cls(node.name, bus=bus, **params)
         except TypeError as exc:
@@ -347,9 +340,16 @@ def _instantiate(
     return True
 
 
-def _start(made: Sequence[tuple[str, Any]], watch: _Watch) -> bool:
-    """Start the nodes in order; False when one's ``start()`` raised (noted in ``watch``; the
-    nodes after it are not started)."""
+def _start(made: Sequence[tuple[str, Any]], watch: _Watch, sync: str | None) -> bool:
+    """Start the nodes in order; with ``sync`` (the bus URL of the launch's own proxy), once
+    this process's endpoints on it (the recorder's, the monitor's, nodes run as threads) are in
+    sync with the proxy. False when one's ``start()`` raised or the endpoints did not get in
+    sync (noted in ``watch``; the nodes after it are not started)."""
+    late = [] if sync is None else sync_open(SYNC_TIMEOUT_S, url=sync)
+    if late:
+        watch.fail("launch", f"bus endpoint(s) {', '.join(sorted(set(late)))} not in sync with "
+                             f"the proxy after {SYNC_TIMEOUT_S:g} s")
+        return False
     for name, obj in made:
         try:
             obj.start()
@@ -382,7 +382,7 @@ def _wait(flag: _StopFlag, watch: _Watch, run_for: float | None,
 
 def _spawn(
     spec: LaunchSpec, bus: str, watch: _Watch, made: list[tuple[str, Any]], *, overwrite: bool,
-    domain: Domain, log_dir: Path | None,
+    domain: Domain, log_dir: Path | None, sync: bool,
 ) -> bool:
     """Spawn every container's process at once (they import their nodes' modules meanwhile),
     then have each construct its nodes in the order of its first node; ``made`` gets a
@@ -394,11 +394,11 @@ def _spawn(
                             allow_modules=spec.allow_modules)
         containers.setdefault(node.container or node.name, []).append(
             {"name": node.name, "entry": node.entry,
-             "params": _node_params(i, node, cls, overwrite=overwrite)})
+             "params": node_params(node, cls, overwrite=overwrite)})
     if domain.number is None:
         raise ConfigError(f"{domain} has no number: its nodes cannot be processes")
     procs = [ContainerProcess(key, nodes, bus=bus, domain=domain.number,
-                              allow_modules=spec.allow_modules, log_dir=log_dir)
+                              allow_modules=spec.allow_modules, log_dir=log_dir, sync=sync)
              for key, nodes in containers.items()]
     try:
         for proc in procs:  # every host imports its nodes' modules at once
@@ -511,8 +511,11 @@ def run(
     t0 = time.monotonic()
     held = contextlib.ExitStack()
     held.enter_context(dom.claim())
+    proxy = proxy_for(bus_url) if launch_proxy(spec) else None
     try:
         with use(dom):
+            if proxy is not None:
+                proxy.start()
             if monitor:
                 bus_monitor = BusMonitor("launch_monitor", bus=bus_url)
                 bus_monitor.start()
@@ -526,14 +529,15 @@ def run(
             try:
                 if in_processes:
                     started = _spawn(spec, bus_url, watch, made, overwrite=overwrite, domain=dom,
-                                     log_dir=None if log_dir is None else Path(log_dir))
+                                     log_dir=None if log_dir is None else Path(log_dir),
+                                     sync=proxy is not None)
                 else:
                     started = _instantiate(spec, bus_url, watch, made, overwrite=overwrite)
             except ConfigError as exc:  # a node refused its params: say which launch file
                 if isinstance(path, str | Path) and str(path) not in str(exc):
                     raise ConfigError(f"{path}: {exc}") from None
                 raise
-            started = started and _start(made, watch)
+            started = started and _start(made, watch, None if proxy is None else bus_url)
             if started and want_live:
                 from hil_bridge.tools.live import LiveView
 
@@ -563,6 +567,8 @@ def run(
                 monitor_stats = stats
             else:
                 extra_stats[extra.name] = stats
+        if proxy is not None:
+            proxy.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         held.close()

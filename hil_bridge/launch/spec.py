@@ -20,7 +20,8 @@ class with ``start``, ``stop`` and ``stats``). **A launch file runs code**: impo
 runs its module. Entries may come only from the project's packages (the installed
 ``hil_bridge``, ``drivers``, ``sim_core``) and from modules listed under ``allow_modules:`` (or
 ``--allow-module``), and every entry is checked against that list before the first import
-(:func:`check_entry_module`). :mod:`hil_bridge.launch.runner` runs a spec.
+(:func:`check_entry_module`). :func:`node_params` gives the params a node is constructed
+with; :mod:`hil_bridge.launch.runner` runs a spec.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import importlib.util
+import inspect
 import math
 import sys
 from collections.abc import Mapping, Sequence
@@ -44,7 +46,9 @@ __all__ = [
     "NodeSpec",
     "check_duration",
     "check_entry_module",
+    "launch_proxy",
     "load",
+    "node_params",
     "parse_param_overrides",
     "resolve_entry",
     "select_nodes",
@@ -248,3 +252,33 @@ def select_nodes(spec: LaunchSpec, *, only: Sequence[str] = (),
     if not kept:
         raise ConfigError(f"--only/--skip leave no node to run (the file has {names})")
     return dataclasses.replace(spec, nodes=kept)
+
+
+def _takes(cls: type, param: str) -> bool:
+    try:
+        return param in inspect.signature(cls).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def node_params(node: NodeSpec, cls: type, *, overwrite: bool) -> dict[str, Any]:
+    """``node``'s params as its constructor (``cls``) gets them: with ``overwrite``, nodes that
+    take an ``overwrite`` parameter (those that write files) get ``overwrite=True`` unless their
+    params set it; nodes that take ``embed_proxy`` get ``embed_proxy=False`` (the launch runs
+    the proxy, :func:`launch_proxy`)."""
+    params = dict(node.params)
+    if overwrite and "overwrite" not in params and _takes(cls, "overwrite"):
+        params["overwrite"] = True
+    if params.get("embed_proxy", True) and _takes(cls, "embed_proxy"):
+        params["embed_proxy"] = False
+    return params
+
+
+def launch_proxy(spec: LaunchSpec) -> bool:
+    """Whether the launch runs its bus's proxy: a node would embed one (its constructor takes
+    ``embed_proxy`` and its params do not set it false, e.g. the simulation server). The launch
+    then starts the proxy before anything else and stops it last, so the bus outlives any
+    node; such nodes get ``embed_proxy=False``."""
+    return any(node.params.get("embed_proxy", True) and _takes(
+        resolve_entry(node.entry, where=f"nodes[{i}].entry", allow_modules=spec.allow_modules),
+        "embed_proxy") for i, node in enumerate(spec.nodes))

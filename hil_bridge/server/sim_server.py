@@ -68,6 +68,7 @@ nanoseconds and never decrease.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import threading
 import time
@@ -145,7 +146,12 @@ class ServerParams:
                              f"{self.echo_workers}")
 
 
+log = logging.getLogger(__name__)
+
 _REJECT_BANK = math.pi / 2
+#: seconds the server waits at start for its bus endpoint to know the subscriptions already
+#: made (:meth:`~hil_bridge.bus.transport.base.Transport.sync`) before its first tick
+BUS_SYNC_S = 10.0
 
 _COUNTERS = (
     "ticks", "physics_steps", "control_steps", "states_published", "neighbors_published",
@@ -276,6 +282,10 @@ class SimServer:
         first = self.fleet.states()
         self._sonars.attach(node, first)
         node.start()
+        # the first tick reaches every subscriber that was there before the server started
+        if not node.transport.sync(BUS_SYNC_S):
+            log.warning("%s: bus %s not in sync after %g s: subscribers may miss the first "
+                        "ticks", self.name, self.bus, BUS_SYNC_S)
         self._sonars.start()
         self._threads = [
             threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),

@@ -14,9 +14,9 @@ from __future__ import annotations
 import importlib
 from urllib.parse import urlsplit
 
-from hil_bridge.bus.transport.base import Frames, Transport
+from hil_bridge.bus.transport.base import Frames, Transport, sync_open
 
-__all__ = ["BACKENDS", "Frames", "Transport", "backend_class", "open_transport"]
+__all__ = ["BACKENDS", "Frames", "Transport", "backend_class", "open_transport", "sync_open"]
 
 BACKENDS: dict[str, str] = {
     "mem": "hil_bridge.bus.transport.mem:MemTransport",

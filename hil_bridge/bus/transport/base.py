@@ -31,16 +31,22 @@ Contract of :class:`Transport` (every backend honours it; ``tests/hil_bridge/bus
    backend can reach (over ZeroMQ the lane's socket is re-made, so the proxy's queue and the
    kernel buffers behind it go too); messages published from then on arrive. May be called
    from any thread.
+9. ``sync(timeout)`` returns ``True`` once every subscription the bus knew when it was called
+   reaches this endpoint's publications (``False`` after ``timeout`` s): a node that syncs
+   before it publishes loses nothing to subscribers that were there first, whatever their
+   topics. :func:`sync_open` syncs every endpoint this process has open (the launch does, between
+   constructing nodes and starting them).
 
 Backends implement ``_send``, ``_recv_internal`` and, where they need them, ``_subscribe``,
-``_unsubscribe``, ``_reset``, ``_service``, ``_wakeup`` and ``_close``; the base owns timeouts,
-topic filtering, subscription bookkeeping and shutdown.
+``_unsubscribe``, ``_reset``, ``_service``, ``_sync``, ``_wakeup`` and ``_close``; the base owns
+timeouts, topic filtering, subscription bookkeeping and shutdown.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+import weakref
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from types import TracebackType
@@ -48,7 +54,7 @@ from typing import ClassVar
 
 from hil_bridge.errors import TransportClosed
 
-__all__ = ["Frames", "Transport"]
+__all__ = ["Frames", "Transport", "sync_open"]
 
 Frames = list[bytes]
 
@@ -80,6 +86,7 @@ class Transport(ABC):
         self._remote: set[bytes] = set()
         self._remote_cond = threading.Condition()
         self._counters: dict[str, int] = {"sent": 0, "received": 0, "filtered": 0}
+        _OPEN.add(self)
 
     # -- backend surface --------------------------------------------------------------------
     @abstractmethod
@@ -108,6 +115,10 @@ class Transport(ABC):
         if timeout > 0:
             with self._remote_cond:
                 self._remote_cond.wait(timeout)
+
+    def _sync(self, timeout: float) -> bool:
+        """Contract 9 (a backend that delivers synchronously is always in sync)."""
+        return True
 
     def _wakeup(self) -> None:
         """Make a blocked ``_recv_internal`` return ``None`` promptly."""
@@ -223,6 +234,12 @@ class Transport(ABC):
             self._service(min(remaining, 0.05))
         return True
 
+    def sync(self, timeout: float) -> bool:
+        """Block until this endpoint's publications reach every subscription the bus knew when
+        called, or ``timeout`` s; return which (contract 9)."""
+        self._check_open()
+        return self._sync(timeout)
+
     def service(self, timeout: float = 0.0) -> None:
         """Process pending subscription events (latched re-sends), waiting up to ``timeout``."""
         if not self._closed:
@@ -243,6 +260,7 @@ class Transport(ABC):
             if self._closed:
                 return
             self._closed = True
+        _OPEN.discard(self)
         with self._remote_cond:
             self._remote_cond.notify_all()
         self._close()
@@ -267,3 +285,22 @@ class Transport(ABC):
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"{type(self).__name__}({self.url!r}, {state})"
+
+
+#: every transport of this process not closed yet (weakly: a dropped one is gone)
+_OPEN: weakref.WeakSet[Transport] = weakref.WeakSet()
+
+
+def sync_open(timeout: float, *, url: str | None = None) -> list[str]:
+    """:meth:`Transport.sync` every transport this process has open (on bus ``url`` only, if
+    given), within ``timeout`` s in all; the URLs of those that did not get in sync (closed
+    meanwhile ones are skipped)."""
+    deadline = time.monotonic() + timeout
+    late: list[str] = []
+    for transport in [t for t in list(_OPEN) if url is None or t.url == url]:
+        try:
+            if not transport.sync(max(0.0, deadline - time.monotonic())):
+                late.append(transport.url)
+        except TransportClosed:
+            continue
+    return late

@@ -15,6 +15,11 @@ Options (query string): ``sub=URL``; ``hwm=N`` (per-socket queue bound in messag
 Publishing uses an XPUB socket (connected to the proxy's XSUB) so the publisher *sees* the
 subscriptions the proxy forwards (the proxy's XPUB is verbose): that gives
 ``wait_for_subscriber`` (no slow-joiner loss without sleeping) and ``on_subscribe`` (latching).
+``sync`` (contract 9) publishes a probe on ``/_echoloop/sync/<pid>_<n>`` until a socket of
+its own subscribed to that topic receives it: the proxy forwarded that subscription to this
+publisher after every subscription it held before (one ordered pipe), so those are in effect
+too. Probes are well-formed bus messages (type ``echoloop/TransportSync``, empty payload);
+echoloop endpoints never deliver a topic under ``/_echoloop/`` (nor report subscriptions to it).
 A full queue drops (ZeroMQ HWM semantics) and never blocks the publisher; the receiving node
 counts the loss from publisher ``seq`` gaps.
 
@@ -37,6 +42,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -44,6 +50,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
+import msgpack
 import zmq
 
 from hil_bridge.bus.transport.base import Frames, Transport
@@ -58,6 +65,11 @@ _WAKE_IDS = itertools.count()
 _POLL_EVERY = 16
 #: a lane operation besides SUBSCRIBE / UNSUBSCRIBE: re-make the socket (drop its backlog)
 _RESET = -1
+#: topics under this prefix are the transport's own (sync probes): never delivered
+_OWN_TOPICS = b"/_echoloop/"
+_SYNC_IDS = itertools.count()
+#: how long a sync waits for its probe before publishing it again (milliseconds)
+_SYNC_RETRY_MS = 2
 _KNOWN_OPTIONS = ("curve_client", "curve_server", "hwm", "sub")
 
 
@@ -198,10 +210,30 @@ class ZmqTransport(Transport):
                 if msg[:1] == b"\x01":
                     events.append(msg[1:])
         for prefix in events:
-            self._remote_subscribed(prefix)
+            if not prefix.startswith(_OWN_TOPICS):
+                self._remote_subscribed(prefix)
         if not events and timeout > 0.002:
             with self._remote_cond:
                 self._remote_cond.wait(min(timeout, 0.01) - 0.002)
+
+    def _sync(self, timeout: float) -> bool:
+        n = next(_SYNC_IDS)
+        topic = b"%ssync/%d_%d\0" % (_OWN_TOPICS, os.getpid(), n)
+        header = msgpack.packb({"type": "echoloop/TransportSync", "v": 1, "seq": n,
+                                "stamp_ns": 0, "pub_ns": time.monotonic_ns(), "frame_id": ""})
+        frames = [topic, header, msgpack.packb({})]
+        probe = self._open_lane([topic])
+        try:
+            deadline = time.monotonic() + timeout
+            while not self._closed:
+                self._send(frames)
+                if probe.poll(_SYNC_RETRY_MS):
+                    return True
+                if time.monotonic() >= deadline:
+                    break
+            return False
+        finally:
+            probe.close(0)
 
     # -- receiving --------------------------------------------------------------------------
     def _open_lane(self, prefixes: list[bytes]) -> zmq.Socket[bytes]:
@@ -308,6 +340,8 @@ class ZmqTransport(Transport):
                 frames.append(frame.bytes)
             rotation.append(sock)
             self._since_poll += 1
+            if frames[0].startswith(_OWN_TOPICS):
+                continue
             return frames
         return None
 

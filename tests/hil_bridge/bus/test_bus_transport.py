@@ -154,6 +154,40 @@ def test_latecomer_learns_existing_subscriptions_and_on_subscribe_fires(bus_url:
             assert b"/y\0" in seen
 
 
+def test_a_synced_newcomer_loses_nothing_and_probes_stay_inside(bus_url: str) -> None:
+    """Contract 9: twenty publishers, each publishing once as soon as ``sync`` returned, reach
+    the subscribers that were there first (one to the topic, one to everything); the probes
+    reach neither, nor anyone's ``on_subscribe``."""
+    with open_transport(bus_url) as one, open_transport(bus_url) as every, \
+            open_transport(bus_url) as old:
+        one.subscribe(b"/x\0")
+        every.subscribe(b"")
+        assert old.wait_for_subscriber("/x", timeout=10.0)
+        assert old.wait_for_subscriber("/anything", timeout=10.0)
+        seen: list[bytes] = []
+        old.on_subscribe = seen.append
+        for i in range(20):
+            with open_transport(bus_url) as pub:
+                assert pub.sync(timeout=10.0)
+                pub.publish(_clock("/x", i))
+        old.service(0.05)
+        for sub in (one, every):
+            got = [sub.recv(timeout=10.0) for _ in range(20)]
+            assert [decode(f).header.stamp_ns for f in got if f is not None] == [
+                i * 10 for i in range(20)]
+            assert sub.recv(timeout=0.1) is None
+        assert seen == []
+
+
+def test_sync_open_syncs_every_open_transport_of_the_process(bus_url: str) -> None:
+    from hil_bridge.bus.transport import sync_open
+
+    with open_transport(bus_url) as a, open_transport(bus_url):
+        assert sync_open(10.0) == []
+        a.close()
+        assert sync_open(10.0) == []
+
+
 def test_close_is_idempotent_and_later_use_raises(bus_url: str) -> None:
     t = open_transport(bus_url)
     t.close()
