@@ -155,21 +155,46 @@ def cost_rows() -> list[dict[str, Any]]:
             for bw in BEAMWIDTHS_DEG:
                 beam = ping_beam(p, q, 0.0, 0.0, np.radians(bw))
                 scene.leaves_near(p, radius)  # its tiles built
-                gather, synth = [], []
+                _kdtree_gather(scene.forest_source, p, radius)  # the tiles' k-d trees built
+                gather, synth, kdtree = [], [], []
                 for _ in range(COST_REPEAT):
                     c0 = time.process_time()
                     leaves = scene.leaves_near(p, radius)
                     c1 = time.process_time()
                     synthesize(leaves, beam, params, fidelity="fast")
                     c2 = time.process_time()
+                    baseline = _kdtree_gather(scene.forest_source, p, radius)
+                    c3 = time.process_time()
                     gather.append(c1 - c0)
                     synth.append(c2 - c1)
+                    kdtree.append(c3 - c2)
+                if baseline != leaves:
+                    raise AssertionError(f"sonar {sonar.id} t={t}: the k-d tree gathers other "
+                                         "leaves")
                 n = len(leaves)
                 out.append({"bw": bw, "n": n, "gather": float(np.median(gather)),
+                            "kdtree": float(np.median(kdtree)),
                             "synth": float(np.median(synth)),
                             "gather_model": COST.gather_s * n,
                             "synth_model": COST.estimate(n, precull_half_angle(beam, params))})
     return out
+
+
+def _kdtree_gather(forest: Any, p: Any, r: float) -> Any:
+    """The baseline: the leaves near ``p`` as ``TiledForest.leaves_near`` gathered them before
+    its compiled ball test (a k-d tree per tile, ``query_ball_point``, sorted indices)."""
+    from sim_core.world.leaves import Leaves
+
+    parts, offset = [], 0
+    for t in forest.tiles_near(p, r):
+        tile = forest.ensure(t)
+        if len(tile.leaves):
+            idx = tile.leaves.query_ball(p, r)
+            if idx.size:
+                sub = tile.leaves.select(idx)
+                parts.append(Leaves(sub.centers, sub.normals, sub.radii, sub.tree_id + offset))
+        offset += tile.tree_xy.shape[0]
+    return Leaves.concat(parts)
 
 
 def cost_table(rows: list[dict[str, Any]]) -> str:
@@ -188,17 +213,50 @@ def cost_table(rows: list[dict[str, Any]]) -> str:
             lines.append([
                 f"{bw:g}°", f"{lo:,}–{hi:,}" if hi < 10**9 else f"≥ {lo:,}", len(sel),
                 f"{med('n'):,.0f}", f"{1e3 * med('gather'):.2f} ({1e3 * med('gather_model'):.2f})",
+                f"{1e3 * med('kdtree'):.2f}",
                 f"{1e3 * med('synth'):.2f} ({1e3 * med('synth_model'):.2f})",
+                f"{(med('gather') + med('synth')) / (med('kdtree') + med('synth')):.2f}",
                 f"{med('synth') / med('synth_model'):.2f}",
             ])
     ratio = float(np.median([r["synth"] / r["synth_model"] for r in rows]))
     gather = float(np.median([r["gather"] / max(1, r["n"]) for r in rows]))
+    kdtree = float(np.median([r["kdtree"] / max(1, r["n"]) for r in rows]))
+    echo = float(np.median([(r["gather"] + r["synth"]) / (r["kdtree"] + r["synth"])
+                            for r in rows]))
     return (
         table(["beamwidth", "leaves in range", "pings", "median leaves",
-               "gather CPU ms (model)", "fast echo CPU ms (model)", "measured / model"], lines)
+               "gather CPU ms (model)", "k-d tree gather CPU ms (baseline)",
+               "fast echo CPU ms (model)", "echo CPU / with k-d tree", "measured / model"],
+              lines)
         + f"\n\nAll {len(rows)} pings: measured / model {ratio:.2f} (median); gathering "
-        f"{1e9 * gather:.0f} ns per leaf in range (model {1e9 * _gather_s():.0f} ns).\n"
+        f"{1e9 * gather:.0f} ns per leaf in range (model {1e9 * _gather_s():.0f} ns), against "
+        f"{1e9 * kdtree:.0f} ns with the k-d trees of the baseline (the gather before "
+        f"`sim_core/world/ball.py`, measured beside it: the same leaves, same order); a whole "
+        f"echo (gather + `fast`) takes {echo:.2f} of its CPU time with the k-d tree gather "
+        f"(median).\n"
     )
+
+
+_KERNEL_COST = (
+    "import time, numba, sim_core.world, sim_core.world.ball as b\n"
+    "t = time.process_time(); b.warm_up(); print(time.process_time() - t)\n"
+)
+
+
+def kernel_cost() -> tuple[float, float]:
+    """CPU seconds of :func:`sim_core.world.ball.warm_up` in a fresh process: compiling (an
+    empty numba cache) and loading from the cache it left (numba and the world imported)."""
+    import os
+    import subprocess
+    import sys
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        out = [float(subprocess.run([sys.executable, "-c", _KERNEL_COST], env=env, check=True,
+                                    capture_output=True, text=True).stdout)
+               for _ in range(2)]
+    return out[0], out[1]
 
 
 def _gather_s() -> float:
@@ -220,4 +278,8 @@ def run(out_dir: Path) -> str:
         "from built tiles and of the `fast` synthesis, medians of "
         f"{COST_REPEAT} calls, beside `sim_core.sonar.cost.COST` (docs/sonar.md).\n\n"
         f"{cost_table(cost_rows())}"
+        "\nThe compiled gather's own cost, once per process (CPU s of `ball.warm_up()` in a "
+        "fresh process, numba imported): compiling it into an empty cache {:.2f} s, loading it "
+        "from that cache {:.2f} s (`make` compiles it at install; the server's echo worker "
+        "loads it before its first ping).\n".format(*kernel_cost())
     )

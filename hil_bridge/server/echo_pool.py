@@ -14,9 +14,9 @@ at a time (so an idle worker is known and no job waits behind another), over one
   publishes it (:class:`hil_bridge.server.shared_tiles.SharedTiles`); the others map the same pages.
   The pool keeps the tiles' bytes within the forest's ``max_cache_bytes``: beyond it the least
   recently needed tiles are unlinked and every worker is told to let go of them. Memory bound:
-  ``max_cache_bytes`` of shared leaf arrays, plus per worker its k-d trees (48 B per leaf of the
-  tiles it holds, within its own ``max_cache_bytes`` LRU) and its interpreter (~150 MB with
-  numpy, scipy and finufft).
+  ``max_cache_bytes`` of shared leaf arrays, plus per worker its interpreter (~150 MB with
+  numpy, scipy and finufft); gathering leaves from a tile builds no index
+  (:func:`sim_core.world.ball.ball_mask`).
 - **The tick loop first.** Workers run at a lower CPU priority (nice :data:`WORKER_NICE`), so
   when the cores are short the server's tick loop, bus and scheduler threads get them first.
   Prefetching takes at most ``n - 1`` workers (with one worker, only an idle one), all of
@@ -157,10 +157,12 @@ def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
     from hil_bridge.files.scene import load_scene
     from hil_bridge.recording.logs import load_trajectory
     from hil_bridge.server.shared_tiles import SharedTiles
+    from sim_core.world.ball import warm_up
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _lower_priority(nice)
     scene = load_scene(spec, trajectory_reader=load_trajectory)
+    warm_up()  # the leaf gather compiled (or loaded) before the first job
     built: list[tuple[Tile, int]] = []
     forest = None
     if store_dir is not None:

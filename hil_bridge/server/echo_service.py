@@ -10,8 +10,8 @@ arrival time and its *deadline*) and returns at once; a scheduler thread hands e
 an idle worker, earliest deadline first, and gives the result to ``on_echo(request, result)``
 (``on_error(request, message)`` when the scene refuses it). Workers (``worker=``):
 
-- ``"thread"``: the scheduler thread computes in the server process (the synthesis and k-d
-  tree queries release the GIL in their heavy numpy/finufft calls; tile building does not);
+- ``"thread"``: the scheduler thread computes in the server process (the synthesis and the
+  compiled leaf gather release the GIL in their heavy calls; tile building does not);
 - ``"pool"``: ``workers`` spawned processes (default: one per usable core), each with its own
   copy of the scene, sharing the forest's tiles through shared memory
   (:mod:`hil_bridge.server.shared_tiles`), at a lower CPU priority than the server's tick loop
@@ -302,6 +302,9 @@ class EchoService:
     def _run(self) -> None:
         try:
             if self.worker == "thread":
+                from sim_core.world.ball import warm_up
+
+                warm_up()  # the leaf gather compiled (or loaded) before the first ping
                 self._serve(ThreadWorker(self.scene, self.cost))
             else:
                 self._pool = ProcessPool(self.scene, self.n_workers, self._stop,

@@ -6,7 +6,8 @@ tiles. ``leaves_near(point, r)`` therefore visits every tile within ``r`` plus t
 reach of ``point``. Tile content is a pure function of (spec, seed, tile) — candidates are drawn
 per cell from their own streams and the minimum-distance merge is resolved locally and exactly —
 so building a region tile by tile gives the same trees and leaves as a one-shot build of it.
-Built tiles sit in an LRU cache bounded in bytes (leaf arrays + their k-d trees). A tile missing
+Built tiles sit in an LRU cache bounded in bytes (leaf arrays, plus k-d trees where a caller
+built one). A tile missing
 from the cache comes from ``source`` (default :meth:`TiledForest.build`): a runner may put a store
 shared between processes in front of the build (``hil_bridge.server.shared_tiles``); ``sim_core``
 itself
@@ -23,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sim_core.world.ball import ball_mask
 from sim_core.world.forest import Forest, ForestEngine
 from sim_core.world.ipp import Box
 from sim_core.world.leaves import Leaves
@@ -134,10 +136,8 @@ class TiledForest:
         return self._get(tile).leaves
 
     def ensure(self, tile: TileKey) -> Tile:
-        """Tile ``tile`` cached with its k-d tree built (so a later query pays neither)."""
+        """Tile ``tile`` cached (so a later query does not pay for building it)."""
         got = self._get(tile)
-        if len(got.leaves):
-            _ = got.leaves.kdtree  # built on first access
         self._account(tile, got)
         self._evict()
         return got
@@ -208,18 +208,23 @@ class TiledForest:
     def leaves_near(self, point: ArrayLike, radius_m: float) -> Leaves:
         """Leaves whose centre is within ``radius_m`` of ``point (3,)`` (metres, world frame).
 
-        Tree ids in the result are renumbered to be unique within it (tile by tile).
+        Tree ids in the result are renumbered to be unique within it (tile by tile). Each tile
+        is tested leaf by leaf (:func:`~sim_core.world.ball.ball_mask`, compiled): the leaves
+        keep their order, tile after tile in :meth:`tiles_near`'s order.
         """
         p = np.asarray(point, dtype=np.float64)
         parts: list[Leaves] = []
         offset = 0
         for t in self.tiles_near(p, radius_m):
             tile = self._get(t)
-            idx = tile.leaves.query_ball(p, radius_m)
-            self._account(t, tile)  # the k-d tree now exists; a tile evicted on arrival stays out
-            if idx.size:
-                sub = tile.leaves.select(idx)
-                parts.append(Leaves(sub.centers, sub.normals, sub.radii, sub.tree_id + offset))
+            self._account(t, tile)  # a tile evicted on arrival stays out
+            leaves = tile.leaves
+            inside = ball_mask(leaves.centers, p, radius_m)
+            if inside.any():
+                parts.append(Leaves(leaves.centers.compress(inside, axis=0),
+                                    leaves.normals.compress(inside, axis=0),
+                                    leaves.radii.compress(inside),
+                                    leaves.tree_id.compress(inside) + offset))
             offset += tile.tree_xy.shape[0]
         self._evict()
         return Leaves.concat(parts)
