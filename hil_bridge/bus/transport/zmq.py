@@ -15,11 +15,13 @@ Options (query string): ``sub=URL``; ``hwm=N`` (per-socket queue bound in messag
 Publishing uses an XPUB socket (connected to the proxy's XSUB) so the publisher *sees* the
 subscriptions the proxy forwards (the proxy's XPUB is verbose): that gives
 ``wait_for_subscriber`` (no slow-joiner loss without sleeping) and ``on_subscribe`` (latching).
-``sync`` (contract 9) publishes a probe on ``/_echoloop/sync/<pid>_<n>`` until a socket of
-its own subscribed to that topic receives it: the proxy forwarded that subscription to this
-publisher after every subscription it held before (one ordered pipe), so those are in effect
-too. Probes are well-formed bus messages (type ``echoloop/TransportSync``, empty payload);
-echoloop endpoints never deliver a topic under ``/_echoloop/`` (nor report subscriptions to it).
+``sync`` (contract 9) subscribes a unique mark under ``/_echoloop/sync/`` on a socket of its
+own and on every lane, and waits until its own publish socket sees each of them forwarded by the
+proxy (verbose XPUB: every subscription reaches every publisher, this endpoint's included).
+Each pipe keeps order, so by then every earlier subscription of every lane is at the proxy and
+forwarded to every publisher connected to it, and the publish socket holds every subscription
+the proxy held when it connected. The marks are dropped afterwards; echoloop endpoints never
+report subscriptions under ``/_echoloop/`` (nothing is published there).
 A full queue drops (ZeroMQ HWM semantics) and never blocks the publisher; the receiving node
 counts the loss from publisher ``seq`` gaps.
 
@@ -50,7 +52,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
-import msgpack
 import zmq
 
 from hil_bridge.bus.transport.base import Frames, Transport
@@ -65,11 +66,11 @@ _WAKE_IDS = itertools.count()
 _POLL_EVERY = 16
 #: a lane operation besides SUBSCRIBE / UNSUBSCRIBE: re-make the socket (drop its backlog)
 _RESET = -1
-#: topics under this prefix are the transport's own (sync probes): never delivered
+#: subscriptions under this prefix are the transport's own (sync marks): never reported
 _OWN_TOPICS = b"/_echoloop/"
 _SYNC_IDS = itertools.count()
-#: how long a sync waits for its probe before publishing it again (milliseconds)
-_SYNC_RETRY_MS = 2
+#: how long a sync waits for subscription events at a time (seconds)
+_SYNC_POLL_S = 0.005
 _KNOWN_OPTIONS = ("curve_client", "curve_server", "hwm", "sub")
 
 
@@ -162,6 +163,9 @@ class ZmqTransport(Transport):
         self._closing = False
         self._wake_flag = False
         self._pending: list[tuple[int, bytes, bytes]] = []
+        #: the marks of the syncs under way, and those the publish socket has seen
+        self._sync_want: set[bytes] = set()
+        self._own_seen: set[bytes] = set()
         #: one SUB socket per lane (its own queue) with the prefixes it subscribes, and the
         #: sockets known to hold messages, served in turn
         self._lanes: dict[bytes, zmq.Socket[bytes]] = {}
@@ -210,7 +214,11 @@ class ZmqTransport(Transport):
                 if msg[:1] == b"\x01":
                     events.append(msg[1:])
         for prefix in events:
-            if not prefix.startswith(_OWN_TOPICS):
+            if prefix.startswith(_OWN_TOPICS):
+                with self._remote_cond:
+                    if prefix in self._sync_want:
+                        self._own_seen.add(prefix)
+            else:
                 self._remote_subscribed(prefix)
         if not events and timeout > 0.002:
             with self._remote_cond:
@@ -218,22 +226,34 @@ class ZmqTransport(Transport):
 
     def _sync(self, timeout: float) -> bool:
         n = next(_SYNC_IDS)
-        topic = b"%ssync/%d_%d\0" % (_OWN_TOPICS, os.getpid(), n)
-        header = msgpack.packb({"type": "echoloop/TransportSync", "v": 1, "seq": n,
-                                "stamp_ns": 0, "pub_ns": time.monotonic_ns(), "frame_id": ""})
-        frames = [topic, header, msgpack.packb({})]
-        probe = self._open_lane([topic])
+        base = b"%ssync/%d_%d" % (_OWN_TOPICS, os.getpid(), n)
+        with self._rx_lock:
+            lanes = list(self._lane_prefixes)
+        marks = {lane: base + b"/%d\0" % i for i, lane in enumerate(lanes)}
+        want = {base + b"\0", *marks.values()}
+        with self._remote_cond:
+            self._sync_want |= want
+        probe = self._open_lane([base + b"\0"])  # for this endpoint's publish socket
+        for lane, mark in marks.items():
+            self._lane_op(zmq.SUBSCRIBE, mark, lane)
         try:
             deadline = time.monotonic() + timeout
             while not self._closed:
-                self._send(frames)
-                if probe.poll(_SYNC_RETRY_MS):
-                    return True
+                with self._remote_cond:
+                    if want <= self._own_seen:
+                        return True
                 if time.monotonic() >= deadline:
                     break
+                self._service(_SYNC_POLL_S)
             return False
         finally:
             probe.close(0)
+            if not self._closed:
+                for lane, mark in marks.items():
+                    self._lane_op(zmq.UNSUBSCRIBE, mark, lane)
+            with self._remote_cond:
+                self._own_seen -= want
+                self._sync_want -= want
 
     # -- receiving --------------------------------------------------------------------------
     def _open_lane(self, prefixes: list[bytes]) -> zmq.Socket[bytes]:
@@ -268,6 +288,8 @@ class ZmqTransport(Transport):
                     sock.setsockopt(zmq.SUBSCRIBE, prefix)
                     continue
             elif op == zmq.UNSUBSCRIBE:
+                if prefix not in prefixes:  # a sync mark of a lane that went meanwhile
+                    continue
                 prefixes.remove(prefix)
                 if prefixes:
                     self._lanes[lane].setsockopt(zmq.UNSUBSCRIBE, prefix)
@@ -291,8 +313,11 @@ class ZmqTransport(Transport):
         self._queue_op(_RESET, prefix)
 
     def _queue_op(self, op: int, prefix: bytes) -> None:
+        self._lane_op(op, prefix, self._lane_of[prefix])
+
+    def _lane_op(self, op: int, prefix: bytes, lane: bytes) -> None:
         with self._rx_lock:
-            self._pending.append((op, prefix, self._lane_of[prefix]))
+            self._pending.append((op, prefix, lane))
             if self._in_recv:
                 self._poke()
             else:
@@ -340,8 +365,6 @@ class ZmqTransport(Transport):
                 frames.append(frame.bytes)
             rotation.append(sock)
             self._since_poll += 1
-            if frames[0].startswith(_OWN_TOPICS):
-                continue
             return frames
         return None
 

@@ -179,6 +179,21 @@ def test_a_synced_newcomer_loses_nothing_and_probes_stay_inside(bus_url: str) ->
         assert seen == []
 
 
+def test_a_synced_subscriber_gets_what_a_publisher_synced_after_it_sends(bus_url: str) -> None:
+    """Contract 9, the subscribing side: twenty subscribers, each synced once subscribed, get
+    the one message a publisher connected long before sends as soon as it synced in turn."""
+    with open_transport(bus_url) as pub:
+        assert pub.sync(timeout=10.0)
+        for i in range(20):
+            with open_transport(bus_url) as sub:
+                sub.subscribe(b"/y\0")
+                sub.subscribe(b"/z\0", lane=b"other")
+                assert sub.sync(timeout=10.0) and pub.sync(timeout=10.0)
+                pub.publish(_clock("/z", i))
+                got = sub.recv(timeout=10.0)
+                assert got is not None and decode(got).header.stamp_ns == i * 10
+
+
 def test_sync_open_syncs_every_open_transport_of_the_process(bus_url: str) -> None:
     from hil_bridge.bus.transport import sync_open
 
