@@ -84,6 +84,8 @@ class LockstepGate:
         self._echo_done_at: dict[int, float] = {}
         self._heard: set[_Key] = set()
         self._freewheel: set[_Key] = set()
+        #: stalls per participant ("glider 3", "sonar 0")
+        self._stalls_by: dict[str, int] = {}
         self._in_a_row: dict[_Key, int] = {}
         self.counters = {"stalls": 0, "stalled_steps": 0, "lockstep_released": 0,
                          "lockstep_resends": 0, "pings_ignored": 0}
@@ -203,6 +205,9 @@ class LockstepGate:
             if stalled:
                 self.counters["stalled_steps"] += 1
                 self.counters["stalls"] += len(stalled)
+                for kind, ident in stalled:
+                    name = f"{kind} {ident}"
+                    self._stalls_by[name] = self._stalls_by.get(name, 0) + 1
             for key in stalled:
                 n = self._in_a_row.get(key, 0) + 1
                 self._in_a_row[key] = n
@@ -215,10 +220,13 @@ class LockstepGate:
     # ------------------------------------------------------------------ report
 
     def stats(self) -> dict[str, Any]:
-        """Counters plus ``freewheeling`` (glider ids) and ``sonars_freewheeling``."""
+        """Counters plus ``freewheeling`` (glider ids), ``sonars_freewheeling`` and
+        ``stalls_by`` (stalls per participant, ``"glider 3"``, ``"sonar 0"``: who held the loop
+        up)."""
         with self._cond:
             out: dict[str, Any] = dict(self.counters)
             out["freewheeling"] = sorted(k[1] for k in self._freewheel if k[0] == "glider")
             out["sonars_freewheeling"] = sorted(k[1] for k in self._freewheel if k[0] == "sonar")
             out["lockstep_sonars"] = sorted(self._holds)
+            out["stalls_by"] = dict(sorted(self._stalls_by.items()))
         return out

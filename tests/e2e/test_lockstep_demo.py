@@ -98,10 +98,11 @@ def test_lockstep_demo_twice_gives_identical_states_pings_and_echoes(tmp_path: P
         server = summary.nodes["server"]
         assert server["clock_mode"] == "lockstep" and server["tick_error"] == ""
         lockstep = {k: v for k, v in server.items() if k.startswith(
-            ("stall", "lockstep", "freewheel", "sonars_free", "ticks", "sim_time", "ping"))}
+            ("stall", "lockstep", "freewheel", "sonars_free", "ticks", "sim_time", "ping", "cmd"))}
         assert server["stalls"] == 0, (f"{lockstep} wall {summary.wall_s:.1f} s; head "
                                        f"{summary.nodes['sonar_head_mock']}; adapter "
-                                       f"{summary.nodes['sonar_head']}")
+                                       f"{summary.nodes['sonar_head']}; server topics "
+                                       f"{server.get('topics')}")
         assert summary.nodes["sonar_head_mock"]["lockstep_starts"] == 1
         assert summary.exit_status == 0, summary.failures
     common = sorted(set(a["states"]) & set(b["states"]))

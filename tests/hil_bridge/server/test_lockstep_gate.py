@@ -51,6 +51,7 @@ def test_dead_gliders_owe_nothing_and_silent_ones_stall_then_are_released() -> N
     assert gate.stats()["freewheeling"] == []
     gate.wait(0, physics_due=True)
     assert gate.stats()["stalls"] == 4
+    assert gate.stats()["stalls_by"] == {"glider 3": 4}  # who held the loop up
 
 
 def test_a_participant_not_heard_yet_gets_the_start_timeout() -> None:
