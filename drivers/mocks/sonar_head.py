@@ -15,8 +15,10 @@
    beamwidth rng re-seeded, pings in flight forgotten), so it does not depend on how many pings
    the head fired on its own clock before; then ping ``n`` goes at ``n`` ping periods of sim
    time, its PING frame stamped with that time, and ping ``n + 1`` only once the echo of ping
-   ``n`` is complete (or ``echo_timeout_s`` of wall time passed: counted in
-   ``echo_timeouts``), as the echo of a real ping returns before the next one;
+   ``n`` is complete, as the echo of a real ping returns before the next one. A ping whose echo
+   has not come within ``echo_timeout_s`` of wall time (counted in ``echo_timeouts``) is fired
+   again, the same frame content (seq, stamp, beam; ``pings_refired``): the host's loop waits
+   for that ping, so one lost on the way (a corrupt frame, a lost message) must not hold it up;
 3. throttles both directions to ``baudrate`` (10 bits per byte, 8N1) — ptys and pipes move
    bytes instantly, a UART does not — so latencies are those of the real link;
 4. decodes and reassembles ECHO chunks (CRC, order, completeness, encoding = the one the ping
@@ -131,6 +133,8 @@ class MockSonarHead:
         self._next_ping_ns: int | None = None
         self._period_ns = ping_period_ns(round(self.cfg.rate_hz * 1000))
         self._echo_wait_until: float | None = None
+        #: the last sim-time ping (seq, payload, stamp), fired again if its echo times out
+        self._last_ping: tuple[int, bytes, int] | None = None
         self._echo_done = threading.Condition(self._lock)
         self.last_status: StatusPayload | None = None
         self.last_error: ErrorPayload | None = None
@@ -201,17 +205,18 @@ class MockSonarHead:
                                             timeout)
 
     def stats(self) -> dict[str, Any]:
-        """Counters. Every ping sent has exactly one outcome, so ``pings_sent`` =
-        ``echoes_complete`` (its echo arrived whole in time) + ``echoes_incomplete`` (its echo
-        was abandoned part way) + ``echo_timeouts`` (nothing whole within ``echo_timeout_s``)
-        + ``pings_in_flight``. ``echoes_late`` (whole, after the timeout),
-        ``echoes_unsolicited`` and the reassembler's raw ``assembled_*`` counts are extra."""
+        """Counters. Every ping sent, and every one fired again, has exactly one outcome, so
+        ``pings_sent`` + ``pings_refired`` = ``echoes_complete`` (its echo arrived whole in
+        time) + ``echoes_incomplete`` (its echo was abandoned part way) + ``echo_timeouts``
+        (nothing whole within ``echo_timeout_s``) + ``pings_in_flight``. ``echoes_late``
+        (whole, after the timeout), ``echoes_unsolicited`` and the reassembler's raw
+        ``assembled_*`` counts are extra."""
         with self._lock:
             lat = np.asarray(self._latencies, dtype=np.float64)
             last_range = self.ranges[-1] if self.ranges else None
             out: dict[str, Any] = dict.fromkeys(
-                ("pings_sent", "echoes_complete", "echoes_incomplete", "echo_timeouts",
-                 "echoes_late"), 0)
+                ("pings_sent", "pings_refired", "echoes_complete", "echoes_incomplete",
+                 "echo_timeouts", "echoes_late"), 0)
             out.update(self._counts)
             out["pings_in_flight"] = len(self._pending)
             out["assembled_complete"] = self._assembler.complete
@@ -303,6 +308,7 @@ class MockSonarHead:
             self._ping_seq = 0
             self._rng = make_rng(self.cfg.seed)
             self._pending.clear()
+            self._last_ping = None
             self._next_ping_ns = None
             self._echo_wait_until = None
             self._counts["lockstep_starts"] += 1
@@ -310,6 +316,7 @@ class MockSonarHead:
     def _lockstep_ping(self, now: float) -> float:
         """Fire the ping due at the host's sim time, if the last echo is in; return when to
         look again (wall, monotonic s) without a wake-up."""
+        refire = None
         with self._lock:
             host_ns, due = self._host_ns, self._next_ping_ns
             waiting = self._echo_wait_until
@@ -317,7 +324,15 @@ class MockSonarHead:
                 if self._pending:
                     self._counts["echo_timeouts"] += len(self._pending)
                     self._pending.clear()
+                    refire = self._last_ping
                 waiting = self._echo_wait_until = None
+            if refire is not None:
+                self._pending[refire[0]] = (now, self.encoding)
+                self._counts["pings_refired"] += 1
+                self._echo_wait_until = now + self.cfg.echo_timeout_s
+        if refire is not None:
+            self._send(MsgType.PING, refire[1], refire[2])
+            return now
         if host_ns < 0:
             return now + 1.0
         if due is None:
@@ -337,10 +352,13 @@ class MockSonarHead:
         self._ping_seq = (seq + 1) & 0xFFFF
         ping = PingPayload(seq, math.radians(self.cfg.az_deg), math.radians(self.cfg.el_deg),
                            self._beamwidth_rad(), self.encoding)
+        payload = ping.pack()
         with self._lock:
             self._pending[seq] = (t_fire, self.encoding)
             self._counts["pings_sent"] += 1
-        self._send(MsgType.PING, ping.pack(), stamp_ns)
+            if stamp_ns is not None:
+                self._last_ping = (seq, payload, stamp_ns)
+        self._send(MsgType.PING, payload, stamp_ns)
 
     def _expire(self, now: float) -> None:
         with self._lock:

@@ -95,8 +95,9 @@ def test_faulty_link_drops_counts_and_keeps_running(tmp_path: Path) -> None:
     # corrupted ECHO chunks make incomplete echoes, never wrong ones
     assert ms["echoes_incomplete"] + ms["echo_timeouts"] > 0
     # every ping has exactly one outcome: the summary's counts add up
-    assert ms["pings_sent"] == (ms["echoes_complete"] + ms["echoes_incomplete"]
-                                + ms["echo_timeouts"] + ms["pings_in_flight"]), ms
+    assert ms["pings_sent"] + ms["pings_refired"] == (
+        ms["echoes_complete"] + ms["echoes_incomplete"] + ms["echo_timeouts"]
+        + ms["pings_in_flight"]), ms
     # the head reports abandoned echoes back in ERROR frames (some survive the faults)
     assert ms.get("errors_tx", 0) > 0 and host.counts["errors_in"] > 0
     assert ms["last_range_m"] == pytest.approx(340 * 800 / 400000 / 2)

@@ -118,3 +118,38 @@ def test_adapter_forwards_clock_and_stamps_pings_with_sim_time(tmp_path: Path) -
     lockstep = [p for p in got if p.next_ns >= 0]
     assert [(p.ping_seq, p.stamp_ns, p.next_ns) for p in lockstep] == [
         (k, k * PERIOD_NS, (k + 1) * PERIOD_NS) for k in range(4)]
+
+
+def test_a_lockstep_ping_whose_echo_does_not_come_is_fired_again_the_same(
+        tmp_path: Path) -> None:
+    """The host's loop waits for a sim-time ping: one lost on the way must not hold it up."""
+    mock = MockSonarHead("mock", pty=True, link=str(tmp_path / "head"), rate_hz=5,
+                         encoding="int16", seed=7, throttle=False, echo_timeout_s=0.3)
+    pings: list[tuple[PingPayload, Frame]] = []
+    lock = threading.Lock()
+
+    def on_ping(ping: PingPayload, frame: Frame) -> None:
+        with lock:
+            if frame.stamp_ns <= 3 * PERIOD_NS:
+                pings.append((ping, frame))
+
+    mock.start()
+    host = SonarHeadHost(str(tmp_path / "head"), on_ping=on_ping)
+    host.start()
+    try:
+        assert host.link.wait_connected(5.0)
+        host.send_heartbeat(stamp_ns=0, lockstep=True)
+        assert wait_until(lambda: len(pings) >= 2)  # ping 0, unanswered, then ping 0 again
+        host.send_echo(0, np.zeros(400, np.float32), 400e3)
+        assert wait_until(lambda: mock.stats()["echoes_complete"] == 1)
+        host.send_heartbeat(stamp_ns=PERIOD_NS, lockstep=True)
+        assert wait_until(lambda: any(p.ping_seq == 1 for p, _ in pings))
+    finally:
+        host.stop()
+        mock.stop()
+    first, again = pings[0], pings[1]
+    assert (first[0], first[1].stamp_ns) == (again[0], again[1].stamp_ns)  # seq, beam, stamp
+    assert first[0].ping_seq == 0 and first[1].stamp_ns == 0
+    st = mock.stats()
+    assert st["pings_refired"] >= 1 and st["echo_timeouts"] == st["pings_refired"]
+    assert st["echoes_complete"] == 1 and st["lockstep_starts"] == 1
