@@ -261,24 +261,31 @@ def _takes(cls: type, param: str) -> bool:
         return False
 
 
+def _embeds_proxy(cls: type, params: Mapping[str, Any]) -> bool:
+    """Whether a node of ``cls`` with ``params`` would run the bus's proxy in its process: its
+    class says it can (``EMBEDS_PROXY = True``, e.g. the simulation server) and its params do
+    not set ``embed_proxy`` false."""
+    return bool(getattr(cls, "EMBEDS_PROXY", False)) and bool(params.get("embed_proxy", True))
+
+
 def node_params(node: NodeSpec, cls: type, *, overwrite: bool) -> dict[str, Any]:
     """``node``'s params as its constructor (``cls``) gets them: with ``overwrite``, nodes that
     take an ``overwrite`` parameter (those that write files) get ``overwrite=True`` unless their
-    params set it; nodes that take ``embed_proxy`` get ``embed_proxy=False`` (the launch runs
-    the proxy, :func:`launch_proxy`)."""
+    params set it; a node that would embed the bus's proxy gets ``embed_proxy=False`` (the
+    launch runs the proxy, :func:`launch_proxy`)."""
     params = dict(node.params)
     if overwrite and "overwrite" not in params and _takes(cls, "overwrite"):
         params["overwrite"] = True
-    if params.get("embed_proxy", True) and _takes(cls, "embed_proxy"):
+    if _embeds_proxy(cls, params):
         params["embed_proxy"] = False
     return params
 
 
 def launch_proxy(spec: LaunchSpec) -> bool:
-    """Whether the launch runs its bus's proxy: a node would embed one (its constructor takes
-    ``embed_proxy`` and its params do not set it false, e.g. the simulation server). The launch
-    then starts the proxy before anything else and stops it last, so the bus outlives any
-    node; such nodes get ``embed_proxy=False``."""
-    return any(node.params.get("embed_proxy", True) and _takes(
-        resolve_entry(node.entry, where=f"nodes[{i}].entry", allow_modules=spec.allow_modules),
-        "embed_proxy") for i, node in enumerate(spec.nodes))
+    """Whether the launch runs its bus's proxy: a node would embed one (``EMBEDS_PROXY``, and
+    its params do not set ``embed_proxy`` false: the simulation server). The launch then starts
+    the proxy before anything else and stops it last, so the bus outlives any node; such nodes
+    get ``embed_proxy=False``."""
+    return any(_embeds_proxy(resolve_entry(node.entry, where=f"nodes[{i}].entry",
+                                           allow_modules=spec.allow_modules), node.params)
+               for i, node in enumerate(spec.nodes))

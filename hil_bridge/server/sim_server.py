@@ -76,7 +76,7 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
@@ -177,6 +177,10 @@ class SimServer:
     docstring, "Echoes").
     ``echo_worker``, ``echo_workers``, ``echo_deadlines``: see the module docstring.
     """
+
+    #: ``embed_proxy`` (default true) runs the bus's proxy in this node's process; a launch
+    #: runs it itself instead (:func:`hil_bridge.launch.spec.launch_proxy`)
+    EMBEDS_PROXY: ClassVar[bool] = True
 
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
         self.name = name

@@ -176,3 +176,17 @@ def test_allow_modules_and_allow_module_let_a_listed_module_in(tmp_path: Path) -
                                  "nodes": [node, {"name": "y", "entry": "evil:Node"}]})
     assert proc.returncode == 1 and "'evil' is not allowed" in proc.stderr
     assert not (tmp_path / "imported.marker").exists()
+
+
+def test_the_launch_runs_the_proxy_a_server_would_embed() -> None:
+    from hil_bridge.launch.spec import launch_proxy, node_params, resolve_entry
+    from hil_bridge.server import SimServer
+
+    spec = load(ROOT / "launch" / "demo.yaml")
+    assert launch_proxy(spec)
+    server = spec.nodes[0]
+    assert resolve_entry(server.entry) is SimServer
+    assert node_params(server, SimServer, overwrite=False)["embed_proxy"] is False
+    external = load(ROOT / "launch" / "demo.yaml",
+                    params_overrides=parse_param_overrides(["server.embed_proxy=false"]))
+    assert not launch_proxy(external)  # the bus's proxy is someone else's
