@@ -206,10 +206,16 @@ class ContainerProcess:
             conn = self._conn
             if conn is None or not self.alive():
                 raise NodeStartError(f"{self._what()} is not running ({self._exit_text()})")
-            conn.send((kind, name))
-            if not conn.poll(timeout):
-                raise TimeoutError(f"{name}: no answer to {kind}() within {timeout:g} s")
-            answer, detail = conn.recv()
+            try:  # the host may die between the question and its answer
+                conn.send((kind, name))
+                ready = conn.poll(timeout)
+                answer, detail = conn.recv() if ready else (None, None)
+            except (EOFError, OSError):
+                self._reap()
+                raise NodeStartError(f"{self._what()} died while asked for {kind}() "
+                                     f"({self._exit_text()}){self._tail_text()}") from None
+        if not ready:
+            raise TimeoutError(f"{name}: no answer to {kind}() within {timeout:g} s")
         if answer == "error":
             raise HilError(f"{name}: {detail}")
         return detail
@@ -232,11 +238,14 @@ class ContainerProcess:
         dead = self.died()
         if dead is not None:
             return dead
-        with contextlib.suppress(TimeoutError):
+        try:
             answer: str | None = self._ask("final_failure" if final else "failure", name,
                                            timeout=5.0)
-            return answer
-        return None
+        except TimeoutError:
+            return None
+        except NodeStartError as exc:  # it died while asked: why it died
+            return self.died() or str(exc)
+        return answer
 
     def stop_node(self, name: str) -> None:
         if name in self._stopped:

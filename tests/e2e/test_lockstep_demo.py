@@ -9,7 +9,8 @@ loaded 2-core machine can be descheduled for a second, so that run waits up to 1
 of different (wall) lengths must agree wherever both have data: every glider state at every
 common stamp, every sim-time ping and every echo, bit for bit. Each run ends at a sim time (a
 watcher on the bus stops it), so a loaded machine shortens nothing: the sonar vehicle first has
-leaves in its beam from the ping at 5.2 s.
+leaves in its beam from the ping at 5.2 s. Every ping the adapter publishes reaches the
+server (the launch's proxy is up before any node and every endpoint syncs before it starts).
 """
 
 from __future__ import annotations
@@ -104,6 +105,9 @@ def test_lockstep_demo_twice_gives_identical_states_pings_and_echoes(tmp_path: P
                                        f"{summary.nodes['sonar_head']}; server topics "
                                        f"{server.get('topics')}")
         assert summary.nodes["sonar_head_mock"]["lockstep_starts"] == 1
+        # the bus lost nothing: every ping the adapter published reached the server
+        published = summary.nodes["sonar_head"]["topics"]["/sonar/0/ping"]["sent"]
+        assert server["pings_received"] == published, (server["pings_received"], published)
         assert summary.exit_status == 0, summary.failures
     common = sorted(set(a["states"]) & set(b["states"]))
     assert len(common) >= 9 * 50
