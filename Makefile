@@ -11,7 +11,7 @@ NOAVX512 := X86_V4 AVX512_ICL AVX512_SKX AVX512F AVX512CD AVX512_SPR AVX512_CNL 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[test,ros2]'
 	$(PY) -c 'import sim_core.soaring as s, sim_core.world.ball as b; s.warm_up(); b.warm_up()'  # compile the kernels once
 	touch $(STAMP)
 
@@ -30,7 +30,7 @@ bench: $(STAMP)
 	$(PY) -m bench
 
 lint: $(STAMP)
-	$(PY) -m ruff check sim_core hil_bridge drivers tests bench
+	$(PY) -m ruff check sim_core hil_bridge drivers ros2_bridge tests bench
 	$(PY) -m mypy
 	$(VENV)/bin/lint-imports --no-cache
 

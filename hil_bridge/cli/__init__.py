@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bag": ("hil_bridge.cli.bag", "record|play|info|export MCAP recordings"),
     "replay": ("hil_bridge.cli.replay", "drive a vehicle along a logged trajectory"),
     "mock": ("drivers.cli", "run a device mock: sonar-head | autopilot"),
+    "ros2": ("ros2_bridge.cli", "bridge|mapping: the live ROS 2 bridge (extra 'ros2')"),
 }
 
 

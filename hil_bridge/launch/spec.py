@@ -3,7 +3,7 @@
 A launch file is plain data (no substitutions, conditions or event handlers)::
 
     bus: mem://demo              # optional; default the domain's (hil_bridge.bus.domain)
-    allow_modules: [my_lab.nodes]   # optional; entries outside hil_bridge/drivers/sim_core
+    allow_modules: [my_lab.nodes]   # optional; entries outside the project packages
     duration: 20                 # optional default run time in seconds (CLI --duration wins)
     record: out/run.mcap         # optional MCAP recording of every topic (CLI --record wins)
     nodes:
@@ -18,8 +18,8 @@ It is validated once, at load, into :class:`LaunchSpec` (unknown keys raise a
 :class:`~sim_core.config.ConfigError` naming the key; every ``entry`` must import and name a
 class with ``start``, ``stop`` and ``stats``). **A launch file runs code**: importing an entry
 runs its module. Entries may come only from the project's packages (the installed
-``hil_bridge``, ``drivers``, ``sim_core``) and from modules listed under ``allow_modules:`` (or
-``--allow-module``), and every entry is checked against that list before the first import
+``hil_bridge``, ``drivers``, ``ros2_bridge``, ``sim_core``) and from modules listed under
+``allow_modules:`` (or ``--allow-module``), and every entry is checked against that list before the first import
 (:func:`check_entry_module`). :func:`node_params` gives the params a node is constructed
 with; :mod:`hil_bridge.launch.runner` runs a spec.
 """
@@ -121,7 +121,7 @@ class LaunchSpec:
 
 
 #: the project's own packages: launch entries may always come from these
-PROJECT_PACKAGES = ("hil_bridge", "drivers", "sim_core")
+PROJECT_PACKAGES = ("hil_bridge", "drivers", "ros2_bridge", "sim_core")
 _PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
 

@@ -1,0 +1,286 @@
+"""Bus messages as ROS 2 messages, and ROS 2 commands as bus messages (docs/ros2.md).
+
+Frames (REP 103, REP 105): the world is ENU, frame :attr:`Converter.world_frame` (``map``);
+glider ``<id>``'s body frame is ``glider_<id>`` (FLU); sonar ``<id>``'s frame at emission is
+``sonar_<id>`` (x along the beam's axis). Every header stamp is sim time (``use_sim_time``).
+
+- ``Odometry``: pose of ``glider_<id>`` in the world; twist in the body frame (REP 105), linear
+  from airspeed along the heading plus ``vz``, angular the state's body rates.
+- ``Imu``: orientation, body rates and specific force in the body frame (the change of the
+  world velocity between two states of the glider, minus gravity); the first state of a glider
+  has no acceleration (``linear_acceleration_covariance[0] = -1``, as ``sensor_msgs`` says).
+- ``Image`` (the echo): ``32FC1``, one row per channel (ear), one column per sample, stamped at
+  the ping's emission, frame ``sonar_<id>``; ``echo_info`` (``DiagnosticArray``, the same stamp)
+  carries ``fs_hz`` and the rest of the echo's fields; ``PoseStamped`` the sonar's pose then.
+- Commands: ``Float64MultiArray`` ``data = [bank_rad, airspeed_mps]`` (bank with the bus's sign).
+
+A converter keeps one message per ROS 2 topic for the types published at state rate and fills
+it in place (``publish`` serialises at once), so a state costs no allocation of nested messages.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from builtin_interfaces.msg import Duration, Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Pose, PoseStamped, Vector3
+from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock as RosClock
+from sensor_msgs.msg import Image, Imu, PointCloud2, PointField
+from std_msgs.msg import ColorRGBA, Float64MultiArray
+from visualization_msgs.msg import Marker, MarkerArray
+
+from hil_bridge.bus.messages import (
+    Clock,
+    Diagnostics,
+    GliderCmd,
+    GliderState,
+    Message,
+    PointCloud,
+    SonarEcho,
+    ThermalMarkers,
+    state_quaternion,
+)
+from hil_bridge.recording.export.common import sonar_pose
+from sim_core.pose import quat_between, quat_conjugate, quat_rotate
+
+__all__ = ["ROS_TYPES", "CommandError", "Converter", "G", "command_from_ros"]
+
+#: standard gravity (m/s^2): specific force = acceleration + G up
+G = 9.80665
+#: ROS 2 type name -> class, for every type the bridge publishes or subscribes
+ROS_TYPES: dict[str, type] = {
+    "rosgraph_msgs/msg/Clock": RosClock,
+    "nav_msgs/msg/Odometry": Odometry,
+    "sensor_msgs/msg/Imu": Imu,
+    "sensor_msgs/msg/Image": Image,
+    "sensor_msgs/msg/PointCloud2": PointCloud2,
+    "geometry_msgs/msg/PoseStamped": PoseStamped,
+    "visualization_msgs/msg/MarkerArray": MarkerArray,
+    "diagnostic_msgs/msg/DiagnosticArray": DiagnosticArray,
+    "std_msgs/msg/Float64MultiArray": Float64MultiArray,
+}
+#: height of a thermal's cylinder and length of a beam's arrow (m)
+THERMAL_HEIGHT_M = 200.0
+BEAM_LENGTH_M = 3.0
+
+
+class CommandError(ValueError):
+    """A ROS 2 command the bus cannot carry (wrong length)."""
+
+
+def command_from_ros(msg: Float64MultiArray, *, glider_id: int, stamp_ns: int,
+                     step: int) -> GliderCmd:
+    """The bus command of ``msg`` (``data = [bank_rad, airspeed_mps]``); ``CommandError``
+    when ``data`` does not hold exactly two numbers. Non-finite values are passed on: the
+    server rejects them and holds the last good command, as it does a CAN autopilot's."""
+    data = list(msg.data)
+    if len(data) != 2:
+        raise CommandError(f"expected data = [bank_rad, airspeed_mps], got {len(data)} values")
+    return GliderCmd(stamp_ns=stamp_ns, bank_cmd=float(data[0]), airspeed_cmd=float(data[1]),
+                     glider_id=glider_id, step=step)
+
+
+def _set_time(t: Any, ns: int) -> None:
+    t.sec, t.nanosec = divmod(max(0, int(ns)), 1_000_000_000)
+
+
+def _time(ns: int) -> Time:
+    t = Time()
+    _set_time(t, ns)
+    return t
+
+
+def _set_xyz(v: Any, x: float, y: float, z: float) -> None:
+    v.x, v.y, v.z = float(x), float(y), float(z)
+
+
+def _set_quat(o: Any, q: Any) -> None:
+    o.w, o.x, o.y, o.z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+
+
+def _finite(v: float) -> float:
+    return float(v) if math.isfinite(v) else 0.0
+
+
+def _pose(position: Any, q: Any) -> Pose:
+    pose = Pose()
+    _set_xyz(pose.position, *position)
+    _set_quat(pose.orientation, q)
+    return pose
+
+
+class Converter:
+    """Bus → ROS 2 conversions for one bridge (module docstring). ``convert(ros_type, ident,
+    msg, ros_topic)`` returns the ROS 2 message, or None when ``msg`` does not carry what the
+    type needs (an echo whose pose is unknown, for its pose)."""
+
+    def __init__(self, world_frame: str = "map") -> None:
+        self.world_frame = world_frame
+        self._kept: dict[tuple[str, str], Any] = {}
+        self._last_v: dict[str, tuple[int, Any]] = {}
+
+    def convert(self, ros_type: str, ident: str, msg: Message, ros_topic: str) -> Any:
+        if isinstance(msg, GliderState):
+            return self._state(ros_type, ident or str(msg.glider_id), msg, ros_topic)
+        if isinstance(msg, SonarEcho):
+            return self._echo(ros_type, ident or str(msg.sonar_id), msg)
+        if isinstance(msg, Clock) and ros_type == "rosgraph_msgs/msg/Clock":
+            return RosClock(clock=_time(msg.stamp_ns))
+        if isinstance(msg, PointCloud) and ros_type == "sensor_msgs/msg/PointCloud2":
+            return self._cloud(msg)
+        if isinstance(msg, ThermalMarkers) and ros_type == "visualization_msgs/msg/MarkerArray":
+            return self._thermals(msg)
+        if isinstance(msg, Diagnostics) and ros_type == "diagnostic_msgs/msg/DiagnosticArray":
+            status = DiagnosticStatus(level=DiagnosticStatus.OK, name=msg.node,
+                                      hardware_id=msg.node, message="counters")
+            status.values = [KeyValue(key=k, value=repr(v)) for k, v in msg.counters.items()]
+            array = DiagnosticArray(status=[status])
+            _set_time(array.header.stamp, msg.stamp_ns)
+            return array
+        raise TypeError(f"no conversion of {type(msg).TYPE} to {ros_type}")
+
+    def _kept_msg(self, ros_topic: str, cls: type) -> Any:
+        msg = self._kept.get((ros_topic, cls.__name__))
+        if msg is None:
+            msg = self._kept[(ros_topic, cls.__name__)] = cls()
+        return msg
+
+    # ------------------------------------------------------------------ states
+
+    def _state(self, ros_type: str, gid: str, st: GliderState, ros_topic: str) -> Any:
+        q = state_quaternion(st)
+        child = f"glider_{gid}"
+        if ros_type == "nav_msgs/msg/Odometry":
+            odom = self._kept_msg(ros_topic, Odometry)
+            _set_time(odom.header.stamp, st.stamp_ns)
+            odom.header.frame_id, odom.child_frame_id = self.world_frame, child
+            _set_xyz(odom.pose.pose.position, st.x, st.y, st.z)
+            _set_quat(odom.pose.pose.orientation, q)
+            body_v = quat_rotate(quat_conjugate(q), self._world_velocity(st))
+            _set_xyz(odom.twist.twist.linear, *body_v)
+            _set_xyz(odom.twist.twist.angular, _finite(st.roll_rate), _finite(st.pitch_rate),
+                     _finite(st.yaw_rate))
+            return odom
+        if ros_type == "sensor_msgs/msg/Imu":
+            return self._imu(gid, st, q, ros_topic)
+        if ros_type == "geometry_msgs/msg/PoseStamped":
+            pose = PoseStamped(pose=_pose((st.x, st.y, st.z), q))
+            _set_time(pose.header.stamp, st.stamp_ns)
+            pose.header.frame_id = self.world_frame
+            return pose
+        if ros_type == "visualization_msgs/msg/MarkerArray":
+            marker = self._marker("gliders", int(gid), Marker.ARROW, st.stamp_ns,
+                                  _pose((st.x, st.y, st.z), q), (3.0, 0.6, 0.6),
+                                  (0.1, 0.5, 0.9, 1.0) if st.alive else (0.5, 0.5, 0.5, 0.6))
+            return MarkerArray(markers=[marker])
+        raise TypeError(f"no conversion of {GliderState.TYPE} to {ros_type}")
+
+    @staticmethod
+    def _world_velocity(st: GliderState) -> Any:
+        return np.array([st.airspeed * math.cos(st.heading), st.airspeed * math.sin(st.heading),
+                         st.vz])
+
+    def _imu(self, gid: str, st: GliderState, q: Any, ros_topic: str) -> Imu:
+        imu = self._kept_msg(ros_topic + "#" + gid, Imu)
+        _set_time(imu.header.stamp, st.stamp_ns)
+        imu.header.frame_id = f"glider_{gid}"
+        _set_quat(imu.orientation, q)
+        _set_xyz(imu.angular_velocity, _finite(st.roll_rate), _finite(st.pitch_rate),
+                 _finite(st.yaw_rate))
+        v = self._world_velocity(st)
+        last = self._last_v.get(ros_topic + "#" + gid)
+        self._last_v[ros_topic + "#" + gid] = (st.stamp_ns, v)
+        if last is None or st.stamp_ns <= last[0]:
+            _set_xyz(imu.linear_acceleration, 0.0, 0.0, 0.0)
+            imu.linear_acceleration_covariance[0] = -1.0
+        else:
+            accel = (v - last[1]) / ((st.stamp_ns - last[0]) * 1e-9)
+            accel[2] += G
+            _set_xyz(imu.linear_acceleration, *quat_rotate(quat_conjugate(q), accel))
+            imu.linear_acceleration_covariance[0] = 0.0
+        return imu
+
+    # ------------------------------------------------------------------ echoes
+
+    def _echo(self, ros_type: str, sid: str, echo: SonarEcho) -> Any:
+        emit_ns = echo.emit_ns if echo.emit_ns > 0 else echo.stamp_ns
+        if ros_type == "sensor_msgs/msg/Image":
+            samples = np.atleast_2d(np.ascontiguousarray(echo.samples, dtype="<f4"))
+            image = Image(height=samples.shape[0], width=samples.shape[1], encoding="32FC1",
+                          is_bigendian=0, step=4 * samples.shape[1])
+            _set_time(image.header.stamp, emit_ns)
+            image.header.frame_id = f"sonar_{sid}"
+            image.data = samples.tobytes()
+            return image
+        if ros_type == "diagnostic_msgs/msg/DiagnosticArray":
+            samples = np.atleast_2d(echo.samples)
+            values = {"fs_hz": echo.fs, "ping_seq": echo.ping_seq,
+                      "channels": samples.shape[0], "samples": samples.shape[1],
+                      "emit_ns": emit_ns, "stamp_ns": echo.stamp_ns,
+                      "leaves_in_beam": echo.leaves_in_beam, "dropped": echo.dropped,
+                      "fidelity": echo.fidelity, "error_bound": echo.error_bound,
+                      "compute_ns": echo.compute_ns}
+            status = DiagnosticStatus(level=DiagnosticStatus.OK, name=f"sonar {sid} echo",
+                                      hardware_id=f"sonar_{sid}", message="echo")
+            status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+            array = DiagnosticArray(status=[status])
+            _set_time(array.header.stamp, emit_ns)
+            return array
+        pose = sonar_pose(echo, None, None)
+        if pose is None:
+            return None
+        if ros_type == "geometry_msgs/msg/PoseStamped":
+            out = PoseStamped(pose=_pose(pose.position, pose.orientation))
+            _set_time(out.header.stamp, emit_ns)
+            out.header.frame_id = self.world_frame
+            return out
+        if ros_type == "visualization_msgs/msg/MarkerArray":
+            q = quat_between([1.0, 0.0, 0.0], pose.boresight)
+            marker = self._marker("beams", int(sid), Marker.ARROW, emit_ns,
+                                  _pose(pose.position, q), (BEAM_LENGTH_M, 0.05, 0.05),
+                                  (0.2, 0.9, 0.3, 0.8))
+            return MarkerArray(markers=[marker])
+        raise TypeError(f"no conversion of {SonarEcho.TYPE} to {ros_type}")
+
+    # ------------------------------------------------------------------ world
+
+    def _cloud(self, pc: PointCloud) -> PointCloud2:
+        n = pc.points.shape[0]
+        packed = np.zeros((n, 4), dtype="<f4")
+        packed[:, :3] = pc.points
+        if pc.intensity.size:
+            packed[:, 3] = pc.intensity
+        fields = [PointField(name=name, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+                  for i, name in enumerate(("x", "y", "z", "intensity"))]
+        cloud = PointCloud2(height=1, width=n, fields=fields, is_bigendian=False, point_step=16,
+                            row_step=16 * n, is_dense=True)
+        _set_time(cloud.header.stamp, pc.stamp_ns)
+        cloud.header.frame_id = self.world_frame
+        cloud.data = packed.tobytes()
+        return cloud
+
+    def _thermals(self, th: ThermalMarkers) -> MarkerArray:
+        markers = []
+        for k in range(len(th.x)):
+            d = 2.0 * float(th.radius[k])
+            marker = self._marker("thermals", k, Marker.CYLINDER, th.stamp_ns,
+                                  _pose((th.x[k], th.y[k], THERMAL_HEIGHT_M / 2),
+                                        (1.0, 0.0, 0.0, 0.0)),
+                                  (d, d, THERMAL_HEIGHT_M), (1.0, 0.55, 0.0, 0.25))
+            marker.text = f"w_max {float(th.w_max[k]):.2f} m/s"
+            markers.append(marker)
+        return MarkerArray(markers=markers)
+
+    def _marker(self, ns: str, ident: int, kind: int, stamp_ns: int, pose: Pose,
+                scale: tuple[float, float, float], rgba: tuple[float, ...]) -> Marker:
+        marker = Marker(ns=ns, id=ident, type=kind, action=Marker.ADD, pose=pose,
+                        scale=Vector3(x=scale[0], y=scale[1], z=scale[2]),
+                        color=ColorRGBA(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+                        lifetime=Duration(sec=0, nanosec=0), frame_locked=False)
+        _set_time(marker.header.stamp, stamp_ns)
+        marker.header.frame_id = self.world_frame
+        return marker
