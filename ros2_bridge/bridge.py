@@ -24,6 +24,11 @@ each glider the first time one of its topics is seen.
   profile :data:`PROFILE` (UDP on 127.0.0.1 only; rmw's own localhost range would add shared
   memory), other ranges get ``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``. ``default`` lets Fast DDS
   choose (shared memory between processes of one host).
+- **Executor.** rclpy's ``EventsExecutor`` serves the ROS 2 side (commands in, QoS and match
+  events): its wait loop runs in C++, so it neither burns nor waits for the interpreter lock
+  the receive threads hold (against the ``SingleThreadedExecutor``, one run each of
+  ``python -m bench ros2``: state latency p50 2.1 → 1.7 ms, ROS 2 command → bus p50 2.7 →
+  1.8 ms).
 - **Shutdown.** The executor stops before the context is shut down; no ROS log files are
   written (``--disable-external-lib-logs``, no ``/rosout``).
 """
@@ -49,6 +54,8 @@ log = logging.getLogger(__name__)
 #: ``discovery`` parameter -> ``ROS_AUTOMATIC_DISCOVERY_RANGE``
 DISCOVERY = {"localhost": "LOCALHOST", "subnet": "SUBNET", "off": "OFF",
              "system_default": "SYSTEM_DEFAULT"}
+#: most bus messages forwarded as one batch
+BATCH = 256
 #: the Fast DDS profile of ``discovery: localhost`` over UDP (loopback only, no shared memory)
 PROFILE = Path(__file__).with_name("fastdds_localhost.xml")
 _COUNTERS = ("bus_received", "bus_decode_errors", "published", "lazy_skipped",
@@ -131,7 +138,7 @@ class Ros2Bridge:
         self._configure_environment()
         try:
             import rclpy
-            from rclpy.executors import SingleThreadedExecutor
+            from rclpy.experimental import EventsExecutor
         except ImportError as exc:
             raise ImportError(f"{self.name}: the ROS 2 bridge needs rclpy: pip install "
                               f"'echoloop[ros2]' (Linux x86-64) ({exc})") from exc
@@ -145,7 +152,7 @@ class Ros2Bridge:
                    domain_id=self.domain_id)
         self._node = rclpy.create_node(self.name, context=self._ctx, enable_rosout=False,
                                        start_parameter_services=False)
-        self._executor = SingleThreadedExecutor(context=self._ctx)
+        self._executor = EventsExecutor(context=self._ctx)
         self._executor.add_node(self._node)
         self._bus_node = Node(self.name, bus=self.bus, diagnostics_period_s=0,
                               faults=self.faults).start()
@@ -313,37 +320,53 @@ class Ros2Bridge:
             return
 
     def _rx_loop(self, transport: Any) -> None:
+        """Receive, then take whatever else is already waiting (at most :data:`BATCH`) and
+        forward it as one batch: the states' frame algebra runs once per batch."""
         from hil_bridge.bus.codec import decode
         from hil_bridge.errors import CodecError, HilError
 
         while not self._stop.is_set():
             try:
                 frames = transport.recv(timeout=0.1)
+                if frames is None:
+                    continue
+                waiting = [frames]
+                while len(waiting) < BATCH:
+                    more = transport.recv(timeout=0)
+                    if more is None:
+                        break
+                    waiting.append(more)
             except HilError:
                 return
-            if frames is None:
-                continue
-            try:
-                envelope = decode(frames)
-            except CodecError:
-                with self._lock:
-                    self._c["bus_decode_errors"] += 1
-                continue
+            batch = []
+            for item in waiting:
+                try:
+                    envelope = decode(item)
+                except CodecError:
+                    with self._lock:
+                        self._c["bus_decode_errors"] += 1
+                    continue
+                batch.append((envelope.topic, envelope.msg))
             with self._lock:
-                self._c["bus_received"] += 1
-            self._forward(envelope.topic, envelope.msg)
+                self._c["bus_received"] += len(batch)
+            self._forward(batch)
 
-    def _forward(self, topic: str, msg: Any) -> None:
-        """Publish bus message ``msg`` of ``topic`` on every ROS 2 topic it maps to."""
+    def _forward(self, batch: list[tuple[str, Any]]) -> None:
+        """Publish each bus message of ``batch`` (topic, message) on every ROS 2 topic it maps
+        to, in order."""
         from hil_bridge.bus.messages import GliderState
 
-        if isinstance(msg, GliderState):
-            self._last_state[topic.rsplit("/", 1)[0]] = (msg.stamp_ns, msg.step)
-        routes = self._routes.get(topic)
-        if routes is None:
-            routes = self._route(topic)
-        for out, ident in routes:
-            self._publish(out, ident, msg)
+        states = [msg for _, msg in batch if isinstance(msg, GliderState)]
+        if states:
+            self._converter.prepare(states)
+        for topic, msg in batch:
+            if isinstance(msg, GliderState):
+                self._last_state[topic.rsplit("/", 1)[0]] = (msg.stamp_ns, msg.step)
+            routes = self._routes.get(topic)
+            if routes is None:
+                routes = self._route(topic)
+            for out, ident in routes:
+                self._publish(out, ident, msg)
 
     def _route(self, topic: str) -> list[tuple[_Out, str]]:
         """The first time ``topic`` is seen: its ROS 2 publishers, and the command

@@ -9,13 +9,17 @@ as YAML, a file to start a mapping of one's own from.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import sys
 
+import yaml
+
 from hil_bridge.cli._args import add_domain_argument, domain_for_run, seconds
-from hil_bridge.cli.launch import announcer, report_failures
+from hil_bridge.cli.launch import _jsonable, announcer, format_summary, report_failures
 from hil_bridge.files.config import parse_override
 from hil_bridge.launch.runner import run
-from ros2_bridge.config import load_mapping
+from ros2_bridge.config import DEFAULT_MAPPING, load_mapping
 from sim_core.config import apply_overrides
 
 ENTRY = "ros2_bridge.bridge:Ros2Bridge"
@@ -47,6 +51,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
     if args.command == "mapping":
+        print(yaml.safe_dump([dataclasses.asdict(m) for m in DEFAULT_MAPPING],
+                             sort_keys=False), end="")
         return 0
     params: dict[str, object] = {}
     if args.mapping is not None:
@@ -61,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
                       on_started=announcer(domain, "echoloop ros2 bridge"), domain=domain,
                       expect=args.expect, processes=False, monitor=False)
     if args.json:
-        pass
+        print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))
     else:
-        pass
+        print(format_summary(summary))
     return report_failures(summary, "echoloop ros2 bridge")

@@ -42,12 +42,12 @@ from hil_bridge.bus.messages import (
     PointCloud,
     SonarEcho,
     ThermalMarkers,
-    state_quaternion,
+    state_quaternions,
 )
 from hil_bridge.recording.export.common import sonar_pose
 from sim_core.pose import quat_between, quat_conjugate, quat_rotate
 
-__all__ = ["ROS_TYPES", "CommandError", "Converter", "G", "command_from_ros"]
+__all__ = ["MAX_TIME_NS", "ROS_TYPES", "CommandError", "Converter", "G", "command_from_ros"]
 
 #: standard gravity (m/s^2): specific force = acceleration + G up
 G = 9.80665
@@ -84,8 +84,13 @@ def command_from_ros(msg: Float64MultiArray, *, glider_id: int, stamp_ns: int,
                      glider_id=glider_id, step=step)
 
 
+#: the latest time a ``builtin_interfaces/Time`` holds (its ``sec`` is an int32), ns
+MAX_TIME_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
+
+
 def _set_time(t: Any, ns: int) -> None:
-    t.sec, t.nanosec = divmod(max(0, int(ns)), 1_000_000_000)
+    """``t`` (a ``Time``) := sim time ``ns``, clamped to ``[0, MAX_TIME_NS]``."""
+    t.sec, t.nanosec = divmod(min(max(0, int(ns)), MAX_TIME_NS), 1_000_000_000)
 
 
 def _time(ns: int) -> Time:
@@ -122,6 +127,26 @@ class Converter:
         self.world_frame = world_frame
         self._kept: dict[tuple[str, str], Any] = {}
         self._last_v: dict[str, tuple[int, Any]] = {}
+        self._kinematics: dict[int, tuple[GliderState, Any, Any]] = {}
+
+    def prepare(self, states: list[GliderState]) -> None:
+        """Compute the attitudes and body-frame velocities of K states at once (the frame
+        algebra is vectorised; per state it would cost more than the rest of a conversion).
+        Until the next call, converting one of them uses these."""
+        q = state_quaternions(states)
+        world_v = np.array([[st.airspeed * math.cos(st.heading),
+                             st.airspeed * math.sin(st.heading), st.vz] for st in states])
+        body_v = quat_rotate(quat_conjugate(q), world_v)
+        self._kinematics = {id(st): (st, q[k], body_v[k]) for k, st in enumerate(states)}
+
+    def _kinematics_of(self, st: GliderState) -> tuple[Any, Any]:
+        """The attitude (4,) and body-frame velocity (3,) of ``st`` (from :meth:`prepare`, or
+        computed now for a state it was not given)."""
+        kin = self._kinematics.get(id(st))
+        if kin is not None and kin[0] is st:
+            return kin[1], kin[2]
+        q = state_quaternions([st])
+        return q[0], quat_rotate(quat_conjugate(q), self._world_velocity(st)[None, :])[0]
 
     def convert(self, ros_type: str, ident: str, msg: Message, ros_topic: str) -> Any:
         if isinstance(msg, GliderState):
@@ -152,7 +177,7 @@ class Converter:
     # ------------------------------------------------------------------ states
 
     def _state(self, ros_type: str, gid: str, st: GliderState, ros_topic: str) -> Any:
-        q = state_quaternion(st)
+        q, body_v = self._kinematics_of(st)
         child = f"glider_{gid}"
         if ros_type == "nav_msgs/msg/Odometry":
             odom = self._kept_msg(ros_topic, Odometry)
@@ -160,7 +185,6 @@ class Converter:
             odom.header.frame_id, odom.child_frame_id = self.world_frame, child
             _set_xyz(odom.pose.pose.position, st.x, st.y, st.z)
             _set_quat(odom.pose.pose.orientation, q)
-            body_v = quat_rotate(quat_conjugate(q), self._world_velocity(st))
             _set_xyz(odom.twist.twist.linear, *body_v)
             _set_xyz(odom.twist.twist.angular, _finite(st.roll_rate), _finite(st.pitch_rate),
                      _finite(st.yaw_rate))

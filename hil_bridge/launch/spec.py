@@ -19,9 +19,9 @@ It is validated once, at load, into :class:`LaunchSpec` (unknown keys raise a
 class with ``start``, ``stop`` and ``stats``). **A launch file runs code**: importing an entry
 runs its module. Entries may come only from the project's packages (the installed
 ``hil_bridge``, ``drivers``, ``ros2_bridge``, ``sim_core``) and from modules listed under
-``allow_modules:`` (or ``--allow-module``), and every entry is checked against that list before the first import
-(:func:`check_entry_module`). :func:`node_params` gives the params a node is constructed
-with; :mod:`hil_bridge.launch.runner` runs a spec.
+``allow_modules:`` (or ``--allow-module``), and every entry is checked against that list
+before the first import (:func:`check_entry_module`). :func:`node_params` gives the params a
+node is constructed with; :mod:`hil_bridge.launch.runner` runs a spec.
 """
 
 from __future__ import annotations

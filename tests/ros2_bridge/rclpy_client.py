@@ -48,6 +48,7 @@ def main() -> None:
     clock: list[int] = []
     sim_now: list[tuple[int, int]] = []
     echoes: list[tuple[int, np.ndarray]] = []
+    echo_stamps: list[int] = []
 
     def on_odom(m: Odometry) -> None:
         q = m.pose.pose.orientation
@@ -58,6 +59,7 @@ def main() -> None:
         clock.append(_ns(m.clock))
 
     def on_echo(m: Image) -> None:
+        echo_stamps.append(_ns(m.header.stamp))
         if len(echoes) < 5:
             assert m.encoding == "32FC1"
             samples = np.frombuffer(bytes(m.data), dtype="<f4").reshape(m.height, m.width)
@@ -94,6 +96,7 @@ def main() -> None:
         clock=np.array(clock, dtype=np.int64),
         sim_now=np.array(sim_now, dtype=np.int64).reshape(-1, 2),
         echo_stamps=np.array([e[0] for e in echoes], dtype=np.int64),
+        all_echo_stamps=np.array(echo_stamps, dtype=np.int64),
         **{f"echo_{i}": e[1] for i, e in enumerate(echoes)},
     )
 

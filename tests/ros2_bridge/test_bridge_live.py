@@ -139,6 +139,9 @@ def test_a_plain_rclpy_node_sees_the_simulation_and_flies_a_glider(
     for i, stamp in enumerate(data["echo_stamps"]):
         echo = echoes[int(stamp)]
         np.testing.assert_array_equal(data[f"echo_{i}"], np.atleast_2d(echo.samples))
+    # a lazy topic loses nothing once subscribed: every echo between the first and the last
+    got = data["all_echo_stamps"].tolist()
+    assert sorted(got) == sorted(s for s in echoes if got[0] <= s <= got[-1])
 
     # commands: glider 2 flies the client's bank (its roll follows with a lag)
     assert bridge["cmd_forwarded"] > 50 and bridge["cmd_bad"] == 0

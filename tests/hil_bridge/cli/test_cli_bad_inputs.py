@@ -240,9 +240,21 @@ KINDS: dict[str, Kind] = {
     "tlog-ardupilot": Kind(".tlog", lambda d: (
         DATA / "flightlogs" / "ardupilot_quadplane_sitl.tlog").read_bytes()),
     "dataflash-two-gps": Kind(".bin", _dataflash_two_gps),
+    "ros2-mapping-yaml": Kind(".yaml", lambda d: _yaml(_ros2_mapping()), None,
+                              lambda d: _yaml([{**_ros2_mapping()[0],
+                                                "max_rate_hz": float("nan")}]),
+                              _first(b"ros_type")),
     "curve-key": Kind(".key_secret", lambda d: (_keys(d) / "server.key_secret").read_bytes(),
                       None, None, _first(b"curve")),
 }
+
+
+def _ros2_mapping() -> list[dict[str, object]]:
+    import dataclasses
+
+    from ros2_bridge.config import DEFAULT_MAPPING
+
+    return [dataclasses.asdict(m) for m in DEFAULT_MAPPING]
 
 
 def _keys(d: Path) -> Path:
@@ -326,6 +338,8 @@ READERS: tuple[Reader, ...] = (
     Reader("mock-autopilot-waypoints", "waypoints-csv", lambda f, d: [
         "mock", "autopilot", "--channel", f"corpus{id(d)}", "--controller", "path",
         "--waypoints", str(f), "--duration", "0.2", "--every", "0"]),
+    Reader("ros2-bridge-mapping", "ros2-mapping-yaml", lambda f, d: [
+        "ros2", "bridge", "--mapping", str(f), "--duration", "0.2"]),
     Reader("bus-curve-keys", "curve-key", lambda f, d: [
         "bus", "--pub", "tcp://127.0.0.1:0", "--sub", "tcp://127.0.0.1:0",
         "--curve-keys", str(f.parent)], place=lambda d: _keys(d) / "server.key_secret"),
