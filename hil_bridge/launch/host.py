@@ -27,7 +27,11 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
 A host outlives no runner: the kernel sends it SIGTERM when the runner dies, however it dies
 (``PR_SET_PDEATHSIG``; a runner killed with -9 included). SIGTERM, like a closed channel, makes
 the host stop its nodes (so they remove their pty links and shared-memory tile stores) and exit;
-one that has not exited :data:`STOP_GRACE_S` seconds later is ended by SIGALRM. Ctrl-C reaches
+one that has not exited :data:`STOP_GRACE_S` seconds later is ended by SIGALRM. Neither rests
+on the main thread alone: a watchdog thread notices a new parent (the runner gone) within
+:data:`WATCHDOG_S` and arms the same stop and alarm, should the main thread never get to run
+the SIGTERM handler; a reply the runner can no longer receive ends the host's service loop, and
+the nodes are stopped and the host ends (``os._exit``) whatever raised. Ctrl-C reaches
 every process of the terminal's group: the host ignores SIGINT, and the runner decides the order
 in which nodes stop. Log records go to
 standard error as ``LEVEL logger: message``; the runner prefixes each line with the node's
@@ -43,7 +47,9 @@ import os
 import signal
 import sys
 import threading
+import time
 import traceback
+from collections.abc import Iterable
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -59,6 +65,8 @@ log = logging.getLogger(__name__)
 _PR_SET_PDEATHSIG = 1
 #: seconds a host has to stop its nodes after SIGTERM before SIGALRM ends it
 STOP_GRACE_S = 20
+#: how often the watchdog thread looks for the runner (seconds)
+WATCHDOG_S = 0.5
 
 
 def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> None:
@@ -69,6 +77,15 @@ def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> None:
         libc.prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
     if os.getppid() != parent_pid:
         os._exit(1)
+
+
+def _watchdog(parent_pid: int, stop_all: threading.Event) -> None:
+    """Thread body: once this process has another parent (its runner died), stop the nodes
+    and arm SIGALRM (its default action ends the process, whatever the main thread does)."""
+    while os.getppid() == parent_pid:
+        time.sleep(WATCHDOG_S)
+    stop_all.set()
+    signal.alarm(STOP_GRACE_S)
 
 
 def _prepare(nodes: list[dict[str, Any]], allow_modules: list[str]) -> list[type]:
@@ -112,20 +129,32 @@ def _start(made: dict[str, Any], sync: str | None) -> str | None:
     (reverse) and name the one."""
     error = _sync(sync)
     if error is not None:
-        for other in reversed(list(made.values())):
-            with contextlib.suppress(Exception):
-                other.stop()
+        _stop_nodes(made.values())
         return error
     for name, obj in made.items():
         try:
             obj.start()
         except BaseException:
             text = _report(f"{name}: start()")
-            for other in reversed(list(made.values())):
-                with contextlib.suppress(Exception):
-                    other.stop()
+            _stop_nodes(made.values())
             return text
     return None
+
+
+def _stop_nodes(nodes: Iterable[Any]) -> None:
+    """Stop ``nodes`` in reverse order; one that raises does not keep the others running."""
+    for obj in reversed(list(nodes)):
+        with contextlib.suppress(Exception):
+            obj.stop()
+
+
+def _send(conn: Connection, message: tuple[str, Any]) -> bool:
+    """Send ``message`` to the runner; False when it is gone (the channel broke)."""
+    try:
+        conn.send(message)
+    except OSError:
+        return False
+    return True
 
 
 def _next(conn: Connection) -> tuple[str, Any] | None:
@@ -140,24 +169,35 @@ def _next(conn: Connection) -> tuple[str, Any] | None:
 def _serve(conn: Connection, made: dict[str, Any], stop_all: threading.Event,
            first: tuple[str, Any] | None = None) -> None:
     """Answer the runner's requests (``first``, then what comes) until every node stopped or
-    the runner is gone; nodes left are stopped in reverse order."""
+    the runner is gone (the channel closed, or a reply failed); nodes left are stopped in
+    reverse order, whatever ends the loop."""
     running = dict(made)
-    while running:
-        if first is not None:
-            (kind, name), first = first, None
-        elif stop_all.is_set():
-            break
-        else:
-            try:
-                if not conn.poll(0.2):
-                    continue
-                kind, name = conn.recv()
-            except (EOFError, OSError):
+    try:
+        while running:
+            if first is not None:
+                (kind, name), first = first, None
+            elif stop_all.is_set():
                 break
-        obj = running.get(name)
+            else:
+                try:
+                    if not conn.poll(0.2):
+                        continue
+                    kind, name = conn.recv()
+                except (EOFError, OSError):
+                    break
+            if not _answer(conn, running, kind, name):
+                break
+    finally:
+        _stop_nodes(running.values())
+
+
+def _answer(conn: Connection, running: dict[str, Any], kind: str, name: str) -> bool:
+    """Answer one request; False when the runner cannot receive the answer (it is gone)."""
+    obj = running.get(name)
+    try:
         if obj is None:
             conn.send(("error", f"no running node {name!r} in this host"))
-            continue
+            return True
         try:
             if kind == "stats":
                 conn.send(("stats", obj.stats()))
@@ -169,11 +209,13 @@ def _serve(conn: Connection, made: dict[str, Any], stop_all: threading.Event,
                 conn.send(("stopped", (obj.stats(), failure_of(obj))))
             else:
                 conn.send(("error", f"unknown request {kind!r}"))
+        except OSError:
+            raise
         except Exception as exc:  # the runner names the node and the call
             conn.send(("error", f"{kind}() raised {type(exc).__name__}: {exc}"))
-    for obj in reversed(list(running.values())):
-        with contextlib.suppress(Exception):
-            obj.stop()
+    except OSError:  # the channel broke: nobody to answer
+        return False
+    return True
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -190,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _on_term)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(int(args[1]))
+    threading.Thread(target=_watchdog, args=(int(args[1]), stop_all), name="host-watchdog",
+                     daemon=True).start()
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(levelname)s %(name)s: %(message)s")
     conn = Connection(int(args[0]))
@@ -202,9 +246,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         classes = _prepare(request["nodes"], request["allow_modules"])
     except Exception as exc:
-        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        _send(conn, ("error", f"{type(exc).__name__}: {exc}"))
         return 1
-    conn.send(("prepared", None))
+    if not _send(conn, ("prepared", None)):
+        return 1
     if _next(conn) != ("construct", None) or stop_all.is_set():
         return 1
     with use(resolve(request["domain"])):
@@ -213,21 +258,21 @@ def main(argv: list[str] | None = None) -> int:
         if error is None:
             error = _sync(sync)
         if error is not None:
-            for obj in reversed(list(made.values())):
-                with contextlib.suppress(Exception):
-                    obj.stop()
-            conn.send(("error", error))
+            _stop_nodes(made.values())
+            _send(conn, ("error", error))
             return 1
-        conn.send(("constructed", None))
+        if not _send(conn, ("constructed", None)):
+            _stop_nodes(made.values())
+            return 1
         request_ = _next(conn)
         if request_ != ("start", None):  # the launch stops before it started these nodes
             _serve(conn, made, stop_all, first=request_)
             return 0
         error = _start(made, sync)
         if error is not None:
-            conn.send(("error", error))
+            _send(conn, ("error", error))
             return 1
-        conn.send(("ready", None))
+        _send(conn, ("ready", None))  # if the runner is gone, _serve finds it so and stops all
     _serve(conn, made, stop_all)
     conn.close()
     return 0
@@ -247,5 +292,17 @@ def _exit(code: int) -> None:
     os._exit(code)
 
 
+def _run() -> None:
+    """``main``, then :func:`_exit` whatever happened (exit status 1, and the traceback in
+    the log, when ``main`` raised)."""
+    code = 1
+    try:
+        code = main()
+    except BaseException:
+        log.critical("the host failed", exc_info=True)
+    finally:
+        _exit(code)
+
+
 if __name__ == "__main__":
-    _exit(main())
+    _run()
