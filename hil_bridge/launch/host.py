@@ -27,15 +27,17 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
 A host outlives no runner: the kernel sends it SIGTERM when the runner dies, however it dies
 (``PR_SET_PDEATHSIG``; a runner killed with -9 included). SIGTERM, like a closed channel, makes
 the host stop its nodes (so they remove their pty links and shared-memory tile stores) and exit;
-one that has not exited :data:`STOP_GRACE_S` seconds later is ended by SIGALRM. Neither rests
-on the main thread alone: a watchdog thread notices a new parent (the runner gone) within
-:data:`WATCHDOG_S` and arms the same stop and alarm, should the main thread never get to run
-the SIGTERM handler; a reply the runner can no longer receive ends the host's service loop, and
-the nodes are stopped and the host ends (``os._exit``) whatever raised. Ctrl-C reaches
-every process of the terminal's group: the host ignores SIGINT, and the runner decides the order
-in which nodes stop. Log records go to
-standard error as ``LEVEL logger: message``; the runner prefixes each line with the node's
-name (or the container's).
+one that has not exited :data:`STOP_GRACE_S` seconds later is ended by SIGALRM. The SIGTERM
+handler arms that alarm first and then sets a :class:`StopFlag`, which takes no lock: SIGTERMs
+in quick succession (the parent's death and the runner's own) once deadlocked a handler on its
+own ``threading.Event``. Neither rests on the main thread alone: a watchdog thread notices a
+new parent (the runner gone) within :data:`WATCHDOG_S` and arms the same stop and alarm, should
+the main thread never get to run the SIGTERM handler; a reply the runner can no longer receive
+ends the host's service loop, and the nodes are stopped and the host ends (``os._exit``)
+whatever raised. Ctrl-C reaches every process of the terminal's group: the host ignores SIGINT,
+and the runner decides the order in which nodes stop. Log records go to standard error as
+``LEVEL logger: message``; the runner prefixes each line with the node's name (or the
+container's).
 """
 
 from __future__ import annotations
@@ -79,13 +81,36 @@ def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> None:
         os._exit(1)
 
 
-def _watchdog(parent_pid: int, stop_all: threading.Event) -> None:
-    """Thread body: once this process has another parent (its runner died), stop the nodes
-    and arm SIGALRM (its default action ends the process, whatever the main thread does)."""
+class StopFlag:
+    """Set once, read by the service loop: a plain attribute, no lock, so the SIGTERM handler
+    can set it even when the signal interrupts code that holds a lock, itself included
+    (``threading.Event.set`` takes a lock: a second SIGTERM arriving inside the handler's
+    ``set`` deadlocked the main thread, and with it the watchdog waiting for that lock)."""
+
+    __slots__ = ("value",)
+
+    def __init__(self) -> None:
+        self.value = False
+
+    def set(self) -> None:
+        self.value = True
+
+    def is_set(self) -> bool:
+        return self.value
+
+
+def _stop_soon(stop_all: StopFlag) -> None:
+    """Arm SIGALRM (its default action ends the process, whatever the main thread does), then
+    ask the service loop to stop the nodes. Safe in a signal handler and in any thread."""
+    signal.alarm(STOP_GRACE_S)
+    stop_all.set()
+
+
+def _watchdog(parent_pid: int, stop_all: StopFlag) -> None:
+    """Thread body: once this process has another parent (its runner died), stop soon."""
     while os.getppid() == parent_pid:
         time.sleep(WATCHDOG_S)
-    stop_all.set()
-    signal.alarm(STOP_GRACE_S)
+    _stop_soon(stop_all)
 
 
 def _prepare(nodes: list[dict[str, Any]], allow_modules: list[str]) -> list[type]:
@@ -166,7 +191,7 @@ def _next(conn: Connection) -> tuple[str, Any] | None:
     return kind, detail
 
 
-def _serve(conn: Connection, made: dict[str, Any], stop_all: threading.Event,
+def _serve(conn: Connection, made: dict[str, Any], stop_all: StopFlag,
            first: tuple[str, Any] | None = None) -> None:
     """Answer the runner's requests (``first``, then what comes) until every node stopped or
     the runner is gone (the channel closed, or a reply failed); nodes left are stopped in
@@ -223,11 +248,10 @@ def main(argv: list[str] | None = None) -> int:
     if len(args) != 2:
         sys.stderr.write("usage: python -m hil_bridge.launch.host FD PARENT_PID\n")
         return 2
-    stop_all = threading.Event()
+    stop_all = StopFlag()
 
     def _on_term(_signum: int, _frame: object) -> None:
-        stop_all.set()
-        signal.alarm(STOP_GRACE_S)
+        _stop_soon(stop_all)
 
     signal.signal(signal.SIGTERM, _on_term)
     signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -23,7 +23,9 @@ at a time (so an idle worker is known and no job waits behind another), over one
   them before the server's first tick.
 - **Nothing outlives the server.** ``close()`` stops the workers (terminating one that does not
   finish its job within :data:`STOP_TIMEOUT_S`) and removes the shared tiles; a worker exits on
-  its own when the server process is gone (its pipe closes). A worker that dies is reported
+  its own when the server process is gone: its pipe closes, and, should that never reach it
+  (a worker still loading its scene, say), the kernel kills it when the server's process dies
+  (``PR_SET_PDEATHSIG``; a worker holds nothing to clean up). A worker that dies is reported
   to the pool's :class:`~hil_bridge.bus.faults.Faults` (a failure of the server: the run
   exits non-zero) and replaced (at most :data:`MAX_RESTARTS` times); its echo is reported as an
   error.
@@ -32,6 +34,7 @@ at a time (so an idle worker is known and no job waits behind another), over one
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import multiprocessing
 import os
@@ -58,6 +61,8 @@ from sim_core.sonar.cost import COST, EchoCost
 
 __all__ = ["MAX_RESTARTS", "STOP_TIMEOUT_S", "WORKER_NAME", "WORKER_NICE", "ProcessPool",
            "ThreadWorker", "usable_cores"]
+
+_PR_SET_PDEATHSIG = 1
 
 log = logging.getLogger(__name__)
 
@@ -150,10 +155,21 @@ def _lower_priority(nice: int) -> None:
             os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
 
 
+def _die_with(parent_pid: int) -> None:
+    """Have the kernel SIGKILL this process when the process that spawned it dies (Linux
+    ``prctl``); exit now if it is already gone."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
 def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
-                 cost: EchoCost) -> None:
+                 cost: EchoCost, parent_pid: int) -> None:
     """Body of a worker process: its own Scene, tiles through the shared store, one job at a
-    time; exits on ``None`` or when the server's end of the pipe closes."""
+    time; exits on ``None``, when the server's end of the pipe closes, or with the server's
+    process."""
+    _die_with(parent_pid)
     from hil_bridge.files.scene import load_scene
     from hil_bridge.recording.logs import load_trajectory
     from hil_bridge.server.shared_tiles import SharedTiles
@@ -261,7 +277,7 @@ class ProcessPool:
         proc = self._ctx.Process(
             target=_worker_main,
             args=(self.scene.spec, None if self.store is None else str(self.store.directory),
-                  theirs, WORKER_NICE, self.cost),
+                  theirs, WORKER_NICE, self.cost, os.getpid()),
             name=WORKER_NAME, daemon=True,
         )
         proc.start()

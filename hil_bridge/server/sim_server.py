@@ -31,7 +31,8 @@ clipped to the glider's (the law's) or vehicle's envelope (counted in ``cmd_clip
 until the next good one. Commands for path vehicles are counted in ``cmd_ignored``.
 ``cmd_effect_ticks``: for each command, the tick it was first flown in minus the next tick due
 when it arrived, plus one (1: in effect at the next tick; 2: it arrived while that tick was
-being computed).
+being computed); ``cmd_apply_ms``: the wall time from its arrival to the publish of the first
+state that flies it.
 
 **Echoes** (:mod:`hil_bridge.server.sonars`, :mod:`hil_bridge.server.emission`,
 :mod:`hil_bridge.server.echo_service`). A ping is answered at its sonar's world pose at the
@@ -229,7 +230,9 @@ class SimServer:
         )
         self._good_cmd: dict[int, tuple[float, float]] = {}
         #: id -> the tick due when its newest good command arrived, until that command is flown
-        self._cmd_pending: dict[int, int] = {}
+        self._cmd_pending: dict[int, tuple[int, int]] = {}
+        self._cmd_flying: list[int] = []
+        self._cmd_apply_ms: deque[float] = deque(maxlen=10000)
         self.fleet = Fleet(
             self.scene, tick_ns=self.tick_ns, substeps=self.substeps,
             history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
@@ -326,6 +329,7 @@ class SimServer:
             out["tick_error"] = self._tick_error
             out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
             effect = list(self._cmd_effect_ticks)
+            apply_ms = list(self._cmd_apply_ms)
         out.update(self._gate.stats())
         out.update(sonars)
         out["clock_mode"] = self.clock_spec.mode
@@ -335,6 +339,7 @@ class SimServer:
         out["ping_extrapolated_ms"] = percentiles(sonars["ping_extrapolated_ms"])
         out["echo_compute_ms"] = percentiles(sonars["echo_compute_ms"])
         out["cmd_effect_ticks"] = percentiles(effect)
+        out["cmd_apply_ms"] = percentiles(apply_ms)
         if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
             out["gliders_alive"] = int(np.count_nonzero(self.fleet.swarm.alive[0]))
         return out
@@ -370,7 +375,7 @@ class SimServer:
             else:
                 bank, speed, clipped = checked
                 self._good_cmd[gid] = (bank, speed)
-                self._cmd_pending.setdefault(gid, self._c["ticks"])
+                self._cmd_pending.setdefault(gid, (self._c["ticks"], time.monotonic_ns()))
                 self._c["cmd_applied"] += 1
                 self._c["cmd_clipped"] += int(clipped)
         self._gate.on_cmd(gid, int(msg.step))
@@ -397,8 +402,9 @@ class SimServer:
     def _commands_for_tick(self, tick: int) -> dict[int, tuple[float, float]]:
         """The held good commands that tick ``tick`` flies (and their effect latency)."""
         with self._lock:
-            for arrived in self._cmd_pending.values():
+            for arrived, arrived_ns in self._cmd_pending.values():
                 self._cmd_effect_ticks.append(tick - arrived + 1)
+                self._cmd_flying.append(arrived_ns)
             self._cmd_pending.clear()
             return dict(self._good_cmd)
 
@@ -487,7 +493,7 @@ class SimServer:
             k: v for k, v in stats.items() if isinstance(v, int | float) and not isinstance(v, bool)
         }
         for key in ("ping_echo_ms", "ping_wait_ms", "ping_extrapolated_ms", "echo_compute_ms",
-                    "cmd_effect_ticks"):
+                    "cmd_effect_ticks", "cmd_apply_ms"):
             for p in ("p50", "p99"):
                 val = stats[key][p]
                 if math.isfinite(val):
@@ -558,7 +564,10 @@ class SimServer:
             self._publish_tick(states, decided)
             last = (states, decided)
             cpu = time.thread_time()
+            published_ns = time.monotonic_ns()
             with self._lock:
+                self._cmd_apply_ms.extend((published_ns - a) / 1e6 for a in self._cmd_flying)
+                self._cmd_flying.clear()
                 self._c["ticks"] += 1
                 self._tick_cpu_s += cpu - cpu0
                 self._tick_wall = (wall0, time.monotonic())

@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from hil_bridge.bus.domain import Domain, claim_first_free
-from hil_bridge.bus.messages import Clock, GliderState, SonarEcho
+from hil_bridge.bus.messages import Clock, GliderCmd, GliderState, SonarEcho
 from hil_bridge.recording.export.common import ExportCounts, decoded
 
 pytestmark = [
@@ -73,6 +73,11 @@ def _launch(domain: Domain, ros_domain: int, *extra: str) -> subprocess.Popen[st
 
 def _wait_for(proc: subprocess.Popen[str], pattern: str, seen: list[str],
               timeout: float = 120.0) -> re.Match[str]:
+    """The first line of ``proc``'s stderr (those in ``seen`` first: the runner's own lines and
+    the nodes' relayed ones come in no fixed order) that matches ``pattern``."""
+    for line in seen:
+        if hit := re.search(pattern, line):
+            return hit
     assert proc.stderr is not None
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -101,7 +106,6 @@ def test_a_plain_rclpy_node_sees_the_simulation_and_flies_a_glider(
     launch = _launch(domain, ros_domain, "--duration", "120", "--record", str(rec), "--json")
     seen: list[str] = []
     try:
-        _wait_for(launch, r"ros2 \(pid \d+\): ROS 2 domain", seen)
         _wait_for(launch, r"echoloop launch: running", seen)
         client = subprocess.run(
             [sys.executable, str(CLIENT), str(got), "--duration", "8", "--glider", "2",
@@ -146,8 +150,16 @@ def test_a_plain_rclpy_node_sees_the_simulation_and_flies_a_glider(
     # commands: glider 2 flies the client's bank (its roll follows with a lag)
     assert bridge["cmd_forwarded"] > 50 and bridge["cmd_bad"] == 0
     assert server["cmd_applied"] >= bridge["cmd_forwarded"]
-    banks = [s.bank for s in bus["/glider/2/state"] if isinstance(s, GliderState)]
-    assert abs(np.median(banks[-50:]) - BANK) < 0.02, banks[-50:]
+    flown = [(s.stamp_ns, s.bank, s.alive) for s in bus["/glider/2/state"]
+             if isinstance(s, GliderState)]
+    sent = sorted(c.stamp_ns for c in bus["/glider/2/cmd"] if isinstance(c, GliderCmd))
+    # from 1.5 s after the first command (the roll follows with a lag) to the last one
+    t0, t1 = sent[0] + 1_500_000_000, sent[-1]
+    assert t1 - t0 >= 2_000_000_000, (sent[0], sent[-1], len(sent))
+    window = [b for t, b, _ in flown if t0 <= t <= t1]
+    assert abs(np.median(window) - BANK) < 0.02, (
+        [f for f in flown if t0 <= f[0] <= t1][-20:], len(sent),
+        {k: v for k, v in server.items() if "cmd" in k})
 
     # the mismatched subscriber: a warning naming the topic and the policy, and a count
     assert bridge["qos_incompatible"] >= 1
@@ -159,8 +171,8 @@ def test_a_killed_bridge_ends_the_run_naming_it(domain: Domain) -> None:
     launch = _launch(domain, _ros_domain(), "--duration", "120")
     seen: list[str] = []
     try:
-        pid = int(_wait_for(launch, r"ros2 \(pid (\d+)\): ROS 2 domain", seen).group(1))
         _wait_for(launch, r"echoloop launch: running", seen)
+        pid = int(_wait_for(launch, r"ros2 \(pid (\d+)\): ROS 2 domain", seen).group(1))
         maps = Path(f"/proc/{pid}/maps").read_text()
         assert "/dev/shm/fastdds" not in maps  # UDP only: a kill leaves no shared memory
         os.kill(pid, signal.SIGKILL)

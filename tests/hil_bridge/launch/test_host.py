@@ -1,12 +1,13 @@
 """The node host's own guards (hil_bridge.launch.host): a runner that is gone never leaves a host
-serving, whether the host learns it from a reply it cannot send or from its watchdog."""
+serving, whether the host learns it from a reply it cannot send, from its watchdog or from
+SIGTERMs that come in quick succession."""
 
 from __future__ import annotations
 
 import multiprocessing
 import os
 import signal
-import threading
+import time
 from typing import Any
 
 from hil_bridge.launch import host
@@ -27,13 +28,13 @@ def test_a_reply_the_runner_cannot_receive_ends_the_service_and_stops_every_node
     ours, theirs = multiprocessing.Pipe()
     theirs.close()  # the runner is gone
     nodes = {"a": _Node(), "b": _Node()}
-    host._serve(ours, dict(nodes), threading.Event(), first=("stats", "a"))
+    host._serve(ours, dict(nodes), host.StopFlag(), first=("stats", "a"))
     assert [n.stopped for n in nodes.values()] == [1, 1]
     ours.close()
 
 
 def test_the_watchdog_stops_the_nodes_and_arms_the_alarm_once_the_parent_changed() -> None:
-    stop_all = threading.Event()
+    stop_all = host.StopFlag()
     previous = signal.signal(signal.SIGALRM, signal.SIG_IGN)
     try:
         host._watchdog(os.getppid() + 1_000_000, stop_all)  # not our parent: it is "gone"
@@ -41,3 +42,29 @@ def test_the_watchdog_stops_the_nodes_and_arms_the_alarm_once_the_parent_changed
         assert signal.alarm(0) > 0  # armed (and disarmed here)
     finally:
         signal.signal(signal.SIGALRM, previous)
+
+
+def test_a_sigterm_inside_the_sigterm_handler_does_not_hang_the_host() -> None:
+    """The leak this guards against: a second SIGTERM arriving while the handler was setting a
+    ``threading.Event`` deadlocked the host's main thread on the Event's lock (and the
+    watchdog behind it), so no alarm was ever armed and the host outlived its runner."""
+    flag, calls = host.StopFlag(), []
+
+    def on_term(_signum: int, _frame: object) -> None:
+        calls.append(1)
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGTERM)  # delivered while this handler runs
+        host._stop_soon(flag)
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    previous_alarm = signal.signal(signal.SIGALRM, signal.SIG_IGN)
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+        deadline = time.monotonic() + 5.0
+        while len(calls) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(calls) == 2 and flag.is_set()
+        assert signal.alarm(0) > 0
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGALRM, previous_alarm)

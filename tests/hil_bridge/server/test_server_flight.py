@@ -123,7 +123,7 @@ def test_a_command_is_flown_in_the_very_next_tick() -> None:
     assert sb.position[k, 2] == 30.0
 
 
-def test_server_reports_command_effect_latency_in_ticks() -> None:
+def test_server_reports_command_effect_latency_in_ticks_and_ms() -> None:
     bus = "mem://flight_latency"
     scene = _scene(100.0, clock={"mode": "realtime"})
     srv = SimServer("server", bus=bus, scene=scene, stop_after_s=1.5)
@@ -144,6 +144,9 @@ def test_server_reports_command_effect_latency_in_ticks() -> None:
     # flown at the next tick due, or the one after when it arrived while that tick was being
     # computed (how often is wall-clock timing: measured in make bench, not asserted here)
     assert lat["p50"] >= 1 and lat["max"] <= 2
+    # the same commands in wall time, arrival to the publish of the state that flies them
+    apply_ms = srv.stats()["cmd_apply_ms"]
+    assert apply_ms["n"] == lat["n"] and apply_ms["p50"] > 0
 
 
 def test_law_dt_must_be_whole_ticks() -> None:
