@@ -13,7 +13,8 @@ Sub-packages, each a layer that imports only the layers below it (``importlinter
 - ``files`` — the file formats of the world (YAML configs, scene, forest, law and grid files,
   ``.npz`` leaves and forests, tree maps, L++ grammars, CAD meshes, traces) and the package data
   behind presets: every reader and writer ``sim_core`` does not have;
-- ``errors`` and ``outputs`` — the error types and the never-clobber output files every layer uses.
+- ``errors``, ``outputs`` and ``lifetime`` — the error types, the never-clobber output files and
+  the parent-death signal every layer may use.
 
 Everything here may import ``sim_core`` (the pure world); nothing here imports ``drivers``.
 """

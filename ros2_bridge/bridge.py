@@ -66,13 +66,14 @@ _COUNTERS = ("bus_received", "bus_decode_errors", "published", "lazy_skipped",
 class _Out:
     """One ROS 2 publisher of one entry (a bus topic, or many under one ROS 2 topic)."""
 
-    __slots__ = ("entry", "last", "latched", "next_ok", "pub", "topic")
+    __slots__ = ("entry", "keeps_last", "last", "next_ok", "pub", "topic")
 
     def __init__(self, entry: Mapping, pub: Any, topic: str) -> None:
         self.entry, self.pub, self.topic = entry, pub, topic
         self.next_ok = 0.0
+        #: a lazy transient-local entry keeps its last message for its first subscriber
+        self.keeps_last = entry.lazy and entry.qos.durability == "transient_local"
         self.last: tuple[str, Any] | None = None
-        self.latched = entry.qos.durability == "transient_local"
 
 
 class Ros2Bridge:
@@ -385,7 +386,7 @@ class Ros2Bridge:
 
     def _publish(self, out: _Out, ident: str, msg: Any) -> None:
         entry = out.entry
-        if out.latched:
+        if out.keeps_last:
             out.last = (ident, msg)
         if entry.lazy and out.pub.get_subscription_count() == 0:
             with self._lock:
@@ -411,7 +412,7 @@ class Ros2Bridge:
     def _on_matched(self, topic: str, info: Any) -> None:
         """A lazy transient-local topic gives a new subscriber the last message at once."""
         out = self._by_ros_topic.get(topic)
-        if (out is None or not out.entry.lazy or not out.latched or out.last is None
+        if (out is None or not out.keeps_last or out.last is None
                 or info.current_count_change <= 0):
             return
         ident, msg = out.last

@@ -44,7 +44,7 @@ from hil_bridge.bus.messages import (
     ThermalMarkers,
     state_quaternions,
 )
-from hil_bridge.recording.export.common import sonar_pose
+from hil_bridge.recording.export.common import glider_velocities, sonar_pose
 from sim_core.pose import quat_between, quat_conjugate, quat_rotate
 
 __all__ = ["MAX_TIME_NS", "ROS_TYPES", "CommandError", "Converter", "G", "command_from_ros"]
@@ -134,9 +134,7 @@ class Converter:
         algebra is vectorised; per state it would cost more than the rest of a conversion).
         Until the next call, converting one of them uses these."""
         q = state_quaternions(states)
-        world_v = np.array([[st.airspeed * math.cos(st.heading),
-                             st.airspeed * math.sin(st.heading), st.vz] for st in states])
-        body_v = quat_rotate(quat_conjugate(q), world_v)
+        body_v = quat_rotate(quat_conjugate(q), glider_velocities(states))
         self._kinematics = {id(st): (st, q[k], body_v[k]) for k, st in enumerate(states)}
 
     def _kinematics_of(self, st: GliderState) -> tuple[Any, Any]:
@@ -146,7 +144,7 @@ class Converter:
         if kin is not None and kin[0] is st:
             return kin[1], kin[2]
         q = state_quaternions([st])
-        return q[0], quat_rotate(quat_conjugate(q), self._world_velocity(st)[None, :])[0]
+        return q[0], quat_rotate(quat_conjugate(q), glider_velocities([st]))[0]
 
     def convert(self, ros_type: str, ident: str, msg: Message, ros_topic: str) -> Any:
         if isinstance(msg, GliderState):
@@ -203,11 +201,6 @@ class Converter:
             return MarkerArray(markers=[marker])
         raise TypeError(f"no conversion of {GliderState.TYPE} to {ros_type}")
 
-    @staticmethod
-    def _world_velocity(st: GliderState) -> Any:
-        return np.array([st.airspeed * math.cos(st.heading), st.airspeed * math.sin(st.heading),
-                         st.vz])
-
     def _imu(self, gid: str, st: GliderState, q: Any, ros_topic: str) -> Imu:
         imu = self._kept_msg(ros_topic + "#" + gid, Imu)
         _set_time(imu.header.stamp, st.stamp_ns)
@@ -215,7 +208,7 @@ class Converter:
         _set_quat(imu.orientation, q)
         _set_xyz(imu.angular_velocity, _finite(st.roll_rate), _finite(st.pitch_rate),
                  _finite(st.yaw_rate))
-        v = self._world_velocity(st)
+        v = glider_velocities([st])[0]
         last = self._last_v.get(ros_topic + "#" + gid)
         self._last_v[ros_topic + "#" + gid] = (st.stamp_ns, v)
         if last is None or st.stamp_ns <= last[0]:

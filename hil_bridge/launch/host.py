@@ -43,7 +43,6 @@ container's).
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
 import os
 import signal
@@ -59,26 +58,16 @@ from hil_bridge.bus.domain import resolve, use
 from hil_bridge.bus.transport import sync_open
 from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of
 from hil_bridge.launch.spec import resolve_entry
+from hil_bridge.lifetime import die_with_parent
 
-__all__ = ["die_with_parent", "main"]
+__all__ = ["main"]
 
 log = logging.getLogger(__name__)
 
-_PR_SET_PDEATHSIG = 1
 #: seconds a host has to stop its nodes after SIGTERM before SIGALRM ends it
 STOP_GRACE_S = 20
 #: how often the watchdog thread looks for the runner (seconds)
 WATCHDOG_S = 0.5
-
-
-def die_with_parent(parent_pid: int, sig: int = signal.SIGTERM) -> None:
-    """Have the kernel send ``sig`` to this process when its parent dies (Linux ``prctl``; the
-    parent is the thread that spawned it); exit now if the parent is already gone."""
-    with contextlib.suppress(OSError, AttributeError):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
-    if os.getppid() != parent_pid:
-        os._exit(1)
 
 
 class StopFlag:
@@ -219,28 +208,23 @@ def _serve(conn: Connection, made: dict[str, Any], stop_all: StopFlag,
 def _answer(conn: Connection, running: dict[str, Any], kind: str, name: str) -> bool:
     """Answer one request; False when the runner cannot receive the answer (it is gone)."""
     obj = running.get(name)
-    try:
-        if obj is None:
-            conn.send(("error", f"no running node {name!r} in this host"))
-            return True
+    if obj is None:
+        reply: tuple[str, Any] = ("error", f"no running node {name!r} in this host")
+    else:
         try:
             if kind == "stats":
-                conn.send(("stats", obj.stats()))
+                reply = ("stats", obj.stats())
             elif kind in ("failure", "final_failure"):
-                conn.send(("failure", failure_of(obj, final=kind == "final_failure")))
+                reply = ("failure", failure_of(obj, final=kind == "final_failure"))
             elif kind == "stop":
                 del running[name]
                 obj.stop()
-                conn.send(("stopped", (obj.stats(), failure_of(obj))))
+                reply = ("stopped", (obj.stats(), failure_of(obj)))
             else:
-                conn.send(("error", f"unknown request {kind!r}"))
-        except OSError:
-            raise
+                reply = ("error", f"unknown request {kind!r}")
         except Exception as exc:  # the runner names the node and the call
-            conn.send(("error", f"{kind}() raised {type(exc).__name__}: {exc}"))
-    except OSError:  # the channel broke: nobody to answer
-        return False
-    return True
+            reply = ("error", f"{kind}() raised {type(exc).__name__}: {exc}")
+    return _send(conn, reply)
 
 
 def main(argv: list[str] | None = None) -> int:

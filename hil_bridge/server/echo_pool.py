@@ -34,7 +34,6 @@ at a time (so an idle worker is known and no job waits behind another), over one
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import logging
 import multiprocessing
 import os
@@ -48,6 +47,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from hil_bridge.bus.faults import Faults
+from hil_bridge.lifetime import die_with_parent
 from hil_bridge.server.echo_compute import (
     DeadlinePlanner,
     EchoJob,
@@ -61,8 +61,6 @@ from sim_core.sonar.cost import COST, EchoCost
 
 __all__ = ["MAX_RESTARTS", "STOP_TIMEOUT_S", "WORKER_NAME", "WORKER_NICE", "ProcessPool",
            "ThreadWorker", "usable_cores"]
-
-_PR_SET_PDEATHSIG = 1
 
 log = logging.getLogger(__name__)
 
@@ -155,21 +153,12 @@ def _lower_priority(nice: int) -> None:
             os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
 
 
-def _die_with(parent_pid: int) -> None:
-    """Have the kernel SIGKILL this process when the process that spawned it dies (Linux
-    ``prctl``); exit now if it is already gone."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-    if os.getppid() != parent_pid:
-        os._exit(1)
-
-
 def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
                  cost: EchoCost, parent_pid: int) -> None:
     """Body of a worker process: its own Scene, tiles through the shared store, one job at a
     time; exits on ``None``, when the server's end of the pipe closes, or with the server's
     process."""
-    _die_with(parent_pid)
+    die_with_parent(parent_pid, signal.SIGKILL)
     from hil_bridge.files.scene import load_scene
     from hil_bridge.recording.logs import load_trajectory
     from hil_bridge.server.shared_tiles import SharedTiles

@@ -570,7 +570,7 @@ class SimServer:
                 self._cmd_flying.clear()
                 self._c["ticks"] += 1
                 self._tick_cpu_s += cpu - cpu0
-                self._tick_wall = (wall0, time.monotonic())
+                self._tick_wall = (wall0, published_ns / 1e9)
             cpu0 = cpu
             tick += 1
             now = time.monotonic()
