@@ -26,9 +26,8 @@ each glider the first time one of its topics is seen.
   choose (shared memory between processes of one host).
 - **Executor.** rclpy's ``EventsExecutor`` serves the ROS 2 side (commands in, QoS and match
   events): its wait loop runs in C++, so it neither burns nor waits for the interpreter lock
-  the receive threads hold (against the ``SingleThreadedExecutor``, one run each of
-  ``python -m bench ros2``: state latency p50 2.1 → 1.7 ms, ROS 2 command → bus p50 2.7 →
-  1.8 ms).
+  the receive threads hold (the ``SingleThreadedExecutor`` it replaced, whose wait loop is
+  Python, gave higher state and command latencies in ``python -m bench ros2``).
 - **Shutdown.** The executor stops before the context is shut down; no ROS log files are
   written (``--disable-external-lib-logs``, no ``/rosout``).
 """
