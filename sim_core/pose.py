@@ -35,6 +35,8 @@ __all__ = [
     "enu_from_ned",
     "euler_from_quat",
     "flu_from_frd",
+    "frd_from_flu",
+    "ned_from_enu",
     "pose_compose",
     "pose_extrapolate",
     "pose_interpolate",
@@ -44,6 +46,7 @@ __all__ = [
     "quat_from_euler",
     "quat_from_rotation_vector",
     "quat_multiply",
+    "quat_ned_frd_from_enu_flu",
     "quat_normalize",
     "quat_rotate",
     "quat_slerp",
@@ -60,6 +63,11 @@ ENU_FROM_NED.setflags(write=False)
 _Q_ENU_FROM_NED = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])
 #: FRD-from-FLU (and FLU-from-FRD): 180° about x
 _Q_FLIP_X = np.array([0.0, 1.0, 0.0, 0.0])
+#: ``q ↦ q_enu_ned ⊗ q ⊗ q_frd_flu`` as a matrix on ``[w, x, y, z]`` (its own inverse up to
+#: sign: both frame changes are 180° rotations)
+_M_ENU_FLU_FROM_NED_FRD = np.sqrt(0.5) * np.array([
+    [-1.0, 0.0, 0.0, -1.0], [0.0, -1.0, -1.0, 0.0], [0.0, -1.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 1.0],
+])
 
 
 def _f(a: ArrayLike) -> FloatArray:
@@ -309,7 +317,26 @@ def flu_from_frd(v: ArrayLike) -> FloatArray:
 def quat_enu_flu_from_ned_frd(q_ned_frd: ArrayLike) -> FloatArray:
     """A world-from-body attitude logged as NED-from-FRD, as ENU-from-FLU ``(..., 4)``.
 
-    ``q_enu_flu = q_enu_ned ⊗ q_ned_frd ⊗ q_frd_flu``; the result is normalised with w ≥ 0.
+    ``q_enu_flu = q_enu_ned ⊗ q_ned_frd ⊗ q_frd_flu`` (a fixed linear map of the components);
+    the result is normalised with w ≥ 0.
     """
-    q = quat_multiply(_Q_ENU_FROM_NED, quat_multiply(q_ned_frd, _Q_FLIP_X))
-    return quat_normalize(q)
+    return quat_normalize(_f(q_ned_frd) @ _M_ENU_FLU_FROM_NED_FRD.T)
+
+
+def ned_from_enu(v: ArrayLike) -> FloatArray:
+    """ENU vectors ``(..., 3)`` in NED axes: the inverse of :func:`enu_from_ned` (the same
+    swap, which is its own inverse)."""
+    return enu_from_ned(v)
+
+
+def frd_from_flu(v: ArrayLike) -> FloatArray:
+    """FLU body vectors (or rates) ``(..., 3)`` in FRD axes: the inverse of
+    :func:`flu_from_frd` (its own inverse)."""
+    return flu_from_frd(v)
+
+
+def quat_ned_frd_from_enu_flu(q_enu_flu: ArrayLike) -> FloatArray:
+    """A world-from-body attitude ENU-from-FLU as NED-from-FRD ``(..., 4)``, normalised with
+    w ≥ 0: the inverse of :func:`quat_enu_flu_from_ned_frd` (both frame changes are 180°
+    rotations, so the same products invert it)."""
+    return quat_enu_flu_from_ned_frd(q_enu_flu)

@@ -12,6 +12,8 @@ files shared in memory         ``{shared}/d{N}/{tag}-{pid}-{random}/`` (:meth:`D
 python-can virtual channels    ``{name}.d{N}`` (e.g. ``glider.d0``)
 CAN across processes           python-can ``udp_multicast`` group ``239.255.74.{N}``, port
                                ``{7402 + 10 N}``, hop limit 0 (never leaves the host)
+ArduPilot SITL (JSON physics)  SITL instance ``N`` (``-I N``): UDP ``{9002 + 10 N}``, and
+                               SITL's own MAVLink TCP ``{5760 + 10 N}`` up
 =============================  ==========================================================
 
 so domain 0 keeps the defaults of ``docs/spec/protocols.md`` (7400/7401) and Foxglove's 8765,
@@ -189,6 +191,12 @@ class Domain:
     def live_port(self) -> int:
         """Default live-view (Foxglove WebSocket) port; 0 (ephemeral) for a private domain."""
         return 0 if self.number is None else LIVE_PORT_BASE + DOMAIN_STRIDE * self.number
+
+    @property
+    def sitl_instance(self) -> int | None:
+        """The ArduPilot SITL instance (``-I``) this domain's SITL node serves by default: the
+        domain number (None for a private domain: an ephemeral port)."""
+        return self.number
 
     @property
     def ports(self) -> tuple[int, ...]:

@@ -29,6 +29,7 @@ __all__ = [
     "CmdAck",
     "Diagnostics",
     "EcholoopClock",
+    "FdmState",
     "GliderCmd",
     "GliderNeighbors",
     "GliderState",
@@ -36,6 +37,7 @@ __all__ = [
     "PointCloud",
     "SonarEcho",
     "SonarPing",
+    "SurfaceCmd",
     "ThermalMarkers",
     "message_class",
     "register",
@@ -215,6 +217,59 @@ class GliderCmd(Message):
     airspeed_cmd: float
     glider_id: int = 0
     step: int = 0
+
+
+@register
+@dataclasses.dataclass(**_FROZEN)
+class SurfaceCmd(Message):
+    """``/glider/<id>/surfaces``: control surfaces of a 6-DoF vehicle (JSBSim's normalised
+    commands: ``aileron``, ``elevator``, ``rudder`` in [-1, 1], positive elevator nose down;
+    ``throttle`` in [0, 1]); ``step``: the state step it answers (lockstep)."""
+
+    TYPE: ClassVar[str] = "echoloop/SurfaceCmd"
+    VERSION: ClassVar[int] = 1
+
+    stamp_ns: int
+    aileron: float
+    elevator: float
+    throttle: float
+    rudder: float
+    glider_id: int = 0
+    step: int = 0
+
+
+@register
+@dataclasses.dataclass(**_FROZEN)
+class FdmState(Message):
+    """``/glider/<id>/fdm``: what an autopilot's sensors need of a 6-DoF vehicle, each tick
+    beside its ``GliderState``: position ``x, y, z`` m and velocity ``vx, vy, vz`` m/s (world
+    ENU), attitude ``qw, qx, qy, qz`` (world-from-body, ENU from FLU), body rates ``p, q, r``
+    rad/s and specific force ``fx, fy, fz`` m/s² (body FLU: +9.81 on z at rest), true
+    ``airspeed`` m/s; ``step`` as the state's."""
+
+    TYPE: ClassVar[str] = "echoloop/FdmState"
+    VERSION: ClassVar[int] = 1
+
+    stamp_ns: int
+    glider_id: int
+    step: int
+    x: float
+    y: float
+    z: float
+    vx: float
+    vy: float
+    vz: float
+    qw: float
+    qx: float
+    qy: float
+    qz: float
+    p: float
+    q: float
+    r: float
+    fx: float
+    fy: float
+    fz: float
+    airspeed: float
 
 
 @register

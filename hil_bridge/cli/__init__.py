@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("hil_bridge.cli.replay", "drive a vehicle along a logged trajectory"),
     "mock": ("drivers.cli", "run a device mock: sonar-head | autopilot"),
     "ros2": ("ros2_bridge.cli", "bridge|mapping: the live ROS 2 bridge (extra 'ros2')"),
+    "ardupilot": ("drivers.ardupilot.cli", "sitl|polar: ArduPilot SITL in the loop (JSON)"),
 }
 
 

@@ -8,6 +8,8 @@
   model in between, on the law's held commands or on its autopilot's latest;
 - commanded vehicles (``commanded: true``): their path until an autopilot's first command, then
   :mod:`sim_core.flight` on the held command (taken over at the pose the path had);
+- 6-DoF vehicles (``sixdof:``): JSBSim aircraft (:class:`sim_core.sixdof.SixDofGliders`) from
+  the start, on the held control surfaces (neutral until the first), in the swarm's updraft;
 - path vehicles: sampled on their trajectory at each tick, with the attitude the path implies
   (:func:`sim_core.flight.path_state`).
 
@@ -149,6 +151,20 @@ class Fleet:
                 [v.flight for v in self._commanded], glide=[v.glides for v in self._commanded],
                 polar=(polar.Sink_A, polar.Sink_B, polar.Sink_C), g=polar.g,
             )
+        self._sixdof_specs = [v for v in vehicles if v.sixdof is not None]
+        self._sindex = {v.id: i for i, v in enumerate(self._sixdof_specs)}
+        self.sixdof: Any = None
+        if self._sixdof_specs:
+            from sim_core.sixdof import CONTROLS, SixDofGliders
+
+            starts = [path_state(self._traj[v.id], 0.0) for v in self._sixdof_specs]
+            self.sixdof = SixDofGliders(
+                [v.sixdof for v in self._sixdof_specs if v.sixdof is not None],
+                np.array([s.position for s in starts]), np.array([s.heading for s in starts]),
+                updraft=self._updraft,
+            )
+            self._surfaces = np.zeros((len(self._sixdof_specs), len(CONTROLS)))
+        self._sixdof_out: Any = None
         self._vy = np.zeros((6, n_c))
         for i, v in enumerate(self._commanded):
             self._vy[:, i] = self._takeover_state(v.id, 0)
@@ -193,11 +209,24 @@ class Fleet:
         self._external = self._swarm_commands(commands)
         self.swarm.decide(self._external)
 
-    def advance(self, commands: Mapping[int, tuple[float, float]]) -> None:
+    @property
+    def sixdof_ids(self) -> tuple[int, ...]:
+        """The ids of the 6-DoF vehicles."""
+        return tuple(self._sindex)
+
+    def advance(self, commands: Mapping[int, tuple[float, float]],
+                surfaces: Mapping[int, tuple[float, ...]] | None = None) -> None:
         """Fly every vehicle to the next tick on ``commands`` (id → (bank rad, airspeed m/s),
-        within each vehicle's envelope). A commanded vehicle's first command takes it off its
-        path at the pose the path has now."""
+        within each vehicle's envelope) and the 6-DoF vehicles on ``surfaces`` (id →
+        :data:`sim_core.sixdof.CONTROLS`; held from the last given). A commanded vehicle's first
+        command takes it off its path at the pose the path has now."""
         dt = self.tick_ns / 1e9
+        if self.sixdof is not None:
+            for vid, u in (surfaces or {}).items():
+                i = self._sindex.get(vid)
+                if i is not None:
+                    self._surfaces[i] = u
+            self.sixdof.step(dt, self._surfaces, self._updraft)
         if self.swarm is not None:
             self._external = self._swarm_commands(commands)
             self.swarm.advance(dt, substeps=self.substeps, external=self._external)
@@ -243,9 +272,18 @@ class Fleet:
             y = self._vy
             out = self._vmodel.outputs(y, self._vcmd, self._updraft(y[X : Y + 1]))
             flown = self._flown_part(y, out, ~self._vgrounded, self.tick)
-        on_path = [vid for vid in self.vehicle_ids
-                   if vid not in self._cindex or not self._vflown[self._cindex[vid]]]
+        on_path = [vid for vid in self.vehicle_ids if vid not in self._sindex and (
+            vid not in self._cindex or not self._vflown[self._cindex[vid]])]
         blocks: list[tuple[list[int], dict[str, Any]]] = []
+        if self.sixdof is not None:
+            so = self._sixdof_out = self.sixdof.outputs()
+            blocks.append((list(self._sindex), {
+                "position": so.position, "velocity": so.velocity, "heading": so.yaw,
+                "bank": -so.roll, "airspeed": so.airspeed, "vz": so.velocity[:, 2],
+                "roll": so.roll, "pitch": so.pitch, "yaw": so.yaw, "quat": so.quat,
+                "rates": so.rates, "alive": so.alive,
+                "step": np.full(len(self._sindex), self.tick, dtype=np.int64),
+            }))
         if on_path:
             ps = path_states([self._traj[vid] for vid in on_path], self.t_ns / 1e9)
             o = ps.outputs
@@ -256,7 +294,8 @@ class Fleet:
                 "alive": np.ones(len(on_path), dtype=bool),
                 "step": np.full(len(on_path), self.tick, dtype=np.int64),
             }))
-        taken = [vid for vid in self.vehicle_ids if vid not in set(on_path)]
+        taken = [vid for vid in self.vehicle_ids
+                 if vid not in set(on_path) and vid not in self._sindex]
         if taken:
             rows = [self._cindex[vid] for vid in taken]
             blocks.append((taken, {k: v[rows] for k, v in flown.items()}))
@@ -285,6 +324,11 @@ class Fleet:
             "rates": out.rates, "alive": np.asarray(alive, dtype=bool),
             "step": np.full(n, step, dtype=np.int64),
         }
+
+    def sixdof_outputs(self) -> Any:
+        """The 6-DoF vehicles' outputs (:class:`sim_core.sixdof.SixDofOutputs`, rows in the
+        order of :attr:`sixdof_ids`) at the last :meth:`states`, or None."""
+        return self._sixdof_out
 
     # -- pose history ------------------------------------------------------------------------
     def add_listener(self, callback: Callable[[int], None]) -> None:

@@ -10,7 +10,9 @@ Topics (ids are the scene's vehicle/glider/sonar ids)::
                /thermals                  latched ThermalMarkers (with a swarm)
                /forest/points             latched PointCloud of leaves around the sonars
                /diagnostics               every ``diagnostics_period_s`` of wall time
+               /glider/<id>/fdm           every tick, for every 6-DoF vehicle (its sensors' truth)
     subscribes /glider/<id>/cmd           bank_cmd (rad), airspeed_cmd (m/s)
+               /glider/<id>/surfaces      a 6-DoF vehicle's control surfaces
                /sonar/<id>/ping           ping_seq, az, el (rad, sonar frame), beamwidth (rad)
 
 **Flight** (:mod:`hil_bridge.server.fleet`). Every tick is a new physics state: the vehicles are
@@ -25,14 +27,11 @@ implies. Every state carries the full attitude (roll, pitch, yaw, quaternion, bo
 command, even a rejected one, registers it) or by being listed in the ``autopilots`` parameter.
 Only registered gliders get ``/neighbors`` and, in ``lockstep`` mode, are waited for.
 
-**Commands.** A command is *rejected* (counted, the last good one held) if a value is non-finite,
-``|bank_cmd| >= pi/2`` or ``airspeed_cmd`` is outside (0, 3 * max speed]; otherwise it is
-clipped to the glider's (the law's) or vehicle's envelope (counted in ``cmd_clipped``) and held
-until the next good one. Commands for path vehicles are counted in ``cmd_ignored``.
-``cmd_effect_ticks``: for each command, the tick it was first flown in minus the next tick due
-when it arrived, plus one (1: in effect at the next tick; 2: it arrived while that tick was
-being computed); ``cmd_apply_ms``: the wall time from its arrival to the publish of the first
-state that flies it.
+**Commands** and a 6-DoF vehicle's control surfaces are checked, clipped, held and counted by
+:class:`hil_bridge.server.commands.AutopilotInputs` (``cmd_*``, ``surfaces_*``;
+``cmd_effect_ticks``: 1 when an input is in effect at the next tick, 2 when it arrived while
+that tick was being computed; ``cmd_apply_ms``: its arrival to the publish of the first state
+that flies it).
 
 **Echoes** (:mod:`hil_bridge.server.sonars`, :mod:`hil_bridge.server.emission`,
 :mod:`hil_bridge.server.echo_service`). A ping is answered at its sonar's world pose at the
@@ -73,7 +72,6 @@ import logging
 import math
 import threading
 import time
-from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -86,14 +84,17 @@ from hil_bridge.bus.faults import Faults
 from hil_bridge.bus.messages import (
     Clock,
     Diagnostics,
+    FdmState,
     GliderCmd,
     GliderNeighbors,
     GliderState,
+    SurfaceCmd,
     ThermalMarkers,
 )
 from hil_bridge.bus.stats import percentiles
 from hil_bridge.files.scene import load_scene
 from hil_bridge.recording.logs import load_trajectory
+from hil_bridge.server.commands import AutopilotInputs
 from hil_bridge.server.fleet import Fleet, FleetStates
 from hil_bridge.server.lockstep import LockstepGate
 from hil_bridge.server.sonars import ServerSonars
@@ -149,15 +150,13 @@ class ServerParams:
 
 log = logging.getLogger(__name__)
 
-_REJECT_BANK = math.pi / 2
 #: seconds the server waits at start for its bus endpoint to know the subscriptions already
 #: made (:meth:`~hil_bridge.bus.transport.base.Transport.sync`) before its first tick
 BUS_SYNC_S = 10.0
 
 _COUNTERS = (
     "ticks", "physics_steps", "control_steps", "states_published", "neighbors_published",
-    "clock_published", "cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped",
-    "cmd_ignored", "late_ticks", "diagnostics_published", "external_steps",
+    "clock_published", "late_ticks", "diagnostics_published", "external_steps", "fdm_published",
 )
 
 
@@ -205,7 +204,6 @@ class SimServer:
         self._started = False
         self._stopped = False
         self._c: dict[str, int] = dict.fromkeys(_COUNTERS, 0)
-        self._cmd_effect_ticks: deque[int] = deque(maxlen=10000)
         self._sim_ns = 0
         self._tick_cpu_s = 0.0
         self._tick_wall = (0.0, 0.0)  # monotonic time of the first and of the last tick
@@ -214,9 +212,8 @@ class SimServer:
         self.faults = Faults(name)
         self._flown_gliders: dict[int, dict[str, Any]] = {}
         self._glider_index = {gid: i for i, gid in enumerate(self.scene.glider_ids)}
-        self._vehicle_specs = {v.id: v for v in spec.vehicles}
-        self._registered: set[int] = {int(a) for a in self.params.autopilots}
-        unknown = sorted(self._registered - set(self._glider_index) - set(self._vehicle_specs))
+        registered = {int(a) for a in self.params.autopilots}
+        unknown = sorted(registered - set(self._glider_index) - {v.id for v in spec.vehicles})
         if unknown:
             raise ConfigError(f"{name}.params.autopilots: unknown glider id(s) {unknown}")
         bad_heads = sorted(set(self.params.sonar_heads) - {s.id for s in spec.sonars})
@@ -226,13 +223,9 @@ class SimServer:
         self._gate = LockstepGate(
             lockstep=clock.mode == "lockstep", timeout_s=clock.lockstep_timeout_s,
             max_stalls=clock.lockstep_max_stalls, start_timeout_s=clock.lockstep_start_timeout_s,
-            autopilots=self._registered, sonars=self.params.sonar_heads,
+            autopilots=registered, sonars=self.params.sonar_heads,
         )
-        self._good_cmd: dict[int, tuple[float, float]] = {}
-        #: id -> the tick due when its newest good command arrived, until that command is flown
-        self._cmd_pending: dict[int, tuple[int, int]] = {}
-        self._cmd_flying: list[int] = []
-        self._cmd_apply_ms: deque[float] = deque(maxlen=10000)
+        self._inputs = AutopilotInputs(self.scene, registered, self._ticks_now)
         self.fleet = Fleet(
             self.scene, tick_ns=self.tick_ns, substeps=self.substeps,
             history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
@@ -281,6 +274,14 @@ class SimServer:
                 GliderCmd, f"/glider/{gid}/cmd", self._make_cmd_callback(gid), qos=COMMAND,
                 priority=True,
             )
+        for gid in self.fleet.sixdof_ids:
+            self._pubs[f"/glider/{gid}/fdm"] = node.create_publisher(
+                FdmState, f"/glider/{gid}/fdm", qos=SENSOR
+            )
+            node.create_subscription(
+                SurfaceCmd, f"/glider/{gid}/surfaces", functools.partial(self._on_surfaces, gid),
+                qos=COMMAND, priority=True,
+            )
         for gid in self._glider_index:
             self._pubs[f"/glider/{gid}/neighbors"] = node.create_publisher(
                 GliderNeighbors, f"/glider/{gid}/neighbors", qos=SENSOR
@@ -325,11 +326,9 @@ class SimServer:
             wall = self._tick_wall[1] - self._tick_wall[0]
             out["tick_wall_s"] = wall
             out["rate_achieved"] = self._sim_ns / 1e9 / wall if wall > 0 else math.nan
-            out["registered"] = sorted(self._registered)
             out["tick_error"] = self._tick_error
             out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
-            effect = list(self._cmd_effect_ticks)
-            apply_ms = list(self._cmd_apply_ms)
+        out.update(self._inputs.stats())
         out.update(self._gate.stats())
         out.update(sonars)
         out["clock_mode"] = self.clock_spec.mode
@@ -338,8 +337,6 @@ class SimServer:
         out["ping_wait_ms"] = percentiles(sonars["ping_wait_ms"])
         out["ping_extrapolated_ms"] = percentiles(sonars["ping_extrapolated_ms"])
         out["echo_compute_ms"] = percentiles(sonars["echo_compute_ms"])
-        out["cmd_effect_ticks"] = percentiles(effect)
-        out["cmd_apply_ms"] = percentiles(apply_ms)
         if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
             out["gliders_alive"] = int(np.count_nonzero(self.fleet.swarm.alive[0]))
         return out
@@ -362,51 +359,16 @@ class SimServer:
         return on_cmd
 
     def _on_cmd(self, gid: int, msg: GliderCmd) -> None:
-        with self._lock:
-            self._c["cmd_received"] += 1
-            vehicle = self._vehicle_specs.get(gid)
-            if vehicle is not None and not vehicle.commanded:
-                self._c["cmd_ignored"] += 1
-                return
-            self._registered.add(gid)
-            checked = self._check_cmd(gid, msg.bank_cmd, msg.airspeed_cmd)
-            if checked is None:
-                self._c["cmd_rejected"] += 1
-            else:
-                bank, speed, clipped = checked
-                self._good_cmd[gid] = (bank, speed)
-                self._cmd_pending.setdefault(gid, (self._c["ticks"], time.monotonic_ns()))
-                self._c["cmd_applied"] += 1
-                self._c["cmd_clipped"] += int(clipped)
+        if self._inputs.on_cmd(gid, msg):
+            self._gate.on_cmd(gid, int(msg.step))
+
+    def _on_surfaces(self, gid: int, msg: SurfaceCmd) -> None:
+        self._inputs.on_surfaces(gid, msg)
         self._gate.on_cmd(gid, int(msg.step))
 
-    def _check_cmd(self, gid: int, bank: float, speed: float) -> tuple[float, float, bool] | None:
-        """Reject (None) or clip a command to glider/vehicle ``gid``'s envelope."""
-        vehicle = self._vehicle_specs.get(gid)
-        if vehicle is None:
-            law = self.scene.law
-            bank_lo, bank_hi = float(law.bankMin), float(law.bankMax)
-            v_lo, v_hi = float(law.forwardSpeedMin), float(law.forwardSpeedMax)
-        else:
-            bank_lo, bank_hi = -vehicle.bank_max_rad, vehicle.bank_max_rad
-            v_lo, v_hi = vehicle.speed_min_mps, vehicle.speed_max_mps
-        b, v = float(bank), float(speed)
-        if not (math.isfinite(b) and math.isfinite(v)):
-            return None
-        if abs(b) >= _REJECT_BANK or not 0 < v <= 3 * v_hi:
-            return None
-        bc = min(max(b, bank_lo), bank_hi)
-        vc = min(max(v, v_lo), v_hi)
-        return bc, vc, (bc != b or vc != v)
-
-    def _commands_for_tick(self, tick: int) -> dict[int, tuple[float, float]]:
-        """The held good commands that tick ``tick`` flies (and their effect latency)."""
+    def _ticks_now(self) -> int:
         with self._lock:
-            for arrived, arrived_ns in self._cmd_pending.values():
-                self._cmd_effect_ticks.append(tick - arrived + 1)
-                self._cmd_flying.append(arrived_ns)
-            self._cmd_pending.clear()
-            return dict(self._good_cmd)
+            return self._c["ticks"]
 
     # ------------------------------------------------------------------ tick loop
 
@@ -454,13 +416,24 @@ class SimServer:
                 yaw_rate=w[2],
             ))
             self._gate.published(gid, step, alive=alive, every_tick=gid not in gliders)
+        fdm = self.fleet.sixdof_outputs()
+        if fdm is not None:
+            rows6 = zip(self.fleet.sixdof_ids, fdm.position.tolist(), fdm.velocity.tolist(),
+                        fdm.quat.tolist(), fdm.rates.tolist(), fdm.specific_force.tolist(),
+                        fdm.airspeed.tolist(), strict=True)
+            for gid, p, v, q, w, f, tas in rows6:
+                pubs[f"/glider/{gid}/fdm"].publish(FdmState(
+                    stamp_ns=t_ns, glider_id=gid, step=self.fleet.tick, x=p[0], y=p[1], z=p[2],
+                    vx=v[0], vy=v[1], vz=v[2], qw=q[0], qx=q[1], qy=q[2], qz=q[3], p=w[0],
+                    q=w[1], r=w[2], fx=f[0], fy=f[1], fz=f[2], airspeed=tas,
+                ))
         with self._lock:
             self._c["clock_published"] += 1
             self._c["states_published"] += len(st.ids)
+            self._c["fdm_published"] += 0 if fdm is None else len(self.fleet.sixdof_ids)
 
     def _publish_neighbors(self, t_ns: int) -> None:
-        with self._lock:
-            targets = sorted(g for g in self._registered if g in self._glider_index)
+        targets = [g for g in self._inputs.registered() if g in self._glider_index]
         if not targets:
             return
         swarm = self.fleet.swarm
@@ -546,12 +519,12 @@ class SimServer:
                     )
                     if self._stop.is_set():
                         return
-                fleet.advance(self._commands_for_tick(tick))
+                fleet.advance(*self._inputs.for_tick(tick))
                 with self._lock:
                     self._c["physics_steps"] += self.substeps
             decided = fleet.control_due()
             if decided:
-                commands = self._commands_for_tick(tick)
+                commands, _ = self._inputs.for_tick(tick)
                 fleet.decide(commands)
                 with self._lock:
                     self._c["control_steps"] += 1
@@ -565,9 +538,8 @@ class SimServer:
             last = (states, decided)
             cpu = time.thread_time()
             published_ns = time.monotonic_ns()
+            self._inputs.published(published_ns)
             with self._lock:
-                self._cmd_apply_ms.extend((published_ns - a) / 1e6 for a in self._cmd_flying)
-                self._cmd_flying.clear()
                 self._c["ticks"] += 1
                 self._tick_cpu_s += cpu - cpu0
                 self._tick_wall = (wall0, published_ns / 1e9)

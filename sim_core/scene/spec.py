@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from sim_core.flight import FlightParams
+from sim_core.sixdof.model import SixDofSpec
 
 __all__ = [
     "ClockSpec",
@@ -225,6 +226,10 @@ class VehicleSpec:
     responses of ``flight``; ``flight.vertical`` ``hold`` by default: a powered vehicle keeping
     its height) on the held command, clipped to ``|bank| <= bank_max_rad`` and
     ``speed_min_mps..speed_max_mps``.
+
+    ``sixdof``: the vehicle is a 6-DoF JSBSim aircraft (:class:`sim_core.sixdof.SixDofSpec`)
+    from the start, at its path's first point and heading, flown on control surfaces
+    (``/glider/<id>/surfaces``) in the scene's updraft; its path only places it.
     """
 
     id: int
@@ -236,10 +241,14 @@ class VehicleSpec:
     speed_min_mps: float = 1.0
     speed_max_mps: float = 20.0
     flight: FlightParams = field(default_factory=FlightParams)
+    sixdof: SixDofSpec | None = None
 
     def __post_init__(self) -> None:
         if self.id < 0:
             raise ValueError(f"id: expected >= 0, got {self.id}")
+        if self.sixdof is not None and self.commanded:
+            raise ValueError("commanded, sixdof: a 6-DoF vehicle flies on control surfaces, "
+                             "not on bank and airspeed commands: expected one of them")
         if not 0 < self.bank_max_rad < math.pi / 2:
             raise ValueError(f"bank_max_rad: expected 0 < value < pi/2, got {self.bank_max_rad}")
         if not 0 < self.speed_min_mps <= self.speed_max_mps:

@@ -1,0 +1,263 @@
+"""JSBSim gliders stepped in the scene's air mass, in the scene's frames (ENU world, FLU body).
+
+:class:`SixDofGliders` holds one JSBSim ``FGFDMExec`` per vehicle. The scene's local ENU frame
+(metres, z up, z = 0 the ground) is the tangent plane at ``origin`` (geodetic latitude,
+longitude in degrees, height in metres of the WGS-84 ellipsoid), where JSBSim's terrain is put;
+positions come back through :func:`enu_from_geodetic` (exact, WGS-84) so every
+JSBSim vehicle and every other vehicle of the scene share one frame.
+
+Controls, per vehicle ``(aileron, elevator, throttle, rudder)`` (:data:`CONTROLS`), are JSBSim's
+normalised commands: aileron, elevator, rudder in [-1, 1] (JSBSim's signs: positive elevator is
+trailing edge down, nose down), throttle in [0, 1] (ignored by an aircraft without engines).
+Each internal step of at most ``dt_max_s`` sets JSBSim's wind to the updraft the caller gives
+at the vehicle's horizontal position (``atmosphere/wind-down-fps = -w``), so a glider climbs at
+the updraft minus its sink.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim_core.pose import (
+    enu_from_ned,
+    euler_from_quat,
+    flu_from_frd,
+    quat_enu_flu_from_ned_frd,
+    quat_from_euler,
+)
+
+__all__ = [
+    "CONTROLS",
+    "SixDofGliders",
+    "SixDofOutputs",
+    "SixDofSpec",
+    "enu_from_geodetic",
+    "geodetic_from_enu",
+]
+
+F8 = NDArray[np.float64]
+
+#: the columns of a controls array, in order
+CONTROLS = ("aileron", "elevator", "throttle", "rudder")
+_FT = 0.3048
+_SLUG = 14.5939029
+_WGS84_A = 6378137.0
+_WGS84_E2 = 6.69437999014e-3
+
+
+@dataclass(frozen=True, slots=True)
+class SixDofSpec:
+    """A vehicle flown by JSBSim (``vehicles[].sixdof`` of a scene).
+
+    ``aircraft``: a JSBSim model name (its package ships ``sgs126``, the SGS 1-26 single-seat
+    glider: measured L/D 26 at 21 m/s, minimum sink 0.74 m/s at 18 m/s; ``sgs233`` as shipped
+    is nose-heavy: full up elevator holds 29 m/s at L/D 12). ``airspeed_mps``: the true airspeed
+    it starts at, level, on its path's heading at its path's start point. ``origin``: [lat deg,
+    lon deg, height m] of the scene's ENU origin. ``dt_max_s``: the longest JSBSim step.
+    """
+
+    aircraft: str = "sgs126"
+    airspeed_mps: float = 20.0
+    origin: tuple[float, float, float] = (47.0, 8.0, 0.0)
+    dt_max_s: float = 0.0025
+
+    def __post_init__(self) -> None:
+        if not self.aircraft or "/" in self.aircraft or "\\" in self.aircraft:
+            raise ValueError(f"aircraft: expected a JSBSim model name, got {self.aircraft!r}")
+        if not 0 < self.airspeed_mps < 150:
+            raise ValueError(f"airspeed_mps: expected 0 < speed < 150, got {self.airspeed_mps}")
+        lat, lon, _ = self.origin
+        if not (-89.0 <= lat <= 89.0 and -180.0 <= lon <= 180.0):
+            raise ValueError(f"origin: expected [lat in [-89, 89], lon in [-180, 180], height], "
+                             f"got {list(self.origin)}")
+        if not 1e-4 <= self.dt_max_s <= 0.02:
+            raise ValueError(f"dt_max_s: expected 1e-4 <= dt <= 0.02, got {self.dt_max_s}")
+
+
+@dataclass(frozen=True, slots=True)
+class SixDofOutputs:
+    """Every JSBSim vehicle now, rows in construction order: ``position``, ``velocity`` (N, 3)
+    m, m/s world ENU; ``quat`` (N, 4) world-from-body ENU-from-FLU; ``roll``, ``pitch``, ``yaw``
+    (N,) its Z-Y-X Euler angles; ``rates`` (N, 3) body rates rad/s FLU; ``specific_force``
+    (N, 3) m/s² FLU (what an accelerometer reads: +g up at rest); ``airspeed`` (N,) true
+    airspeed m/s; ``alive`` (N,) False once a state is not finite."""
+
+    position: F8
+    velocity: F8
+    quat: F8
+    roll: F8
+    pitch: F8
+    yaw: F8
+    rates: F8
+    specific_force: F8
+    airspeed: F8
+    alive: NDArray[np.bool_]
+
+
+def _ecef(lat: F8, lon: F8, h: F8) -> F8:
+    """WGS-84 geodetic (rad, rad, m) arrays (N,) → ECEF (N, 3) m."""
+    s, c = np.sin(lat), np.cos(lat)
+    n = _WGS84_A / np.sqrt(1.0 - _WGS84_E2 * s * s)
+    return np.stack([(n + h) * c * np.cos(lon), (n + h) * c * np.sin(lon),
+                     (n * (1.0 - _WGS84_E2) + h) * s], axis=-1)
+
+
+def _enu_axes(lat0: float, lon0: float) -> F8:
+    """Rows: east, north, up unit vectors (3, 3) in ECEF at (lat0, lon0) rad."""
+    sl, cl, so, co = math.sin(lat0), math.cos(lat0), math.sin(lon0), math.cos(lon0)
+    return np.array([[-so, co, 0.0], [-sl * co, -sl * so, cl], [cl * co, cl * so, sl]])
+
+
+def enu_from_geodetic(lat: F8, lon: F8, h: F8, origin: tuple[float, float, float]) -> F8:
+    """Geodetic latitude, longitude (rad) and height (m) arrays (N,) → ENU (N, 3) m in the
+    tangent plane at ``origin`` ([lat deg, lon deg, height m]), WGS-84."""
+    lat0, lon0 = math.radians(origin[0]), math.radians(origin[1])
+    p0 = _ecef(np.array([lat0]), np.array([lon0]), np.array([float(origin[2])]))[0]
+    d = _ecef(np.asarray(lat, np.float64), np.asarray(lon, np.float64),
+              np.asarray(h, np.float64)) - p0
+    return np.asarray(d @ _enu_axes(lat0, lon0).T, dtype=np.float64)
+
+
+def geodetic_from_enu(enu: F8, origin: tuple[float, float, float]) -> tuple[F8, F8, F8]:
+    """ENU points (N, 3) m → geodetic (lat rad, lon rad, height m) arrays (N,), the inverse of
+    :func:`enu_from_geodetic` to below a millimetre within 100 km (fixed-point steps on the
+    origin's radii of curvature until the residual is below 0.1 mm, at most ten)."""
+    e = np.asarray(enu, dtype=np.float64).reshape(-1, 3)
+    lat0, lon0 = math.radians(origin[0]), math.radians(origin[1])
+    s = math.sin(lat0)
+    n_rad = _WGS84_A / math.sqrt(1.0 - _WGS84_E2 * s * s)
+    m_rad = n_rad * (1.0 - _WGS84_E2) / (1.0 - _WGS84_E2 * s * s)
+    lat = np.full(len(e), lat0)
+    lon = np.full(len(e), lon0)
+    h = np.full(len(e), float(origin[2]))
+    for _ in range(10):
+        r = e - enu_from_geodetic(lat, lon, h, origin)
+        if np.abs(r).max(initial=0.0) < 1e-4:
+            break
+        lat = lat + r[:, 1] / (m_rad + h)
+        lon = lon + r[:, 0] / ((n_rad + h) * math.cos(lat0))
+        h = h + r[:, 2]
+    return lat, lon, h
+
+
+class SixDofGliders:
+    """JSBSim vehicles, one per spec, started level through the air at ``airspeed_mps`` from
+    ``starts`` (N, 3) ENU m on ``headings`` (N,) rad (ENU: from +x towards +y), already moving
+    with the air mass of ``updraft(xy (2, N)) → (N,)`` m/s (still air when None), so a glider
+    that starts in a thermal is not jolted by it."""
+
+    def __init__(self, specs: Sequence[SixDofSpec], starts: F8, headings: F8,
+                 updraft: Callable[[F8], F8] | None = None) -> None:
+        import jsbsim
+
+        jsbsim.FGJSBBase().debug_lvl = 0  # no banner or model report on stdout
+        self.specs = tuple(specs)
+        starts = np.asarray(starts, dtype=np.float64).reshape(len(self.specs), 3)
+        self._fdm: list[Any] = []
+        self._controls = np.zeros((len(self.specs), len(CONTROLS)))
+        self._alive = np.ones(len(self.specs), dtype=bool)
+        origins = np.radians([[sp.origin[0], sp.origin[1]] for sp in self.specs]).reshape(-1, 2)
+        self._origin_ecef = _ecef(origins[:, 0], origins[:, 1],
+                                  np.array([sp.origin[2] for sp in self.specs], dtype=np.float64))
+        self._origin_axes = np.array([_enu_axes(la, lo) for la, lo in origins]).reshape(-1, 3, 3)
+        w0 = np.zeros(len(self.specs)) if updraft is None else np.asarray(
+            updraft(starts[:, :2].T), dtype=np.float64).reshape(len(self.specs))
+        for spec, start, psi, w in zip(self.specs, starts, np.asarray(headings, np.float64), w0,
+                                       strict=True):
+            fdm = jsbsim.FGFDMExec(None)
+            fdm.set_debug_level(0)
+            if not fdm.load_model(spec.aircraft):
+                raise ValueError(f"aircraft: JSBSim has no model {spec.aircraft!r}")
+            fdm.set_dt(spec.dt_max_s)
+            lat, lon, h = geodetic_from_enu(start[None], spec.origin)
+            fdm["ic/terrain-elevation-ft"] = spec.origin[2] / _FT
+            fdm["ic/lat-geod-rad"] = float(lat[0])
+            fdm["ic/long-gc-rad"] = float(lon[0])
+            fdm["ic/h-sl-ft"] = float(h[0]) / _FT
+            fdm["ic/vt-fps"] = spec.airspeed_mps / _FT
+            fdm["ic/psi-true-rad"] = (math.pi / 2 - float(psi)) % (2 * math.pi)
+            fdm["ic/gamma-rad"] = 0.0
+            fdm["atmosphere/wind-down-fps"] = -float(w) / _FT
+            if not fdm.run_ic():
+                raise ValueError(f"aircraft {spec.aircraft!r}: JSBSim refused the start state")
+            self._fdm.append(fdm)
+
+    def __len__(self) -> int:
+        return len(self._fdm)
+
+    def step(self, dt: float, controls: F8, updraft: Callable[[F8], F8],
+             active: NDArray[np.bool_] | None = None) -> None:
+        """Fly every vehicle (or those ``active``) ``dt`` s on ``controls`` (N, 4)
+        (:data:`CONTROLS`, clipped to their ranges), in JSBSim steps of at most each spec's
+        ``dt_max_s``; ``updraft(xy (2, N)) → (N,)`` m/s is asked once per step."""
+        u = np.asarray(controls, dtype=np.float64).reshape(len(self), len(CONTROLS))
+        lo = np.array([-1.0, -1.0, 0.0, -1.0])
+        self._controls = np.clip(np.nan_to_num(u), lo, 1.0)
+        on = self._alive if active is None else self._alive & np.asarray(active, dtype=bool)
+        n = max((math.ceil(dt / s.dt_max_s - 1e-9) for s in self.specs), default=0)
+        if n == 0 or dt <= 0:
+            return
+        for k, fdm in enumerate(self._fdm):
+            if on[k]:
+                fdm.set_dt(dt / n)
+                a, e, t, r = self._controls[k]
+                fdm["fcs/aileron-cmd-norm"] = a
+                fdm["fcs/elevator-cmd-norm"] = e
+                fdm["fcs/rudder-cmd-norm"] = r
+                if fdm.get_propulsion().get_num_engines():
+                    fdm["fcs/throttle-cmd-norm"] = t
+        for _ in range(n):
+            xy = self._positions()[:, :2].T
+            w = np.asarray(updraft(xy), dtype=np.float64)
+            for k, fdm in enumerate(self._fdm):
+                if on[k]:
+                    fdm["atmosphere/wind-down-fps"] = -float(w[k]) / _FT
+                    fdm.run()
+
+    def mass_area_density(self) -> F8:
+        """Per vehicle (N, 3): mass kg, wing area m², air density kg/m³ where it flies."""
+        return np.array([[fdm["inertia/mass-slugs"] * _SLUG, fdm["metrics/Sw-sqft"] * _FT**2,
+                          fdm["atmosphere/rho-slugs_ft3"] * _SLUG / _FT**3]
+                         for fdm in self._fdm]).reshape(-1, 3)
+
+    def _positions(self) -> F8:
+        """Every vehicle's ENU position (N, 3) m."""
+        geo = np.array([[fdm["position/lat-geod-rad"], fdm["position/long-gc-rad"],
+                         fdm["position/h-sl-meters"]] for fdm in self._fdm]).reshape(-1, 3)
+        d = _ecef(geo[:, 0], geo[:, 1], geo[:, 2]) - self._origin_ecef
+        return np.asarray(np.einsum("nij,nj->ni", self._origin_axes, d), dtype=np.float64)
+
+    def outputs(self) -> SixDofOutputs:
+        """Every vehicle's state now (:class:`SixDofOutputs`)."""
+        n = len(self._fdm)
+        v_ned = np.empty((n, 3))
+        euler = np.empty((n, 3))
+        pqr = np.empty((n, 3))
+        f_frd = np.empty((n, 3))
+        vt = np.empty(n)
+        for k, fdm in enumerate(self._fdm):
+            v_ned[k] = fdm["velocities/v-north-fps"], fdm["velocities/v-east-fps"], \
+                fdm["velocities/v-down-fps"]
+            euler[k] = fdm["attitude/phi-rad"], fdm["attitude/theta-rad"], fdm["attitude/psi-rad"]
+            pqr[k] = fdm["velocities/p-rad_sec"], fdm["velocities/q-rad_sec"], \
+                fdm["velocities/r-rad_sec"]
+            mass = fdm["inertia/mass-slugs"]
+            f_frd[k] = (fdm["forces/fbx-total-lbs"] / mass, fdm["forces/fby-total-lbs"] / mass,
+                        fdm["forces/fbz-total-lbs"] / mass)
+            vt[k] = fdm["velocities/vt-fps"]
+        pos = self._positions()
+        quat = quat_enu_flu_from_ned_frd(quat_from_euler(euler[:, 0], euler[:, 1], euler[:, 2]))
+        roll, pitch, yaw = euler_from_quat(quat)
+        vel = enu_from_ned(v_ned) * _FT
+        self._alive &= np.isfinite(np.concatenate([pos, vel, quat, f_frd], axis=1)).all(axis=1)
+        return SixDofOutputs(
+            position=pos, velocity=vel, quat=quat, roll=roll, pitch=pitch, yaw=yaw,
+            rates=flu_from_frd(pqr), specific_force=flu_from_frd(f_frd) * _FT,
+            airspeed=vt * _FT, alive=self._alive.copy(),
+        )
