@@ -70,7 +70,7 @@ MEASUREMENT = re.compile(
 CITATION = re.compile(
     r"BENCHMARKS\.md|python -m bench\b|\bpytest\b|\bmake (?:test|bench|demo)\b"
     r"|\btests/[\w/.-]+\.py\b"
-    r"|\becholoop (?:launch|replay|swarm|echo|scenario|forest|bus|topic|bag|mock)\b"
+    r"|\becholoop (?:launch|replay|swarm|echo|scenario|forest|bus|topic|bag|mock|ardupilot)\b"
 )
 #: a citation of one section of BENCHMARKS.md
 SECTION = re.compile(r"BENCHMARKS\.md,\s*\*([^*]+)\*")

@@ -20,10 +20,9 @@ fixture) binds a free port.
 - then the node answers with exactly one JSON line of the next ``/glider/<id>/fdm`` state (a
   newer tick), stamped with that tick's sim time: SITL's clock is the server's. The answer
   leaves from the bus callback that receives the state (no thread hand-off), or at once when
-  the state is already there. A
-  server that does not tick within ``reply_timeout_s`` gets the newest state sent again
-  (``replies_stale``: SITL does not advance on it); a state with a non-finite value is never
-  sent (``states_nonfinite``).
+  the state is already there. A server that does not tick within ``reply_timeout_s`` gets the
+  newest state sent again (``replies_stale``: SITL does not advance on it); a state with a
+  non-finite value is never sent (``states_nonfinite``).
 
 ``added_latency_us``: the node's own time per frame, from a servo packet's arrival to its
 surfaces being published plus from the next state's arrival to the reply being sent.
@@ -174,8 +173,13 @@ class ArduPilotSitl:
         from hil_bridge.bus.node import Node
         from hil_bridge.bus.qos import COMMAND, SENSOR
 
-        self._links = [_Link(spec, inst, self.params.host)
-                       for spec, inst in zip(self.params.instances, self._instances, strict=True)]
+        for spec, inst in zip(self.params.instances, self._instances, strict=True):
+            try:
+                self._links.append(_Link(spec, inst, self.params.host))
+            except OSError:
+                for ln in self._links:
+                    ln.sock.close()
+                raise
         self._node = Node(self.name, bus=self.bus, faults=self.faults)
         for ln in self._links:
             vid = ln.spec.vehicle_id

@@ -56,10 +56,10 @@ class SixDofSpec:
     """A vehicle flown by JSBSim (``vehicles[].sixdof`` of a scene).
 
     ``aircraft``: a JSBSim model name (its package ships ``sgs126``, the SGS 1-26 single-seat
-    glider: measured L/D 26 at 21 m/s, minimum sink 0.74 m/s at 18 m/s; ``sgs233`` as shipped
-    is nose-heavy: full up elevator holds 29 m/s at L/D 12). ``airspeed_mps``: the true airspeed
-    it starts at, level, on its path's heading at its path's start point. ``origin``: [lat deg,
-    lon deg, height m] of the scene's ENU origin. ``dt_max_s``: the longest JSBSim step.
+    glider, and ``sgs233``, nose-heavy as shipped; their polars: ``echoloop ardupilot polar``,
+    ``docs/ardupilot.md``). ``airspeed_mps``: the true airspeed it starts at, level, on its
+    path's heading at its path's start point. ``origin``: [lat deg, lon deg, height m] of the
+    scene's ENU origin. ``dt_max_s``: the longest JSBSim step.
     """
 
     aircraft: str = "sgs126"

@@ -2,9 +2,11 @@
 
 Runs only where ``ECHOLOOP_ARDUPILOT_SITL`` names an ``arduplane`` binary (built by the user from
 ArduPilot, outside this repository). The launch serves SITL instance N (the claimed domain);
-``arduplane -I N --model JSON:127.0.0.1`` flies with ``launch/data/ardupilot/echoloop-sgs126.parm``
-in CRUISE towards the 3 m/s thermal 700 m ahead; the firmware's soaring code must switch to mode
-THERMAL and the glider must climb in it.
+``arduplane -I N --model JSON:127.0.0.1`` boots with ``launch/data/ardupilot/echoloop-sgs126.parm``
+while the glider glides; once its EKF uses GPS, the test sets home to the scene's origin,
+uploads ``launch/data/ardupilot/echoloop-thermal.waypoints`` (a mission east through the 4 m/s
+thermal) and flies it in AUTO: the firmware's soaring code must switch to THERMAL and the glider
+must climb 30 m above where it entered the thermal.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -31,8 +34,10 @@ pytestmark = [
 ROOT = Path(__file__).resolve().parents[3]
 LAUNCH = ROOT / "launch" / "ardupilot_glider.yaml"
 PARM = ROOT / "launch" / "data" / "ardupilot" / "echoloop-sgs126.parm"
-CRUISE, THERMAL = 7, 24  # ArduPlane's mode numbers
+MISSION = ROOT / "launch" / "data" / "ardupilot" / "echoloop-thermal.waypoints"
+AUTO, THERMAL = 10, 24  # ArduPlane's mode numbers
 CLIMB_M = 30.0
+ORIGIN = (47.0, 8.0, 0.0)  # the launch's sixdof origin: SITL's --home and the mission's home
 
 
 @pytest.fixture
@@ -51,6 +56,23 @@ def _stop(proc: subprocess.Popen[str]) -> None:
             proc.wait()
 
 
+def _upload_mission(mav: Any, mavutil: Any) -> None:
+    """The waypoint file (QGC WPL 110, as MAVProxy's ``wp load`` reads it) to the vehicle."""
+    rows = [line.split("\t") for line in MISSION.read_text().splitlines()[1:] if line.strip()]
+    mav.waypoint_count_send(len(rows))
+    for _ in rows:
+        req = mav.recv_match(type=["MISSION_REQUEST", "MISSION_REQUEST_INT"], blocking=True,
+                             timeout=30)
+        assert req is not None, "SITL asked for no mission item"
+        r = rows[req.seq]
+        mav.mav.mission_item_int_send(
+            mav.target_system, mav.target_component, req.seq, int(r[2]), int(r[3]), 0, 1,
+            *(float(v) for v in r[4:8]), round(float(r[8]) * 1e7), round(float(r[9]) * 1e7),
+            float(r[10]))
+    ack = mav.recv_match(type="MISSION_ACK", blocking=True, timeout=30)
+    assert ack is not None and ack.type == 0, f"mission refused: {ack}"
+
+
 def test_arduplane_enters_thermal_and_climbs(domain: Domain, tmp_path: Path) -> None:
     from pymavlink import mavutil
 
@@ -60,38 +82,46 @@ def test_arduplane_enters_thermal_and_climbs(domain: Domain, tmp_path: Path) -> 
         [sys.executable, "-m", "hil_bridge.cli", "launch", str(LAUNCH), "--domain", str(n),
          "--duration", "1800"], cwd=ROOT, text=True, stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL)
+    home = ",".join(f"{v:g}" for v in ORIGIN)
     firmware = subprocess.Popen(
-        [SITL, "--model", "JSON:127.0.0.1", "-I", str(n), "-w", "--home", "47.0,8.0,0,90",
+        [SITL, "--model", "JSON:127.0.0.1", "-I", str(n), "-w", "--home", f"{home},90",
          "--defaults", str(PARM)], cwd=tmp_path, text=True, stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL)
     try:
-        mav = mavutil.mavlink_connection(f"tcp:127.0.0.1:{5760 + 10 * n}", retries=60)
+        mav = mavutil.mavlink_connection(f"tcp:127.0.0.1:{5760 + 10 * n}", retries=120)
         assert mav.wait_heartbeat(timeout=120) is not None, "no heartbeat from SITL"
-        mav.mav.param_set_send(mav.target_system, mav.target_component, b"ARMING_CHECK", 0,
-                               mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
-        mav.set_mode(CRUISE)
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline:  # the EKF aligns while the glider glides
+            txt = mav.recv_match(type="STATUSTEXT", blocking=True, timeout=10)
+            if txt is not None and "is using GPS" in txt.text:
+                break
+        else:
+            pytest.fail("SITL's EKF never used GPS")
+        mav.mav.command_long_send(mav.target_system, mav.target_component,
+                                  mavutil.mavlink.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 0, *ORIGIN)
+        _upload_mission(mav, mavutil)
+        mav.waypoint_set_current_send(1)
+        mav.set_mode(AUTO)
         mav.mav.command_long_send(mav.target_system, mav.target_component,
                                   mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 21196,
                                   0, 0, 0, 0, 0)
-        thermal_alt: float | None = None
-        best = -1e9
+        entered: float | None = None  # height above the origin when THERMAL began
+        best = height = -1e9
         deadline = time.monotonic() + 900
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not (entered is not None
+                                                   and best - entered >= CLIMB_M):
             msg = mav.recv_match(type=["HEARTBEAT", "GLOBAL_POSITION_INT"], blocking=True,
-                                 timeout=5)
+                                 timeout=10)
             if msg is None:
                 continue
-            if msg.get_type() == "HEARTBEAT" and msg.custom_mode == THERMAL and (
-                    thermal_alt is None):
-                thermal_alt = best
-            elif msg.get_type() == "GLOBAL_POSITION_INT":
-                best = msg.relative_alt / 1000.0 if thermal_alt is None else max(
-                    best, msg.relative_alt / 1000.0)
-                if thermal_alt is not None and best - thermal_alt >= CLIMB_M:
-                    break
-        assert thermal_alt is not None, "ArduPlane never switched to THERMAL"
-        assert best - thermal_alt >= CLIMB_M, (
-            f"in THERMAL from {thermal_alt:.0f} m the glider reached only {best:.0f} m")
+            if msg.get_type() == "GLOBAL_POSITION_INT":
+                height = msg.relative_alt / 1000.0
+                best = max(best, height)
+            elif msg.custom_mode == THERMAL and entered is None and height > -1e9:
+                entered = best = height
+        assert entered is not None, "ArduPlane never switched to THERMAL"
+        assert best - entered >= CLIMB_M, (
+            f"in THERMAL from {entered:.0f} m the glider reached only {best:.0f} m")
     finally:
         _stop(firmware)
         _stop(launch)

@@ -76,9 +76,9 @@ def test_start_pose_heading_and_airspeed() -> None:
 @pytest.mark.slow
 def test_still_air_glides_follow_the_fitted_polar_and_the_sgs126_book() -> None:
     """Three steady glides fix ArduPilot's polar (K from mass and wing area in closed form); it
-    predicts a glide it was not fitted on to 1 cm/s. The SGS 1-26 flies as the type
-    does (best L/D 23 at 24 m/s and minimum sink 0.82 m/s at 18 m/s in its manual): the model's
-    best glide ratio is 24-28, its sink at 18 m/s below 0.8 m/s."""
+    predicts a glide it was not fitted on to 1 cm/s. The SGS 1-26 flies about as the type does
+    (published for the 1-26E: best glide 23:1, minimum sink 2.7 ft/s): the model's best glide
+    ratio is 24-28, its sink at 18 m/s below 0.8 m/s."""
     spec = SixDofSpec()
     glides, mass, area = measure_glides(spec, [-0.3, -0.15, -0.05, -0.2])
     polar = fit_polar(glides[:3], mass, area)
