@@ -9,7 +9,11 @@ byte:
   message index records that follow it tell how many messages were lost with it (or, when the
   file has a summary, its statistics do);
 - bytes that are no record at all (a corrupt length field, garbage) are skipped up to the next
-  place where a chunk, schema or channel record checks out completely (a *resync*);
+  place where a chunk, schema or channel record checks out completely (a *resync*); so is a
+  chunk that does not check out and whose length does not end on a record (its length field
+  is what broke), a message index whose lengths disagree, and a footer that is not the last
+  record before the closing magic (a broken opcode), so one flipped bit never ends the read
+  early or hides what follows;
 - a file that ends inside a record is *truncated*: everything before it is read.
 
 What happened is in a :class:`ScanReport`. A file that does not start with the MCAP magic is
@@ -93,7 +97,8 @@ class ScanReport:
 
     @property
     def damaged(self) -> bool:
-        return bool(self.corrupt_chunks or self.resyncs or self.orphans or self.truncated)
+        return bool(self.corrupt_chunks or self.resyncs or self.orphans or self.truncated
+                    or self.lost)
 
     def note(self, offset: int, what: str) -> None:
         if len(self.errors) < _MAX_ERRORS:
@@ -183,6 +188,28 @@ def _resync(buf: memoryview, raw: mmap.mmap, pos: int, n: int) -> int:
         if _plausible(buf, p, n):
             return p
         starts[op] = raw.find(bytes([op]), p + 1)
+
+
+def _index_ok(buf: memoryview, pos: int, length: int) -> bool:
+    """Whether the message index record at ``pos`` is well formed (its lengths agree)."""
+    return length >= 6 and (length - 6) % 16 == 0 and (
+        _U32.unpack_from(buf, pos + 9 + 2)[0] == length - 6)
+
+
+def _last(buf: memoryview, end: int, n: int) -> bool:
+    """Whether a record ending at ``end`` is followed by the closing magic and nothing else."""
+    return end + len(MCAP_MAGIC) == n and bytes(buf[end:n]) == MCAP_MAGIC
+
+
+def _boundary(buf: memoryview, end: int, n: int) -> bool:
+    """Whether a record can start at ``end`` (the file's end, the closing magic, a well-formed
+    message index, or a chunk, schema or channel that checks out)."""
+    if end == n or _last(buf, end, n) or _plausible(buf, end, n):
+        return True
+    if end + 9 > n:
+        return False
+    op, length = _REC.unpack_from(buf, end)
+    return op == _MESSAGE_INDEX and end + 9 + length <= n and _index_ok(buf, end, length)
 
 
 def _chunk_records(data: bytes) -> list[Item]:
@@ -299,10 +326,21 @@ def _walk(buf: memoryview, raw: mmap.mmap, n: int, report: ScanReport) -> Iterat
                 report.skipped_bytes += nxt - pos
                 pos = nxt
                 continue
-            if op == _MESSAGE_INDEX:
-                if length >= 6:
-                    loss.index(_U32.unpack_from(buf, start + 2)[0] // 16)
+            if op == _MESSAGE_INDEX and _index_ok(buf, pos, length):
+                loss.index(_U32.unpack_from(buf, start + 2)[0] // 16)
                 pos = end
+                continue
+            if (op == _MESSAGE_INDEX or (op == _FOOTER and not _last(buf, end, n))) or (
+                    op == _CHUNK and not _boundary(buf, end, n)
+                    and _chunk_parts(buf, start, end) is None):
+                nxt = _resync(buf, raw, pos, n)
+                if op == _CHUNK:
+                    loss.bad_chunk()
+                loss.close()
+                report.note(pos, f"broken record (opcode {op:#04x}, length {length})")
+                report.resyncs += 1
+                report.skipped_bytes += nxt - pos
+                pos = nxt
                 continue
             loss.close()
             if op == _CHUNK:

@@ -217,3 +217,18 @@ def test_export_onto_its_input_is_refused_and_the_input_unchanged(
     with pytest.raises(OutputExistsError):
         recover(copy, out)
     assert out.read_bytes() == b"keep me"
+
+
+def test_every_bit_of_a_chunks_opcode_and_length_loses_at_most_that_chunk_and_says_so(
+        recording: Path, tmp_path: Path) -> None:
+    """A flipped opcode can read as a footer (0x06 ^ 0x04 = 0x02) and a flipped length can run
+    past the next chunks: neither may end the read early or hide the loss."""
+    offset, _ = _chunk_offsets(recording)[5]
+    broken = tmp_path / "h.mcap"
+    for byte in range(offset, offset + 9):
+        for bit in range(8):
+            _flip(recording, broken, byte, bit)
+            report = ScanReport(str(broken))
+            kept = sum(1 for m in scan(broken, report) if hasattr(m, "sequence"))
+            assert kept >= N - 100, (byte - offset, bit, report.describe())
+            assert kept == N or report.damaged, (byte - offset, bit, report.describe())
