@@ -201,6 +201,18 @@ def _last(buf: memoryview, end: int, n: int) -> bool:
     return end + len(MCAP_MAGIC) == n and bytes(buf[end:n]) == MCAP_MAGIC
 
 
+def _broken(op: int, buf: memoryview, pos: int, end: int, n: int) -> bool:
+    """Whether a record of a known opcode at ``pos``, inside the file, cannot be trusted to end
+    at ``end``: a malformed message index, a footer that is not the last record, or a chunk
+    that does not check out and whose length ends on no record."""
+    if op == _MESSAGE_INDEX:
+        return not _index_ok(buf, pos, end - pos - 9)
+    if op == _FOOTER:
+        return not _last(buf, end, n)
+    return (op == _CHUNK and _chunk_parts(buf, pos + 9, end) is None
+            and not _boundary(buf, end, n))
+
+
 def _boundary(buf: memoryview, end: int, n: int) -> bool:
     """Whether a record can start at ``end`` (the file's end, the closing magic, a well-formed
     message index, or a chunk, schema or channel that checks out)."""
@@ -315,32 +327,22 @@ def _walk(buf: memoryview, raw: mmap.mmap, n: int, report: ScanReport) -> Iterat
                 return
             op, length = _REC.unpack_from(buf, pos)
             start, end = pos + 9, pos + 9 + length
-            if op not in _KNOWN_OPS or end > n:
+            if op not in _KNOWN_OPS or end > n or _broken(op, buf, pos, end, n):
                 nxt = _resync(buf, raw, pos, n)
-                if nxt >= n and op in _KNOWN_OPS:
+                if nxt >= n and op in _KNOWN_OPS and end > n:
                     report.truncated, report.tail_bytes = True, n - pos
                     return
+                if op == _CHUNK and end <= n:
+                    loss.bad_chunk()
                 loss.close()
                 report.note(pos, f"unreadable bytes (opcode {op:#04x}, length {length})")
                 report.resyncs += 1
                 report.skipped_bytes += nxt - pos
                 pos = nxt
                 continue
-            if op == _MESSAGE_INDEX and _index_ok(buf, pos, length):
+            if op == _MESSAGE_INDEX:
                 loss.index(_U32.unpack_from(buf, start + 2)[0] // 16)
                 pos = end
-                continue
-            if (op == _MESSAGE_INDEX or (op == _FOOTER and not _last(buf, end, n))) or (
-                    op == _CHUNK and not _boundary(buf, end, n)
-                    and _chunk_parts(buf, start, end) is None):
-                nxt = _resync(buf, raw, pos, n)
-                if op == _CHUNK:
-                    loss.bad_chunk()
-                loss.close()
-                report.note(pos, f"broken record (opcode {op:#04x}, length {length})")
-                report.resyncs += 1
-                report.skipped_bytes += nxt - pos
-                pos = nxt
                 continue
             loss.close()
             if op == _CHUNK:

@@ -271,8 +271,8 @@ class SimServer:
                 GliderState, f"/glider/{gid}/state", qos=SENSOR
             )
             node.create_subscription(
-                GliderCmd, f"/glider/{gid}/cmd", self._make_cmd_callback(gid), qos=COMMAND,
-                priority=True,
+                GliderCmd, f"/glider/{gid}/cmd", functools.partial(self._on_cmd, gid),
+                qos=COMMAND, priority=True,
             )
         for gid in self.fleet.sixdof_ids:
             self._pubs[f"/glider/{gid}/fdm"] = node.create_publisher(
@@ -351,12 +351,6 @@ class SimServer:
         return self._done.wait(timeout)
 
     # ------------------------------------------------------------------ commands (bus thread)
-
-    def _make_cmd_callback(self, gid: int) -> Any:
-        def on_cmd(msg: GliderCmd) -> None:
-            self._on_cmd(gid, msg)
-
-        return on_cmd
 
     def _on_cmd(self, gid: int, msg: GliderCmd) -> None:
         if self._inputs.on_cmd(gid, msg):
