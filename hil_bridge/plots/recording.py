@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sim_core.pose import cross
+
 __all__ = ["beam_outline", "plot_recording"]
 
 #: length of the beam cone drawn, m
@@ -28,9 +30,9 @@ def beam_outline(position: ArrayLike, boresight: ArrayLike, beamwidth: float, le
     −3 dB rim ``length`` m along the ``boresight``."""
     b = np.asarray(boresight, dtype=np.float64)
     b = b / np.linalg.norm(b)
-    u = np.cross(b, [0.0, 0.0, 1.0] if abs(b[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u = cross(b, [0.0, 0.0, 1.0] if abs(b[2]) < 0.9 else [1.0, 0.0, 0.0])
     u /= np.linalg.norm(u)
-    v = np.cross(b, u)
+    v = cross(b, u)
     t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)[:, None]
     r = length * math.tan(beamwidth / 2.0)
     rim = np.asarray(position) + length * b + r * (np.cos(t) * u + np.sin(t) * v)

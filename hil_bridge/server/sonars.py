@@ -29,7 +29,7 @@ from hil_bridge.server.echo_service import EchoService
 from hil_bridge.server.emission import EmissionPoses
 from hil_bridge.server.fleet import Fleet, FleetStates, VehiclePose
 from hil_bridge.server.lockstep import LockstepGate
-from sim_core.pose import pose_compose, quat_from_euler, quat_rotate
+from sim_core.pose import cross, pose_compose, quat_from_euler, quat_rotate
 from sim_core.scene import ClockSpec, Scene
 
 __all__ = ["ECHO_COUNTERS", "ECHO_READY_TIMEOUT_S", "LOOKAHEAD_HORIZON_S", "LOOKAHEAD_STEPS",
@@ -210,7 +210,7 @@ class ServerSonars:
         sonar_id, msg, deadline = payload
         _, offset, rotation = self._mounts[sonar_id]
         position, orientation = pose_compose(pose.position, pose.orientation, offset, rotation)
-        velocity = pose.velocity + quat_rotate(pose.orientation, np.cross(pose.rates, offset))
+        velocity = pose.velocity + quat_rotate(pose.orientation, cross(pose.rates, offset))
         assert self.service is not None  # only pings for a service are asked for
         self.service.submit(EchoRequest(
             sonar_id, msg, SonarPose(pose.t_ns, position, orientation, velocity), received,

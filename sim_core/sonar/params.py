@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sim_core.pose import cross
 from sim_core.sonar.seedbeam import BeamLookup
 
 __all__ = ["Beam", "Call", "Ear", "Echo", "EchoParams", "FrequencyGrid"]
@@ -349,11 +350,11 @@ class Beam:
     def frame(self) -> NDArray[np.float64]:
         """Rows: forward (boresight), left, up of the beam frame, shape (3, 3)."""
         fwd = self.boresight
-        left = np.cross(np.array([0.0, 0.0, 1.0]), fwd)
+        left = cross(np.array([0.0, 0.0, 1.0]), fwd)
         if float(np.linalg.norm(left)) < 1e-12:
             left = np.array([0.0, 1.0, 0.0])
         left = left / np.linalg.norm(left)
-        up = np.cross(fwd, left)
+        up = cross(fwd, left)
         return np.stack([fwd, left, up])
 
 

@@ -6,6 +6,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr, ndtri
 
+from sim_core.pose import cross
+
 __all__ = [
     "axis_rotation",
     "clipped_normal",
@@ -52,7 +54,7 @@ def rotate(v: F64, axis: F64, angle: F64) -> F64:
     """Rotate rows ``v (N, 3)`` about unit ``axis (N, 3)`` by ``angle (N,)`` (right-hand rule)."""
     c = np.cos(angle)[:, None]
     s = np.sin(angle)[:, None]
-    kxv = np.cross(axis, v)
+    kxv = cross(axis, v)
     kdv = np.sum(axis * v, axis=1, keepdims=True)
     return v * c + kxv * s + axis * kdv * (1.0 - c)
 
@@ -63,7 +65,7 @@ def perpendicular(v: F64) -> F64:
     pick = np.argmin(a, axis=1)
     e = np.zeros_like(v)
     e[np.arange(v.shape[0]), pick] = 1.0
-    return unit(np.cross(v, e))
+    return unit(cross(v, e))
 
 
 def clipped_normal(
