@@ -11,7 +11,9 @@ joined by glider and stamp. The first seconds (discovery) are left out. The brid
 ``utime + stime`` of its process over the window.
 
 **Baseline, same run.** DDS alone: rclpy to rclpy (``ros2_peer.py dds-send``: 8 Odometry per
-tick at 250 Hz, to ``dds-receive``), with the sender's monotonic time in the header.
+tick at 250 Hz, to ``dds-receive``), with the sender's monotonic time in the header. And the
+same echoloop path carrying one glider's states alone (no echoes): the path's floor when the
+bridge has a single message a tick to write.
 
 **Commands.** ``echoloop launch`` runs the server (8 swarm gliders, states at 250 Hz, realtime)
 and the bridge. ``ros2_peer.py command`` flies glider 3 at 20 Hz, each command with a bank
@@ -49,6 +51,8 @@ STATE_HZ, ECHO_HZ = 250, 20
 ECHO_SHAPE = (2, 12_000)
 WARM_S, RUN_S = 4.0, 20.0
 CMD_GLIDER, CMD_HZ = 3, 20.0
+#: the path's floor: one glider's states alone, no echoes (s)
+SINGLE_S = 10.0
 
 
 def _env(dom: Domain, ros_domain: int) -> dict[str, str]:
@@ -126,7 +130,8 @@ def _stop_when_done(*procs: subprocess.Popen[str]) -> None:
             raise RuntimeError(f"{p.args} exited {p.returncode}: {err[-2000:]}")
 
 
-def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path) -> dict[str, Any]:
+def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path, *, gliders: int = GLIDERS,
+                       sonars: int = SONARS, run_s: float = RUN_S) -> dict[str, Any]:
     from hil_bridge.bus.messages import Clock, GliderState, SonarEcho
     from hil_bridge.bus.node import Node
     from sim_core.pose import quat_from_euler
@@ -134,15 +139,16 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path) -> dict[str,
     out = tmp / "recv.npy"
     bus = _cli(env, "bus", "--domain", str(dom.number))
     bridge = _cli(env, "ros2", "bridge", "--domain", str(dom.number))
-    peer = _peer(env, "receive", str(out), "--duration", str(WARM_S + RUN_S + 3))
+    peer = _peer(env, "receive", str(out), "--duration", str(WARM_S + run_s + 3), "--gliders",
+                 str(gliders), "--sonars", str(sonars))
     node = Node("bench_sim", bus=dom.bus_url, diagnostics_period_s=0)
     clock_pub = node.create_publisher(Clock, "/clock")
     state_pubs = [node.create_publisher(GliderState, f"/glider/{i}/state")
-                  for i in range(GLIDERS)]
-    echo_pubs = [node.create_publisher(SonarEcho, f"/sonar/{j}/echo") for j in range(SONARS)]
+                  for i in range(gliders)]
+    echo_pubs = [node.create_publisher(SonarEcho, f"/sonar/{j}/echo") for j in range(sonars)]
     samples = np.random.default_rng(0).standard_normal(ECHO_SHAPE).astype(np.float32)
     sent: dict[tuple[int, int], int] = {}
-    window = (int(WARM_S * 1e9), int((WARM_S + RUN_S) * 1e9))
+    window = (int(WARM_S * 1e9), int((WARM_S + run_s) * 1e9))
     period_ns = 1_000_000_000 // STATE_HZ
     echo_every = STATE_HZ / ECHO_HZ
     try:
@@ -150,14 +156,14 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path) -> dict[str,
         t0 = time.monotonic()
         cpu0 = cpu1 = math.nan
         cpu0_others = cpu1_others = {}
-        for k in range(int((WARM_S + RUN_S) * STATE_HZ)):
+        for k in range(int((WARM_S + run_s) * STATE_HZ)):
             time.sleep(max(0.0, t0 + k / STATE_HZ - time.monotonic()))
             stamp = k * period_ns
             if stamp == window[0]:
                 cpu0, cpu0_others = _cpu_s(bridge.pid), _cpu_others(bus, peer)
             clock_pub.publish(Clock(stamp_ns=stamp))
-            headings = 0.3 * np.arange(GLIDERS) + 0.2 * stamp * 1e-9
-            quats = quat_from_euler(np.full(GLIDERS, -0.2), np.full(GLIDERS, 0.05), headings)
+            headings = 0.3 * np.arange(gliders) + 0.2 * stamp * 1e-9
+            quats = quat_from_euler(np.full(gliders, -0.2), np.full(gliders, 0.05), headings)
             for i, pub in enumerate(state_pubs):
                 heading, q = float(headings[i]), quats[i]
                 msg = GliderState(stamp_ns=stamp, x=10.0 * i, y=5.0 + stamp * 1e-9,
@@ -168,8 +174,8 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path) -> dict[str,
                 sent[(i, stamp)] = time.monotonic_ns()
                 pub.publish(msg)
             for j, pub in enumerate(echo_pubs):
-                if math.floor((k + 1 - j * echo_every / SONARS) / echo_every) > math.floor(
-                        (k - j * echo_every / SONARS) / echo_every):
+                if math.floor((k + 1 - j * echo_every / sonars) / echo_every) > math.floor(
+                        (k - j * echo_every / sonars) / echo_every):
                     pub.publish(SonarEcho(
                         stamp_ns=stamp, ping_seq=k, fs=400_000.0, samples=samples,
                         leaves_in_beam=1000, fidelity="fast", sonar_id=j, emit_ns=stamp,
@@ -189,12 +195,12 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path) -> dict[str,
     for gid, stamp, recv in states:
         if window[0] <= stamp < window[1]:
             lat.append((recv - sent[(int(gid), int(stamp))]) / 1e6)
-    expected = GLIDERS * int(RUN_S * STATE_HZ)
+    expected = gliders * int(run_s * STATE_HZ)
     in_window = echoes[(echoes[:, 1] >= window[0]) & (echoes[:, 1] < window[1])]
     return {"lat": np.array(lat), "expected": expected, "echoes": len(in_window),
-            "echoes_expected": int(SONARS * ECHO_HZ * RUN_S),
-            "cpu_share": (cpu1 - cpu0) / RUN_S,
-            "others": {k: (cpu1_others[k] - cpu0_others[k]) / RUN_S for k in cpu1_others}}
+            "echoes_expected": int(sonars * ECHO_HZ * run_s),
+            "cpu_share": (cpu1 - cpu0) / run_s,
+            "others": {k: (cpu1_others[k] - cpu0_others[k]) / run_s for k in cpu1_others}}
 
 
 def _commands(dom: Domain, env: dict[str, str], tmp: Path) -> dict[str, Any]:
@@ -235,13 +241,17 @@ def _commands(dom: Domain, env: dict[str, str], tmp: Path) -> dict[str, Any]:
 
 def _costs() -> list[list[str]]:
     """Per-message costs in this process (median of 7 timings), no DDS: the bridge's work on a
-    state (decode, the batch's frame algebra, the Odometry fill) and rclpy's serialisation."""
+    state (decode, the batch's frame algebra, the Odometry's CDR) and on an echo, each beside
+    the rclpy path it replaced (fill an rclpy message, ``serialize_message``), timed here."""
+    from nav_msgs.msg import Odometry
     from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import Image
     from std_msgs.msg import Float32MultiArray
 
     from bench._util import median, time_it
     from hil_bridge.bus.codec import decode, encode
     from hil_bridge.bus.messages import GliderState, SonarEcho
+    from ros2_bridge import cdr
     from ros2_bridge.convert import Converter
     from sim_core.pose import quat_from_euler
 
@@ -258,23 +268,51 @@ def _costs() -> list[list[str]]:
         return [conv.convert("nav_msgs/msg/Odometry", str(i), st, f"/glider_{i}/odom")
                 for i, st in enumerate(states)]
 
+    def rclpy_odometry(data: bytes) -> Any:
+        """The rclpy path: fill an Odometry from the same numbers, then serialise it."""
+        odom = Odometry()
+        odom.header.stamp.sec, odom.header.stamp.nanosec = 0, 4_000_000
+        odom.header.frame_id, odom.child_frame_id = "map", "glider_0"
+        row = np.frombuffer(data[-8 * cdr.ODOMETRY_DOUBLES:], dtype="<f8")
+        pose, twist = odom.pose.pose, odom.twist.twist
+        (pose.position.x, pose.position.y, pose.position.z, pose.orientation.x,
+         pose.orientation.y, pose.orientation.z, pose.orientation.w) = (float(v) for v in row[:7])
+        twist.linear.x, twist.linear.y, twist.linear.z = (float(v) for v in row[43:46])
+        twist.angular.x, twist.angular.y, twist.angular.z = (float(v) for v in row[46:49])
+        return serialize_message(odom)
+
     odom = tick()[0]
+    row = np.frombuffer(odom[-8 * cdr.ODOMETRY_DOUBLES:], dtype="<f8").copy()
     samples = np.random.default_rng(0).standard_normal(ECHO_SHAPE).astype(np.float32)
-    image = conv.convert("sensor_msgs/msg/Image", "0", SonarEcho(
-        stamp_ns=1, ping_seq=0, fs=400_000.0, samples=samples, leaves_in_beam=0,
-        fidelity="fast", emit_ns=1), "/sonar_0/echo")
+    echo = SonarEcho(stamp_ns=1, ping_seq=0, fs=400_000.0, samples=samples, leaves_in_beam=0,
+                     fidelity="fast", emit_ns=1)
+
+    def rclpy_image() -> Any:
+        image = Image(height=samples.shape[0], width=samples.shape[1], encoding="32FC1",
+                      is_bigendian=0, step=4 * samples.shape[1])
+        image.header.stamp.nanosec, image.header.frame_id = 1, "sonar_0"
+        image.data = samples.tobytes()
+        return serialize_message(image)
+
     array = Float32MultiArray()
     array.data = samples.ravel().tolist()
 
     def us(fn: Any, n: int) -> str:
         return f"{1e6 * median(time_it(lambda: [fn() for _ in range(n)], repeat=7)) / n:.1f}"
 
+    per_state = float(us(tick, 50)) / GLIDERS
     return [
-        ["bridge: decode + frame algebra + Odometry fill, per state (batches of 8)",
-         f"{float(us(tick, 50)) / GLIDERS:.1f}"],
-        ["rclpy: serialise an Odometry", us(lambda: serialize_message(odom), 500)],
-        [f"rclpy: serialise an echo as Image ({ECHO_SHAPE[0]} × {ECHO_SHAPE[1]} float32)",
-         us(lambda: serialize_message(image), 50)],
+        ["bus: decode a state", us(lambda: decode(frames[0]), 500)],
+        ["bridge: decode + frame algebra + Odometry CDR, per state (batches of 8)",
+         f"{per_state:.1f}"],
+        ["bridge: the Odometry's CDR alone (`cdr.odometry`, from its row)",
+         us(lambda: cdr.odometry(4_000_000, "map", "glider_0", row), 500)],
+        ["baseline: fill an rclpy Odometry with the same numbers + `serialize_message`",
+         us(lambda: rclpy_odometry(odom), 500)],
+        [f"bridge: an echo as Image CDR ({ECHO_SHAPE[0]} × {ECHO_SHAPE[1]} float32)",
+         us(lambda: conv.convert("sensor_msgs/msg/Image", "0", echo, "/sonar_0/e"), 50)],
+        ["baseline: fill an rclpy Image with the same samples + `serialize_message`",
+         us(rclpy_image, 50)],
         ["rclpy: serialise the same samples as Float32MultiArray",
          us(lambda: serialize_message(array), 50)],
     ]
@@ -288,6 +326,7 @@ def run(out_dir: Path) -> str:
         env = _env(dom, ros_domain)
         base = _baseline(env, tmp)
         load = _states_and_echoes(dom, env, tmp)
+        single = _states_and_echoes(dom, env, tmp, gliders=1, sonars=0, run_s=SINGLE_S)
         cmd = _commands(dom, env, tmp)
     costs = _costs()
     lat, period_ms = load["lat"], 1000.0 / STATE_HZ
@@ -303,6 +342,11 @@ def run(out_dir: Path) -> str:
         [f"echoloop → bridge → rclpy ({GLIDERS} × {STATE_HZ} Hz + echoes)", f"{lat.size}",
          f"{_pct(lat, 50):.3f}", f"{_pct(lat, 99):.3f}", f"{100 * delivered:.2f} %",
          f"{100 * load['cpu_share']:.1f} %"],
+        [f"echoloop → bridge → rclpy (1 × {STATE_HZ} Hz, no echoes, {SINGLE_S:.0f} s)",
+         f"{single['lat'].size}", f"{_pct(single['lat'], 50):.3f}",
+         f"{_pct(single['lat'], 99):.3f}",
+         f"{100 * single['lat'].size / single['expected']:.2f} %",
+         f"{100 * single['cpu_share']:.1f} %"],
     ]
     return (
         f"{__doc__.split(chr(10) + chr(10), 1)[1].strip()}\n\n"

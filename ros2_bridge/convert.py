@@ -14,8 +14,10 @@ glider ``<id>``'s body frame is ``glider_<id>`` (FLU); sonar ``<id>``'s frame at
   carries ``fs_hz`` and the rest of the echo's fields; ``PoseStamped`` the sonar's pose then.
 - Commands: ``Float64MultiArray`` ``data = [bank_rad, airspeed_mps]`` (bank with the bus's sign).
 
-A converter keeps one message per ROS 2 topic for the types published at state rate and fills
-it in place (``publish`` serialises at once), so a state costs no allocation of nested messages.
+The types published at state and echo rate (``Clock``, ``Odometry``, ``Imu``, ``Image``) are
+returned serialised (:mod:`ros2_bridge.cdr`), the rest as rclpy messages; ``Publisher.publish``
+takes either. A batch of states is prepared at once (:meth:`Converter.prepare`): attitudes,
+body-frame velocities and the ``Odometry`` numbers of all of them in one pass of array algebra.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import math
 from typing import Any
 
 import numpy as np
-from builtin_interfaces.msg import Duration, Time
+from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose, PoseStamped, Vector3
 from nav_msgs.msg import Odometry
@@ -45,6 +47,8 @@ from hil_bridge.bus.messages import (
     state_quaternions,
 )
 from hil_bridge.recording.export.common import glider_velocities, sonar_pose
+from ros2_bridge import cdr
+from ros2_bridge.cdr import MAX_TIME_NS
 from sim_core.pose import quat_between, quat_conjugate, quat_rotate
 
 __all__ = ["MAX_TIME_NS", "ROS_TYPES", "CommandError", "Converter", "G", "command_from_ros"]
@@ -84,19 +88,9 @@ def command_from_ros(msg: Float64MultiArray, *, glider_id: int, stamp_ns: int,
                      glider_id=glider_id, step=step)
 
 
-#: the latest time a ``builtin_interfaces/Time`` holds (its ``sec`` is an int32), ns
-MAX_TIME_NS = (2**31 - 1) * 1_000_000_000 + 999_999_999
-
-
 def _set_time(t: Any, ns: int) -> None:
     """``t`` (a ``Time``) := sim time ``ns``, clamped to ``[0, MAX_TIME_NS]``."""
-    t.sec, t.nanosec = divmod(min(max(0, int(ns)), MAX_TIME_NS), 1_000_000_000)
-
-
-def _time(ns: int) -> Time:
-    t = Time()
-    _set_time(t, ns)
-    return t
+    t.sec, t.nanosec = cdr.sec_nanosec(ns)
 
 
 def _set_xyz(v: Any, x: float, y: float, z: float) -> None:
@@ -120,31 +114,34 @@ def _pose(position: Any, q: Any) -> Pose:
 
 class Converter:
     """Bus → ROS 2 conversions for one bridge (module docstring). ``convert(ros_type, ident,
-    msg, ros_topic)`` returns the ROS 2 message, or None when ``msg`` does not carry what the
-    type needs (an echo whose pose is unknown, for its pose)."""
+    msg, ros_topic)`` returns the ROS 2 message (or its serialised bytes), or None when ``msg``
+    does not carry what the type needs (an echo whose pose is unknown, for its pose)."""
 
     def __init__(self, world_frame: str = "map") -> None:
         self.world_frame = world_frame
-        self._kept: dict[tuple[str, str], Any] = {}
         self._last_v: dict[str, tuple[int, Any]] = {}
         self._kinematics: dict[int, tuple[GliderState, Any, Any]] = {}
 
     def prepare(self, states: list[GliderState]) -> None:
-        """Compute the attitudes and body-frame velocities of K states at once (the frame
-        algebra is vectorised; per state it would cost more than the rest of a conversion).
-        Until the next call, converting one of them uses these."""
+        """Compute the attitudes, and the ``Odometry`` numbers (pose, body-frame twist), of K
+        states at once (the frame algebra is vectorised; per state it would cost more than the
+        rest of a conversion). Until the next call, converting one of them uses these."""
         q = state_quaternions(states)
         body_v = quat_rotate(quat_conjugate(q), glider_velocities(states))
-        self._kinematics = {id(st): (st, q[k], body_v[k]) for k, st in enumerate(states)}
+        rates = np.array([[st.roll_rate, st.pitch_rate, st.yaw_rate] for st in states],
+                         dtype=np.float64).reshape(-1, 3)
+        rows = cdr.odometry_rows([[st.x, st.y, st.z] for st in states], q, body_v,
+                                 np.where(np.isfinite(rates), rates, 0.0))
+        self._kinematics = {id(st): (st, q[k], rows[k]) for k, st in enumerate(states)}
 
     def _kinematics_of(self, st: GliderState) -> tuple[Any, Any]:
-        """The attitude (4,) and body-frame velocity (3,) of ``st`` (from :meth:`prepare`, or
-        computed now for a state it was not given)."""
+        """The attitude (4,) and ``Odometry`` row of ``st`` (from :meth:`prepare`, or computed
+        now for a state it was not given)."""
         kin = self._kinematics.get(id(st))
-        if kin is not None and kin[0] is st:
-            return kin[1], kin[2]
-        q = state_quaternions([st])
-        return q[0], quat_rotate(quat_conjugate(q), glider_velocities([st]))[0]
+        if kin is None or kin[0] is not st:
+            self.prepare([st])
+            kin = self._kinematics[id(st)]
+        return kin[1], kin[2]
 
     def convert(self, ros_type: str, ident: str, msg: Message, ros_topic: str) -> Any:
         if isinstance(msg, GliderState):
@@ -152,7 +149,7 @@ class Converter:
         if isinstance(msg, SonarEcho):
             return self._echo(ros_type, ident or str(msg.sonar_id), msg)
         if isinstance(msg, Clock) and ros_type == "rosgraph_msgs/msg/Clock":
-            return RosClock(clock=_time(msg.stamp_ns))
+            return cdr.clock(msg.stamp_ns)
         if isinstance(msg, PointCloud) and ros_type == "sensor_msgs/msg/PointCloud2":
             return self._cloud(msg)
         if isinstance(msg, ThermalMarkers) and ros_type == "visualization_msgs/msg/MarkerArray":
@@ -166,27 +163,12 @@ class Converter:
             return array
         raise TypeError(f"no conversion of {type(msg).TYPE} to {ros_type}")
 
-    def _kept_msg(self, ros_topic: str, cls: type) -> Any:
-        msg = self._kept.get((ros_topic, cls.__name__))
-        if msg is None:
-            msg = self._kept[(ros_topic, cls.__name__)] = cls()
-        return msg
-
     # ------------------------------------------------------------------ states
 
     def _state(self, ros_type: str, gid: str, st: GliderState, ros_topic: str) -> Any:
-        q, body_v = self._kinematics_of(st)
-        child = f"glider_{gid}"
+        q, row = self._kinematics_of(st)
         if ros_type == "nav_msgs/msg/Odometry":
-            odom = self._kept_msg(ros_topic, Odometry)
-            _set_time(odom.header.stamp, st.stamp_ns)
-            odom.header.frame_id, odom.child_frame_id = self.world_frame, child
-            _set_xyz(odom.pose.pose.position, st.x, st.y, st.z)
-            _set_quat(odom.pose.pose.orientation, q)
-            _set_xyz(odom.twist.twist.linear, *body_v)
-            _set_xyz(odom.twist.twist.angular, _finite(st.roll_rate), _finite(st.pitch_rate),
-                     _finite(st.yaw_rate))
-            return odom
+            return cdr.odometry(st.stamp_ns, self.world_frame, f"glider_{gid}", row)
         if ros_type == "sensor_msgs/msg/Imu":
             return self._imu(gid, st, q, ros_topic)
         if ros_type == "geometry_msgs/msg/PoseStamped":
@@ -201,38 +183,27 @@ class Converter:
             return MarkerArray(markers=[marker])
         raise TypeError(f"no conversion of {GliderState.TYPE} to {ros_type}")
 
-    def _imu(self, gid: str, st: GliderState, q: Any, ros_topic: str) -> Imu:
-        imu = self._kept_msg(ros_topic + "#" + gid, Imu)
-        _set_time(imu.header.stamp, st.stamp_ns)
-        imu.header.frame_id = f"glider_{gid}"
-        _set_quat(imu.orientation, q)
-        _set_xyz(imu.angular_velocity, _finite(st.roll_rate), _finite(st.pitch_rate),
-                 _finite(st.yaw_rate))
+    def _imu(self, gid: str, st: GliderState, q: Any, ros_topic: str) -> bytes:
         v = glider_velocities([st])[0]
-        last = self._last_v.get(ros_topic + "#" + gid)
-        self._last_v[ros_topic + "#" + gid] = (st.stamp_ns, v)
-        if last is None or st.stamp_ns <= last[0]:
-            _set_xyz(imu.linear_acceleration, 0.0, 0.0, 0.0)
-            imu.linear_acceleration_covariance[0] = -1.0
-        else:
+        key = ros_topic + "#" + gid
+        last = self._last_v.get(key)
+        self._last_v[key] = (st.stamp_ns, v)
+        known = last is not None and st.stamp_ns > last[0]
+        specific_force = np.zeros(3)
+        if known and last is not None:
             accel = (v - last[1]) / ((st.stamp_ns - last[0]) * 1e-9)
             accel[2] += G
-            _set_xyz(imu.linear_acceleration, *quat_rotate(quat_conjugate(q), accel))
-            imu.linear_acceleration_covariance[0] = 0.0
-        return imu
+            specific_force = quat_rotate(quat_conjugate(q), accel)
+        rates = [_finite(st.roll_rate), _finite(st.pitch_rate), _finite(st.yaw_rate)]
+        return cdr.imu(st.stamp_ns, f"glider_{gid}", q, rates, specific_force,
+                       acceleration_known=known)
 
     # ------------------------------------------------------------------ echoes
 
     def _echo(self, ros_type: str, sid: str, echo: SonarEcho) -> Any:
         emit_ns = echo.emit_ns if echo.emit_ns > 0 else echo.stamp_ns
         if ros_type == "sensor_msgs/msg/Image":
-            samples = np.atleast_2d(np.ascontiguousarray(echo.samples, dtype="<f4"))
-            image = Image(height=samples.shape[0], width=samples.shape[1], encoding="32FC1",
-                          is_bigendian=0, step=4 * samples.shape[1])
-            _set_time(image.header.stamp, emit_ns)
-            image.header.frame_id = f"sonar_{sid}"
-            image.data = samples.tobytes()
-            return image
+            return cdr.image(emit_ns, f"sonar_{sid}", np.atleast_2d(echo.samples))
         if ros_type == "diagnostic_msgs/msg/DiagnosticArray":
             samples = np.atleast_2d(echo.samples)
             values = {"fs_hz": echo.fs, "ping_seq": echo.ping_seq,

@@ -1,10 +1,13 @@
 """Bus messages as ROS 2 messages (ros2_bridge.convert): closed forms for the frames (REP 103/105),
 layouts a plain ROS 2 node decodes without echoloop, and commands in. Only the message classes
-are used here (no rclpy context: the live bridge is tested in processes of its own)."""
+are used here (no rclpy context: the live bridge is tested in processes of its own); the types
+the bridge serialises itself are decoded with rosbags (test_cdr.py holds those encodings to
+rosbags' own)."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -23,6 +26,7 @@ from hil_bridge.bus.messages import (
     SonarEcho,
     ThermalMarkers,
 )
+from hil_bridge.recording.export.ros2 import typestore
 from ros2_bridge.convert import (
     MAX_TIME_NS,
     CommandError,
@@ -41,9 +45,16 @@ def _state(stamp_ns: int, *, heading: float, airspeed: float, vz: float = 0.0,
                        qz=q[3], roll_rate=0.01, pitch_rate=0.02, yaw_rate=0.03)
 
 
+def _ros(data: bytes, type_name: str) -> Any:
+    """A message the converter returned serialised, decoded."""
+    assert isinstance(data, bytes)
+    return typestore().deserialize_cdr(data, type_name)
+
+
 def test_odometry_pose_in_the_world_and_twist_in_the_body_frame() -> None:
     st_ = _state(1_500_000_000, heading=math.pi / 2, airspeed=10.0, vz=-1.0)
-    odom = Converter().convert("nav_msgs/msg/Odometry", "4", st_, "/glider_4/odom")
+    odom = _ros(Converter().convert("nav_msgs/msg/Odometry", "4", st_, "/glider_4/odom"),
+                "nav_msgs/msg/Odometry")
     assert (odom.header.stamp.sec, odom.header.stamp.nanosec) == (1, 500_000_000)
     assert (odom.header.frame_id, odom.child_frame_id) == ("map", "glider_4")
     p, q = odom.pose.pose.position, odom.pose.pose.orientation
@@ -57,16 +68,18 @@ def test_odometry_pose_in_the_world_and_twist_in_the_body_frame() -> None:
 
 def test_imu_specific_force_is_gravity_up_in_steady_flight_plus_the_acceleration() -> None:
     conv = Converter()
-    first = conv.convert("sensor_msgs/msg/Imu", "4", _state(0, heading=0.0, airspeed=10.0),
-                         "/glider_4/imu")
+
+    def imu(state: GliderState) -> Any:
+        return _ros(conv.convert("sensor_msgs/msg/Imu", "4", state, "/glider_4/imu"),
+                    "sensor_msgs/msg/Imu")
+
+    first = imu(_state(0, heading=0.0, airspeed=10.0))
     assert first.linear_acceleration_covariance[0] == -1.0  # no acceleration known yet
-    steady = conv.convert("sensor_msgs/msg/Imu", "4",
-                          _state(100_000_000, heading=0.0, airspeed=10.0), "/glider_4/imu")
+    steady = imu(_state(100_000_000, heading=0.0, airspeed=10.0))
     a = steady.linear_acceleration
     np.testing.assert_allclose([a.x, a.y, a.z], [0.0, 0.0, G], atol=1e-9)
     assert steady.linear_acceleration_covariance[0] == 0.0
-    faster = conv.convert("sensor_msgs/msg/Imu", "4",
-                          _state(600_000_000, heading=0.0, airspeed=11.0), "/glider_4/imu")
+    faster = imu(_state(600_000_000, heading=0.0, airspeed=11.0))
     a = faster.linear_acceleration  # +1 m/s in 0.5 s along the body's x
     np.testing.assert_allclose([a.x, a.y, a.z], [2.0, 0.0, G], atol=1e-9)
     assert faster.header.frame_id == "glider_4"
@@ -85,13 +98,15 @@ def _echo(**changes: object) -> SonarEcho:
 
 def test_an_echo_is_an_image_any_node_decodes_stamped_at_emission() -> None:
     echo = _echo()
-    image = Converter().convert("sensor_msgs/msg/Image", "3", echo, "/sonar_3/echo")
+    image = _ros(Converter().convert("sensor_msgs/msg/Image", "3", echo, "/sonar_3/echo"),
+                 "sensor_msgs/msg/Image")
     assert (image.height, image.width, image.encoding, image.step) == (2, 5, "32FC1", 20)
     assert image.header.frame_id == "sonar_3"
     assert image.header.stamp.sec * 10**9 + image.header.stamp.nanosec == echo.emit_ns
-    samples = np.frombuffer(bytes(image.data), dtype="<f4").reshape(image.height, image.width)
+    samples = np.frombuffer(image.data.tobytes(), dtype="<f4").reshape(image.height, image.width)
     np.testing.assert_array_equal(samples, echo.samples)
-    old = Converter().convert("sensor_msgs/msg/Image", "3", _echo(emit_ns=0), "/s")
+    old = _ros(Converter().convert("sensor_msgs/msg/Image", "3", _echo(emit_ns=0), "/s"),
+               "sensor_msgs/msg/Image")
     assert old.header.stamp.sec == 2  # no emission given: the echo's stamp
 
 
@@ -130,14 +145,16 @@ def test_world_messages() -> None:
                         "/diagnostics")
     assert diag.status[0].name == "server"
     assert [(kv.key, kv.value) for kv in diag.status[0].values] == [("ticks", "3")]
-    clock = conv.convert("rosgraph_msgs/msg/Clock", "", Clock(stamp_ns=3_000_000_007), "/clock")
+    clock = _ros(conv.convert("rosgraph_msgs/msg/Clock", "", Clock(stamp_ns=3_000_000_007),
+                              "/clock"), "rosgraph_msgs/msg/Clock")
     assert (clock.clock.sec, clock.clock.nanosec) == (3, 7)
 
 
 @given(st.integers(min_value=0, max_value=2**63 - 1))
 def test_every_stamp_survives_as_ros_time(ns: int) -> None:
     """Up to the 68 years a ROS 2 ``Time`` holds (int32 seconds); later ones are clamped."""
-    clock = Converter().convert("rosgraph_msgs/msg/Clock", "", Clock(stamp_ns=ns), "/clock")
+    clock = _ros(Converter().convert("rosgraph_msgs/msg/Clock", "", Clock(stamp_ns=ns), "/clock"),
+                 "rosgraph_msgs/msg/Clock")
     assert 0 <= clock.clock.nanosec < 10**9 and clock.clock.sec <= 2**31 - 1
     assert clock.clock.sec * 10**9 + clock.clock.nanosec == min(ns, MAX_TIME_NS)
 
