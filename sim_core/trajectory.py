@@ -147,20 +147,23 @@ def sample_paths(trajs: Sequence[Trajectory], t: ArrayLike) -> dict[str, FloatAr
     tq = np.asarray(t, dtype=np.float64)
     if tq.ndim != 2 or tq.shape[0] != len(trajs):
         raise ValueError(f"t: expected shape ({len(trajs)}, Q), got {tq.shape}")
-    lo, hi, t0, t1, tv = [], [], [], [], []
-    for traj, times in zip(trajs, tq, strict=True):
-        if traj.loop:
-            times = traj.t[0] + np.mod(times - traj.t[0], traj.duration)
-        else:
-            times = np.clip(times, traj.t[0], traj.t[-1])
-        j = np.clip(np.searchsorted(traj.t, times, side="right") - 1, 0, len(traj) - 2)
-        lo.append(traj._table[j])
-        hi.append(traj._table[j + 1])
-        t0.append(traj.t[j])
-        t1.append(traj.t[j + 1])
-        tv.append(times)
-    a, b = np.stack(lo), np.stack(hi)  # (V, Q, 6)
-    ta, tb, x = np.stack(t0), np.stack(t1), np.stack(tv)
+    # every vehicle at once; per vehicle only its searchsorted (a Python loop of array calls
+    # per vehicle cost 8 vehicles 240 µs a tick)
+    t_first = np.array([[traj.t[0]] for traj in trajs])
+    t_last = np.array([[traj.t[-1]] for traj in trajs])
+    loops = np.array([[traj.loop] for traj in trajs])
+    x = np.where(loops, t_first + np.mod(tq - t_first, t_last - t_first),
+                 np.minimum(np.maximum(tq, t_first), t_last))
+    starts = np.cumsum([0] + [len(traj) for traj in trajs[:-1]])
+    j = np.empty(tq.shape, dtype=np.intp)
+    for v, traj in enumerate(trajs):
+        j[v] = traj.t.searchsorted(x[v], side="right")
+    j = np.minimum(np.maximum(j - 1, 0), np.array([[len(traj) - 2] for traj in trajs]))
+    j += starts[:, None]
+    times = np.concatenate([traj.t for traj in trajs])
+    table = np.concatenate([traj._table for traj in trajs])
+    a, b = table[j], table[j + 1]  # (V, Q, 6)
+    ta, tb = times[j], times[j + 1]
     slope = (b - a) / (tb - ta)[..., None]
     val = np.where((x == tb)[..., None], b, slope * (x - ta)[..., None] + a)
     return {

@@ -299,13 +299,16 @@ class Fleet:
         if taken:
             rows = [self._cindex[vid] for vid in taken]
             blocks.append((taken, {k: v[rows] for k, v in flown.items()}))
-        if blocks:  # the vehicles in id order
+        if len(blocks) == 1 and blocks[0][0] == list(self.vehicle_ids):
+            parts.append(blocks[0][1])
+        elif blocks:  # the vehicles in id order
             at = {vid: k for k, vid in enumerate(self.vehicle_ids)}
+            rows = [np.array([at[v] for v in vids], dtype=np.intp) for vids, _ in blocks]
             block: dict[str, Any] = {}
             for key, first in blocks[0][1].items():
                 block[key] = np.empty((len(at), *first.shape[1:]), dtype=first.dtype)
-                for vids, arrays in blocks:
-                    block[key][[at[v] for v in vids]] = arrays[key]
+                for (_, arrays), where in zip(blocks, rows, strict=True):
+                    block[key][where] = arrays[key]
             parts.append(block)
         merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
         st = FleetStates(t_ns=self.t_ns, ids=self.ids, **merged) if parts else _empty(self.t_ns)
