@@ -48,6 +48,7 @@ from typing import Any
 
 from hil_bridge.bus.faults import Faults
 from hil_bridge.lifetime import die_with_parent
+from hil_bridge.priority import lower_priority
 from hil_bridge.server.echo_compute import (
     DeadlinePlanner,
     EchoJob,
@@ -141,18 +142,6 @@ class ThreadWorker:
 # ---------------------------------------------------------------------------- worker process
 
 
-def _lower_priority(nice: int) -> None:
-    """Add ``nice`` to every thread of this process (Linux sets it per thread)."""
-    tasks = "/proc/self/task"
-    try:
-        tids = [int(t) for t in os.listdir(tasks)]
-    except OSError:
-        tids = []
-    for tid in tids or [0]:
-        with contextlib.suppress(OSError):
-            os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
-
-
 def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
                  cost: EchoCost, parent_pid: int) -> None:
     """Body of a worker process: its own Scene, tiles through the shared store, one job at a
@@ -165,7 +154,7 @@ def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
     from sim_core.world.ball import warm_up
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _lower_priority(nice)
+    lower_priority(nice)
     scene = load_scene(spec, trajectory_reader=load_trajectory)
     warm_up()  # the leaf gather compiled (or loaded) before the first job
     built: list[tuple[Tile, int]] = []
