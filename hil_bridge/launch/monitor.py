@@ -19,7 +19,9 @@ class BusMonitor:
     Counts messages per topic and sequence gaps per (publisher, topic) as drops with
     :class:`hil_bridge.tools.topic.TopicStats` (a retransmission is a duplicate, not a gap);
     the state path latency (receive time minus the header's ``pub_ns``, both
-    ``time.monotonic_ns``) and ping -> echo latency (echo arrival minus ping arrival, matched
+    ``time.monotonic_ns``), the gaps between consecutive publishes of a state topic (``pub_ns``
+    to ``pub_ns`` of one publisher's consecutive ``seq``: the publisher's pace, whatever the
+    monitor's own delays) and ping -> echo latency (echo arrival minus ping arrival, matched
     by sonar and ``ping_seq``).
     Undecodable messages are counted in ``bad``, never raised.
 
@@ -49,6 +51,9 @@ class BusMonitor:
         self._topics: dict[str, TopicStats] = {}
         self._bad = 0
         self._state_ms: deque[float] = deque(maxlen=50000)
+        self._state_gap_ms: deque[float] = deque(maxlen=50000)
+        #: per state topic: the last state's publisher, seq and pub_ns
+        self._last_state: dict[str, tuple[str, int, int]] = {}
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._pings: dict[tuple[str, int], int] = {}
         self._throttled_s = 0.0
@@ -130,8 +135,12 @@ class BusMonitor:
                 if ts is None:
                     ts = self._topics[topic] = TopicStats(topic)
                 ts.add(header, sum(len(f) for f in frames), now)
-                if topic.startswith("/glider/") and topic.endswith("/state"):
+                if is_state:
                     self._state_ms.append((now - header.pub_ns) / 1e6)
+                    last = self._last_state.get(topic)
+                    if last is not None and last[:2] == (header.src, header.seq - 1):
+                        self._state_gap_ms.append((header.pub_ns - last[2]) / 1e6)
+                    self._last_state[topic] = (header.src, header.seq, header.pub_ns)
                 elif ping_key is not None and topic.endswith("/ping"):
                     self._pings[ping_key] = now
                     if len(self._pings) > 4096:
@@ -158,5 +167,6 @@ class BusMonitor:
                 "bad": self._bad,
                 "throttled_s": round(self._throttled_s, 3),
                 "state_latency_ms": percentiles(list(self._state_ms)),
+                "state_gap_ms": percentiles(list(self._state_gap_ms)),
                 "ping_echo_ms": percentiles(list(self._ping_echo_ms)),
             }

@@ -85,3 +85,32 @@ def test_monitor_throttles_itself_under_a_flood_of_garbage() -> None:
     stats = monitor.stats()
     assert stats["bad"] == n and stats["messages"] == 0
     assert stats["throttled_s"] > 0
+
+
+def test_monitor_measures_the_gaps_between_consecutive_state_publishes() -> None:
+    """From the headers' ``pub_ns``: one publisher's consecutive ``seq`` only (a lost state or
+    another publisher starts over), whenever the monitor itself received them."""
+    from hil_bridge.bus.messages import GliderState
+
+    bus = "mem://launch_monitor_gaps"
+    monitor = BusMonitor("monitor", bus=bus)
+    monitor.start()
+    state = GliderState(stamp_ns=0, x=0.0, y=0.0, z=0.0, heading=0.0, bank=0.0, airspeed=10.0,
+                        vz=0.0)
+    ms = 1_000_000
+    sent = [("server", 0, 0), ("server", 1, 4 * ms), ("server", 2, 8 * ms),
+            ("server", 3, 20 * ms), ("server", 5, 60 * ms), ("server", 6, 64 * ms),
+            ("other", 7, 90 * ms)]
+    base = time.monotonic_ns()
+    try:
+        with open_transport(bus) as pub:
+            for src, seq, at in sent:
+                pub.publish(encode("/glider/0/state", state, seq=seq, pub_ns=base + at, src=src))
+            deadline = time.monotonic() + 10.0
+            while monitor.stats()["messages"] < len(sent):
+                assert time.monotonic() < deadline, monitor.stats()
+                time.sleep(0.005)
+    finally:
+        monitor.stop()
+    gaps = monitor.stats()["state_gap_ms"]
+    assert gaps["n"] == 4 and gaps["max"] == 12.0 and gaps["p50"] == 4.0
