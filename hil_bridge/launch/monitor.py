@@ -31,9 +31,10 @@ class BusMonitor:
     garbage must not take the adapters' time. Beyond its share it sleeps, its socket drops what
     it cannot take, and ``throttled_s`` says for how long its counts are partial. Its thread
     runs at a lower CPU priority (nice :attr:`NICE`), so that on a machine short of cores the
-    nodes come first: with it at the nodes' priority, the 8-sonar scene's server ran 12.6 % of
-    its ticks late, against 4.5 % without a monitor (``python -m bench multisonar``'s pool row,
-    run both ways).
+    nodes come first: it receives every message of the run, every state and echo included, and
+    at the nodes' priority it took the cores from the server's tick loop when they were short.
+    What it measures on receipt (``state_latency_ms``) then includes its own wait for a core;
+    ``state_gap_ms`` comes from the publishers' clocks.
     """
 
     CPU_SHARE = 0.5
