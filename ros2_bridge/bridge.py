@@ -14,10 +14,10 @@ each glider the first time one of its topics is seen.
   subscription does not offer gets a warning in the bridge's log naming the topic and the
   policy, and is counted (``qos_incompatible``) — never silence.
 - **Lazy** entries convert only while a ROS 2 subscription is matched. Each publisher keeps its
-  count of matched subscriptions from DDS's match events (asking rmw for it costs 13 µs a call,
-  more than the rest of a state's conversion), so a subscriber gets every message from the
-  moment its match is reported; a lazy transient-local entry publishes the last message it saw
-  as soon as its first subscriber matches.
+  count of matched subscriptions from DDS's match events rather than asking rmw for it with
+  every message, so a subscriber gets every message from the moment its match is reported; a
+  lazy transient-local entry publishes the last message it saw as soon as its first subscriber
+  matches.
 - **Domain and discovery.** ``ROS_DOMAIN_ID``: ``ros_domain_id``, else the environment's, else
   echoloop's domain number (domain N ↔ ROS domain N). ``discovery``: ``localhost`` (default,
   unless ``ROS_AUTOMATIC_DISCOVERY_RANGE`` says otherwise), ``subnet``, ``off`` or
