@@ -303,11 +303,11 @@ class Fleet:
             parts.append(blocks[0][1])
         elif blocks:  # the vehicles in id order
             at = {vid: k for k, vid in enumerate(self.vehicle_ids)}
-            rows = [np.array([at[v] for v in vids], dtype=np.intp) for vids, _ in blocks]
+            places = [np.array([at[v] for v in vids], dtype=np.intp) for vids, _ in blocks]
             block: dict[str, Any] = {}
             for key, first in blocks[0][1].items():
                 block[key] = np.empty((len(at), *first.shape[1:]), dtype=first.dtype)
-                for (_, arrays), where in zip(blocks, rows, strict=True):
+                for (_, arrays), where in zip(blocks, places, strict=True):
                     block[key][where] = arrays[key]
             parts.append(block)
         merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
