@@ -112,6 +112,17 @@ def _pose(position: Any, q: Any) -> Pose:
     return pose
 
 
+def _kinematics(states: list[GliderState]) -> dict[int, tuple[GliderState, Any, Any]]:
+    """Per state (by ``id``): the state, its attitude (4,) and its ``Odometry`` row."""
+    q = state_quaternions(states)
+    body_v = quat_rotate(quat_conjugate(q), glider_velocities(states))
+    rates = np.array([[st.roll_rate, st.pitch_rate, st.yaw_rate] for st in states],
+                     dtype=np.float64).reshape(-1, 3)
+    rows = cdr.odometry_rows([[st.x, st.y, st.z] for st in states], q, body_v,
+                             np.where(np.isfinite(rates), rates, 0.0))
+    return {id(st): (st, q[k], rows[k]) for k, st in enumerate(states)}
+
+
 class Converter:
     """Bus → ROS 2 conversions for one bridge (module docstring). ``convert(ros_type, ident,
     msg, ros_topic)`` returns the ROS 2 message (or its serialised bytes), or None when ``msg``
@@ -126,21 +137,15 @@ class Converter:
         """Compute the attitudes, and the ``Odometry`` numbers (pose, body-frame twist), of K
         states at once (the frame algebra is vectorised; per state it would cost more than the
         rest of a conversion). Until the next call, converting one of them uses these."""
-        q = state_quaternions(states)
-        body_v = quat_rotate(quat_conjugate(q), glider_velocities(states))
-        rates = np.array([[st.roll_rate, st.pitch_rate, st.yaw_rate] for st in states],
-                         dtype=np.float64).reshape(-1, 3)
-        rows = cdr.odometry_rows([[st.x, st.y, st.z] for st in states], q, body_v,
-                                 np.where(np.isfinite(rates), rates, 0.0))
-        self._kinematics = {id(st): (st, q[k], rows[k]) for k, st in enumerate(states)}
+        self._kinematics = _kinematics(states)
 
     def _kinematics_of(self, st: GliderState) -> tuple[Any, Any]:
         """The attitude (4,) and ``Odometry`` row of ``st`` (from :meth:`prepare`, or computed
-        now for a state it was not given)."""
+        now, and kept nowhere, for a state it was not given: another thread may be converting
+        a prepared batch)."""
         kin = self._kinematics.get(id(st))
         if kin is None or kin[0] is not st:
-            self.prepare([st])
-            kin = self._kinematics[id(st)]
+            kin = _kinematics([st])[id(st)]
         return kin[1], kin[2]
 
     def convert(self, ros_type: str, ident: str, msg: Message, ros_topic: str) -> Any:
