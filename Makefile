@@ -22,9 +22,10 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
-# the second pass checks float results on the AVX2 path; tests of nodes as processes hold none
+# the second pass checks float results on the AVX2 path; tests of nodes as processes, and those
+# tests/conftest.py marks no_simd_float, hold none
 test-noavx512: $(STAMP)
-	NPY_DISABLE_CPU_FEATURES="$(NOAVX512)" $(PY) -m pytest -q -p no:cacheprovider -m "not processes"
+	NPY_DISABLE_CPU_FEATURES="$(NOAVX512)" $(PY) -m pytest -q -p no:cacheprovider -m "not processes and not no_simd_float"
 
 bench: $(STAMP)
 	$(PY) -m bench

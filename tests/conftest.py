@@ -29,6 +29,23 @@ def pytest_report_header() -> str:
     )
 
 
+#: tests that hold no float result numpy's SIMD path could change (lifecycle, framing, the bus,
+#: the repository's own checks): marked ``no_simd_float``, so the AVX-512-off pass of ``.ci/run``
+#: leaves them out, as it leaves out the ``processes`` tests
+NO_SIMD_FLOAT = ("hil_bridge/launch/", "hil_bridge/bus/", "hil_bridge/tools/", "drivers/serial/",
+                 "test_plugin.py", "test_leak_guard.py", "test_self_contained.py",
+                 "test_architecture.py", "test_docs_figures.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark the tests of :data:`NO_SIMD_FLOAT`."""
+    root = Path(__file__).resolve().parent
+    for item in items:
+        where = item.path.resolve().relative_to(root).as_posix()
+        if where.startswith(NO_SIMD_FLOAT):
+            item.add_marker(pytest.mark.no_simd_float)
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Compile the soaring kernels, or load them from numba's on-disk cache, before any test:
     no test (least of all a realtime one) pays a compile inside its loop, and later processes
