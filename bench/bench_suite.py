@@ -3,7 +3,8 @@
 Runs the two passes of ``.ci/run`` one after the other, as ``make test`` and
 ``make test-noavx512`` run them (``python -m pytest -q``, then the same with numpy's AVX-512
 kernels disabled through ``NPY_DISABLE_CPU_FEATURES``, without the cache provider and without
-the tests of nodes as processes, which hold no float result), and
+the tests that hold no float result: the Makefile's marker expression, ``processes`` and
+``no_simd_float``), and
 reports each pass's wall time, its CPU time (user + system of pytest and its children) and
 the total against the 10-minute budget of the project's guide. The machine is shared: the wall
 time includes whatever else ran, the CPU time does not.
