@@ -147,23 +147,19 @@ def sample_paths(trajs: Sequence[Trajectory], t: ArrayLike) -> dict[str, FloatAr
     tq = np.asarray(t, dtype=np.float64)
     if tq.ndim != 2 or tq.shape[0] != len(trajs):
         raise ValueError(f"t: expected shape ({len(trajs)}, Q), got {tq.shape}")
-    # every vehicle at once; per vehicle only its searchsorted (a Python loop of array calls
-    # per vehicle cost 8 vehicles 240 µs a tick)
+    # the wrapping for every vehicle at once; per vehicle only its segment lookup and gather
+    # (no copy of its table: a logged path may hold many thousand rows)
     t_first = np.array([[traj.t[0]] for traj in trajs])
     t_last = np.array([[traj.t[-1]] for traj in trajs])
     loops = np.array([[traj.loop] for traj in trajs])
     x = np.where(loops, t_first + np.mod(tq - t_first, t_last - t_first),
                  np.minimum(np.maximum(tq, t_first), t_last))
-    starts = np.cumsum([0] + [len(traj) for traj in trajs[:-1]])
-    j = np.empty(tq.shape, dtype=np.intp)
+    a, b = np.empty((*tq.shape, 6)), np.empty((*tq.shape, 6))  # (V, Q, 6)
+    ta, tb = np.empty(tq.shape), np.empty(tq.shape)
     for v, traj in enumerate(trajs):
-        j[v] = traj.t.searchsorted(x[v], side="right")
-    j = np.minimum(np.maximum(j - 1, 0), np.array([[len(traj) - 2] for traj in trajs]))
-    j += starts[:, None]
-    times = np.concatenate([traj.t for traj in trajs])
-    table = np.concatenate([traj._table for traj in trajs])
-    a, b = table[j], table[j + 1]  # (V, Q, 6)
-    ta, tb = times[j], times[j + 1]
+        j = np.minimum(np.maximum(traj.t.searchsorted(x[v], side="right") - 1, 0), len(traj) - 2)
+        a[v], b[v] = traj._table[j], traj._table[j + 1]
+        ta[v], tb[v] = traj.t[j], traj.t[j + 1]
     slope = (b - a) / (tb - ta)[..., None]
     val = np.where((x == tb)[..., None], b, slope * (x - ta)[..., None] + a)
     return {
