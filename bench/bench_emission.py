@@ -39,7 +39,8 @@ from bench._util import table
 from hil_bridge.bus.messages import Clock, SonarEcho, SonarPing
 from hil_bridge.bus.node import Node
 from hil_bridge.files.scene import load_scene
-from hil_bridge.server.fleet import Fleet, VehiclePose
+from hil_bridge.server.fleet import Fleet
+from hil_bridge.server.pose_history import VehiclePose
 from hil_bridge.server.sim_server import SimServer
 from sim_core.flight import path_state
 from sim_core.pose import quat_conjugate, quat_multiply
@@ -108,17 +109,17 @@ def _offline(name: str) -> list[list[Any]]:
     for _ in range(OFFLINE_TICKS):
         fleet.advance({})
         fleet.states()
-        newest = fleet.recorded_ns
+        newest = fleet.history.recorded_ns
         if newest < SETTLE_NS + TICK_NS:
             continue
         for _ in range(PER_TICK):
             s = newest - TICK_NS + 1 + int(rng.integers(TICK_NS))
-            add("waited", fleet.pose_at(1, s), s)
+            add("waited", fleet.history.pose_at(1, s), s)
             s = newest + 1 + int(rng.integers(TICK_NS))
-            add("newest tick", fleet.pose_at(1, s), s)
-            add("extrapolated 0-1 T", fleet.pose_at(1, s, extrapolate_ns=2 * TICK_NS), s)
+            add("newest tick", fleet.history.pose_at(1, s), s)
+            add("extrapolated 0-1 T", fleet.history.pose_at(1, s, extrapolate_ns=2 * TICK_NS), s)
             s += TICK_NS
-            add("extrapolated 1-2 T", fleet.pose_at(1, s, extrapolate_ns=2 * TICK_NS), s)
+            add("extrapolated 1-2 T", fleet.history.pose_at(1, s, extrapolate_ns=2 * TICK_NS), s)
     return [[name, kind, len(errs[kind]), *_stats(errs[kind])] for kind in kinds]
 
 

@@ -1,12 +1,13 @@
 """The pose of a sonar's vehicle at a ping's emission, found off the server's tick loop.
 
-A ping is answered at its vehicle's pose at its emission stamp, from the fleet's pose history
-(:meth:`hil_bridge.server.fleet.Fleet.pose_at`). :class:`EmissionPoses` finds it:
+A ping is answered at its vehicle's pose at its emission stamp, from a pose history
+(:meth:`hil_bridge.server.pose_history.PoseHistory.pose_at`: the fleet's in the server, the
+bus's states in an echo node). :class:`EmissionPoses` finds it:
 
 - a stamp the history covers: interpolated between the two ticks around it, at once;
 - a stamp before the history: the oldest pose kept (``ping_stamp_old``);
 - a stamp after the newest tick (by at most ``horizon_ns``, the server's ``pose_history_s``)
-  while the server ticks: the ping is *held* until the fleet has recorded a tick at or after
+  while the server ticks: the ping is *held* until the history has recorded a tick at or after
   its stamp, then interpolated (``ping_stamp_waited``; the wall time it waited is in
   ``ping_wait_ms``). A held ping whose covering tick has not come ``wait_s`` wall seconds after
   its arrival (the server's ``pose_wait_ticks``), or when the server stops ticking, is
@@ -19,7 +20,7 @@ A ping is answered at its vehicle's pose at its emission stamp, from the fleet's
 
 A held ping whose pose cannot be found (a bug) is logged and counted in ``ping_pose_errors``.
 
-The tick loop never waits for any of it: the fleet tells :meth:`EmissionPoses.on_tick` of each
+The tick loop never waits for any of it: the history tells :meth:`EmissionPoses.on_tick` of each
 recorded tick, which only wakes this module's thread; that thread finds the poses of the pings
 a tick released and hands them on (``on_pose``), in stamp order. Pings found at once are
 handed on from the caller's thread (the bus's).
@@ -36,7 +37,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hil_bridge.bus.faults import Faults
-from hil_bridge.server.fleet import Fleet, VehiclePose
+from hil_bridge.server.pose_history import PoseHistory, VehiclePose
 
 __all__ = ["EMISSION_COUNTERS", "EmissionPoses"]
 
@@ -56,7 +57,7 @@ class _Held:
 
 
 class EmissionPoses:
-    """Poses at the pings' emission (module docstring) of the vehicles of ``fleet``'s history.
+    """Poses at the pings' emission (module docstring) of the vehicles of ``history``.
 
     ``horizon_ns``: how far (sim ns) after the newest tick a stamp may be and still be this
     server's time (waited for, or extrapolated); ``wait_s``: how long (wall s after its
@@ -67,24 +68,24 @@ class EmissionPoses:
     thread.
     """
 
-    def __init__(self, fleet: Fleet, *, horizon_ns: int, wait_s: float,
+    def __init__(self, history: PoseHistory, *, horizon_ns: int, wait_s: float,
                  on_pose: Callable[[Any, VehiclePose, float], None]) -> None:
         if horizon_ns < 0 or not wait_s >= 0:
             raise ValueError(f"horizon_ns, wait_s: expected >= 0, got {horizon_ns}, {wait_s}")
-        self.fleet = fleet
+        self.history = history
         self.horizon_ns = int(horizon_ns)
         self.wait_s = float(wait_s)
         self._on_pose = on_pose
         self._cond = threading.Condition()
         self._held: list[_Held] = []
-        self._newest = fleet.recorded_ns
+        self._newest = history.recorded_ns
         self._ticking = True
         self._closed = False
         self._thread: threading.Thread | None = None
         self._c = dict.fromkeys(EMISSION_COUNTERS, 0)
         self._wait_ms: deque[float] = deque(maxlen=10000)
         self._extrapolated_ms: deque[float] = deque(maxlen=10000)
-        fleet.add_listener(self.on_tick)
+        history.add_listener(self.on_tick)
 
     def start(self, faults: Faults) -> None:
         """Start the thread that answers held pings; an exception that ends it is reported to
@@ -96,7 +97,7 @@ class EmissionPoses:
             self._thread.start()
 
     def on_tick(self, t_ns: int) -> None:
-        """The fleet recorded tick ``t_ns`` (the tick loop's thread: wakes the thread only)."""
+        """The history recorded tick ``t_ns`` (the recording thread: wakes the thread only)."""
         with self._cond:
             self._newest = max(self._newest, t_ns)
             if self._held:
@@ -140,7 +141,7 @@ class EmissionPoses:
         return out
 
     def _answer(self, h: _Held, *, held: bool) -> None:
-        pose = self.fleet.pose_at(h.vid, h.t_ns, extrapolate_ns=self.horizon_ns)
+        pose = self.history.pose_at(h.vid, h.t_ns, extrapolate_ns=self.horizon_ns)
         counter = {"oldest": "ping_stamp_old", "newest": "ping_stamp_future",
                    "extrapolated": "ping_stamp_extrapolated",
                    "history": "ping_stamp_waited" if held else ""}[pose.source]

@@ -16,26 +16,22 @@
 :meth:`Fleet.advance` integrates from one tick to the next on the commands it is given (the
 server passes those held when the tick starts, so a command received before tick k is flown
 in the state of tick k). :meth:`Fleet.states` gives the state and attitude of every vehicle
-and records the poses of the vehicles listed in ``history_ids`` (those carrying a sonar) in a
-short history that :meth:`Fleet.pose_at` interpolates, for pings emitted between ticks (and
-extrapolates a little past the newest tick, when asked). Listeners (:meth:`Fleet.add_listener`)
-are told of every recorded tick. Only :meth:`pose_at`, :meth:`latest` and :attr:`recorded_ns`
-may be called from another thread than the one stepping the fleet.
+and records the poses of the vehicles listed in ``history_ids`` (those carrying a sonar) in
+:attr:`Fleet.history` (:class:`hil_bridge.server.pose_history.PoseHistory`), for pings emitted
+between ticks. Only the history may be used from another thread than the one stepping the
+fleet.
 """
 
 from __future__ import annotations
 
-import bisect
-import math
-import threading
-from collections import deque
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from hil_bridge.server.pose_history import PoseHistory
 from sim_core.config import ConfigError
 from sim_core.flight import (
     BANK,
@@ -49,10 +45,9 @@ from sim_core.flight import (
     path_state,
     path_states,
 )
-from sim_core.pose import pose_extrapolate, pose_interpolate, velocity_interpolate
 from sim_core.scene import Scene
 
-__all__ = ["Fleet", "FleetStates", "PoseSource", "VehiclePose"]
+__all__ = ["Fleet", "FleetStates"]
 
 F8 = NDArray[np.float64]
 B8 = NDArray[np.bool_]
@@ -81,27 +76,6 @@ class FleetStates:
     rates: F8
     alive: B8
     step: NDArray[np.int64]
-
-
-#: where a :class:`VehiclePose` comes from: between two recorded ticks (or on one),
-#: extrapolated past the newest, or the newest (oldest) state for a time after (before) those
-PoseSource = Literal["history", "extrapolated", "newest", "oldest"]
-
-
-@dataclass(frozen=True, slots=True)
-class VehiclePose:
-    """A vehicle's pose at ``t_ns``: ``position`` (3,) m, ``orientation`` (4,) world-from-body,
-    ``velocity`` (3,) m/s world, body ``rates`` (3,) rad/s; ``source`` says how it was found
-    (:data:`PoseSource`; for ``newest``/``oldest``, ``t_ns`` is that state's); ``ahead_ns``:
-    how far past the newest state an extrapolated pose lies."""
-
-    t_ns: int
-    position: F8
-    orientation: F8
-    velocity: F8
-    rates: F8
-    source: PoseSource
-    ahead_ns: int = 0
 
 
 class Fleet:
@@ -173,14 +147,8 @@ class Fleet:
         self._vgrounded = np.zeros(n_c, dtype=bool)
         self._external: Any = None
         self.ids: tuple[int, ...] = (*self.glider_ids, *self.vehicle_ids)
-        keep = max(2, math.ceil(history_s * 1e9 / tick_ns) + 1)
-        #: per id: (t_ns, position, velocity, quat, rates) of each recorded tick
-        self._history: dict[int, deque[tuple[int, F8, F8, F8, F8]]] = {
-            int(i): deque(maxlen=keep) for i in history_ids
-        }
-        self._hlock = threading.Lock()
-        self._recorded_ns = -1
-        self._listeners: list[Callable[[int], None]] = []
+        #: the poses of the ``history_ids`` at every tick :meth:`states` computed
+        self.history = PoseHistory(history_ids, tick_ns=tick_ns, history_s=history_s)
 
     # -- stepping ----------------------------------------------------------------------------
     @property
@@ -312,7 +280,7 @@ class Fleet:
             parts.append(block)
         merged = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
         st = FleetStates(t_ns=self.t_ns, ids=self.ids, **merged) if parts else _empty(self.t_ns)
-        self._record(st)
+        self.history.record(st.t_ns, st.ids, st.position, st.velocity, st.quat, st.rates)
         return st
 
     def _flown_part(self, y: F8, out: FlightOutputs, alive: B8, step: int) -> dict[str, Any]:
@@ -332,77 +300,6 @@ class Fleet:
         """The 6-DoF vehicles' outputs (:class:`sim_core.sixdof.SixDofOutputs`, rows in the
         order of :attr:`sixdof_ids`) at the last :meth:`states`, or None."""
         return self._sixdof_out
-
-    # -- pose history ------------------------------------------------------------------------
-    def add_listener(self, callback: Callable[[int], None]) -> None:
-        """Call ``callback(t_ns)`` after every tick recorded in the history, on the thread
-        stepping the fleet: it must not block. Add listeners before the fleet is stepped."""
-        self._listeners.append(callback)
-
-    @property
-    def recorded_ns(self) -> int:
-        """The tick of the newest recorded poses (sim ns; -1 before the first)."""
-        with self._hlock:
-            return self._recorded_ns
-
-    def _record(self, st: FleetStates) -> None:
-        if not self._history:
-            return
-        index = {vid: k for k, vid in enumerate(st.ids)}
-        with self._hlock:
-            for vid, hist in self._history.items():
-                k = index[vid]
-                if hist and hist[-1][0] == st.t_ns:
-                    hist.pop()  # the same tick again: the newer computation replaces it
-                hist.append((st.t_ns, st.position[k].copy(), st.velocity[k].copy(),
-                             st.quat[k].copy(), st.rates[k].copy()))
-            self._recorded_ns = max(self._recorded_ns, st.t_ns)
-        for listener in self._listeners:
-            listener(st.t_ns)
-
-    def latest(self, vid: int) -> tuple[int, F8, F8] | None:
-        """Vehicle ``vid``'s newest recorded ``(t_ns, position (3,), velocity (3,))`` (one of
-        ``history_ids``), or None before its first state."""
-        with self._hlock:
-            hist = self._history[vid]
-            if not hist:
-                return None
-            t, p, v, _, _ = hist[-1]
-        return t, p, v
-
-    def pose_at(self, vid: int, t_ns: int, *, extrapolate_ns: int = 0) -> VehiclePose:
-        """Vehicle ``vid``'s pose at ``t_ns`` (one of ``history_ids``): interpolated between
-        the two recorded states around it (Hermite position and velocity, slerp attitude,
-        linear body rates); up to ``extrapolate_ns`` after the newest state, extrapolated from
-        it (its velocity, its acceleration since the state before, its body rates:
-        :func:`sim_core.pose.pose_extrapolate`); else the newest (oldest) state when ``t_ns``
-        is after (before) the history."""
-        with self._hlock:
-            hist = list(self._history[vid])
-        if not hist:
-            raise ValueError(f"no pose of vehicle {vid} recorded yet")
-        times = [h[0] for h in hist]
-        if t_ns > times[-1] and t_ns - times[-1] <= extrapolate_ns:
-            t1, p1, v1, q1, w1 = hist[-1]
-            accel = np.zeros(3)
-            if len(hist) > 1:
-                t0, _, v0, _, _ = hist[-2]
-                accel = (v1 - v0) / ((t1 - t0) / 1e9)
-            p, q, v = pose_extrapolate(t1 / 1e9, p1, v1, accel, q1, w1, t_ns / 1e9)
-            return VehiclePose(t_ns, p, q, v, w1, "extrapolated", t_ns - t1)
-        if t_ns >= times[-1]:
-            t, p, v, q, w = hist[-1]
-            return VehiclePose(t, p, q, v, w, "history" if t_ns == t else "newest")
-        if t_ns < times[0]:
-            t, p, v, q, w = hist[0]
-            return VehiclePose(t, p, q, v, w, "oldest")
-        k = bisect.bisect_right(times, t_ns) - 1
-        (t0, p0, v0, q0, w0), (t1, p1, v1, q1, w1) = hist[k], hist[k + 1]
-        a, b, at = t0 / 1e9, t1 / 1e9, t_ns / 1e9
-        p, q = pose_interpolate(a, b, p0, p1, v0, v1, q0, q1, at)
-        v = velocity_interpolate(a, b, p0, p1, v0, v1, at)
-        s = (t_ns - t0) / (t1 - t0)
-        return VehiclePose(t_ns, p, q, v, (1.0 - s) * w0 + s * w1, "history")
 
 
 def _row(out: FlightOutputs, run: int) -> FlightOutputs:

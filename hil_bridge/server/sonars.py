@@ -27,8 +27,9 @@ from hil_bridge.server.echo_compute import EchoRequest, EchoResult, Region, Sona
 from hil_bridge.server.echo_pool import usable_cores
 from hil_bridge.server.echo_service import EchoService
 from hil_bridge.server.emission import EmissionPoses
-from hil_bridge.server.fleet import Fleet, FleetStates, VehiclePose
+from hil_bridge.server.fleet import Fleet, FleetStates
 from hil_bridge.server.lockstep import LockstepGate
+from hil_bridge.server.pose_history import VehiclePose
 from sim_core.pose import cross, pose_compose, quat_from_euler, quat_rotate
 from sim_core.scene import ClockSpec, Scene
 
@@ -100,7 +101,7 @@ class ServerSonars:
             wait_s = params.pose_wait_ticks * fleet.tick_ns / 1e9 / clock.rate
         elif params.pose_wait_ticks > 0:  # ticks not on the wall clock: a step's patience
             wait_s = clock.lockstep_timeout_s
-        self.emission = EmissionPoses(fleet, horizon_ns=round(params.pose_history_s * 1e9),
+        self.emission = EmissionPoses(fleet.history, horizon_ns=round(params.pose_history_s * 1e9),
                                       wait_s=wait_s, on_pose=self._answer)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._last_error = ""
@@ -269,7 +270,7 @@ class ServerSonars:
         taus = np.linspace(0.0, LOOKAHEAD_HORIZON_S * rate, steps + 1)
         per_sonar: list[list[Region]] = []
         for sonar in self.scene.spec.sonars:
-            latest = self.fleet.latest(sonar.mount)
+            latest = self.fleet.history.latest(sonar.mount)
             if latest is None:
                 continue
             t_ns, p, v = latest

@@ -19,7 +19,8 @@ from hil_bridge.bus.messages import Clock, SonarEcho, SonarPing
 from hil_bridge.bus.node import Node
 from hil_bridge.files.scene import load_scene
 from hil_bridge.server.emission import EMISSION_COUNTERS, EmissionPoses
-from hil_bridge.server.fleet import Fleet, VehiclePose
+from hil_bridge.server.fleet import Fleet
+from hil_bridge.server.pose_history import VehiclePose
 from hil_bridge.server.sim_server import SimServer
 from sim_core.config import ConfigError
 from sim_core.flight import path_state
@@ -80,7 +81,7 @@ class _Sink:
 def test_a_ping_between_two_ticks_gets_the_pose_at_its_stamp() -> None:
     scene, fleet = _fleet(20)
     sink = _Sink()
-    poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=60.0, on_pose=sink)
+    poses = EmissionPoses(fleet.history, horizon_ns=2 * TICK_NS, wait_s=60.0, on_pose=sink)
     for k, frac in enumerate((0.1, 0.5, 0.93)):
         for vid in (1, 2):
             stamp = (10 + k) * TICK_NS + round(frac * TICK_NS)
@@ -99,9 +100,9 @@ def test_a_ping_between_two_ticks_gets_the_pose_at_its_stamp() -> None:
 
 def test_a_ping_stamped_after_the_newest_tick_gets_the_pose_at_its_stamp_once_covered() -> None:
     scene, fleet = _fleet(20)
-    newest = fleet.recorded_ns
+    newest = fleet.history.recorded_ns
     sink = _Sink()
-    poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
+    poses = EmissionPoses(fleet.history, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
     poses.start(Faults("server"))
     try:
         stamp = newest + round(0.6 * TICK_NS)
@@ -115,7 +116,7 @@ def test_a_ping_stamped_after_the_newest_tick_gets_the_pose_at_its_stamp_once_co
     assert payload == "ping" and (pose.t_ns, pose.source) == (stamp, "history")
     dp, da = _error(scene, 2, pose, stamp)
     assert dp < INTERP_M and da < ANGLE_DEG
-    older = fleet.pose_at(2, newest)
+    older = fleet.history.pose_at(2, newest)
     assert np.linalg.norm(pose.position - older.position) > 0.5 * SPEED * 0.6 * TICK_NS / 1e9
     st = poses.stats()
     assert (st["ping_stamp_waited"], st["pings_waiting_tick"], len(st["ping_wait_ms"])) == (1, 0, 1)
@@ -123,9 +124,9 @@ def test_a_ping_stamped_after_the_newest_tick_gets_the_pose_at_its_stamp_once_co
 
 def test_a_held_ping_whose_tick_does_not_come_is_extrapolated_and_every_ping_is_counted() -> None:
     scene, fleet = _fleet(20)
-    newest = fleet.recorded_ns
+    newest = fleet.history.recorded_ns
     sink = _Sink()
-    poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
+    poses = EmissionPoses(fleet.history, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=sink)
     poses.start(Faults("server"))
     try:
         stamps = [newest + round(f * TICK_NS) for f in (0.3, 1.0, 1.9)]
@@ -159,9 +160,9 @@ def test_a_held_ping_whose_tick_does_not_come_is_extrapolated_and_every_ping_is_
 def test_without_waiting_a_ping_after_the_newest_tick_is_extrapolated_at_once() -> None:
     scene, fleet = _fleet(20)
     sink = _Sink()
-    poses = EmissionPoses(fleet, horizon_ns=2 * TICK_NS, wait_s=0.0, on_pose=sink)
+    poses = EmissionPoses(fleet.history, horizon_ns=2 * TICK_NS, wait_s=0.0, on_pose=sink)
     poses.start(Faults("server"))
-    stamp = fleet.recorded_ns + TICK_NS // 2
+    stamp = fleet.history.recorded_ns + TICK_NS // 2
     poses.request(2, stamp, "p", time.monotonic())
     (_, pose) = sink.got.get_nowait()
     poses.close()
@@ -282,7 +283,7 @@ def test_a_doppler_echo_is_given_the_sonars_velocity_at_emission() -> None:
     local = load_scene(scene)
     # the sonar's velocity at emission: the vehicle's (interpolated as the server does) plus
     # the turn's lever arm
-    pose = _fleet(round(3.0e9 / TICK_NS))[1].pose_at(2, stamp)
+    pose = _fleet(round(3.0e9 / TICK_NS))[1].history.pose_at(2, stamp)
     velocity = pose.velocity + quat_rotate(pose.orientation, np.cross(pose.rates, offset))
     truth = path_state(local.trajectories[2], stamp / 1e9)
     np.testing.assert_allclose(velocity, truth.velocity + quat_rotate(
