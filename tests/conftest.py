@@ -89,17 +89,20 @@ def _no_thread_leaks() -> Iterator[None]:
 
 @pytest.fixture(autouse=True)
 def _no_worker_or_shared_memory_leaks() -> Iterator[None]:
-    """Fail a test that leaves an echo worker process (``hil_bridge.server.echo_pool``) running or a
-    shared tile store (``hil_bridge.server.shared_tiles``) of this process behind."""
+    """Fail a test that leaves an echo worker or echo node process (``hil_bridge.server.echo_pool``,
+    ``echo_nodes``) running or a shared tile store or pose ring (``hil_bridge.server.shared_tiles``)
+    of this process behind."""
     import multiprocessing
 
+    from hil_bridge.server.echo_nodes import NODE_NAME
     from hil_bridge.server.echo_pool import WORKER_NAME
     from hil_bridge.server.shared_tiles import stores_of
 
     yield
     deadline = time.monotonic() + 5.0
     while True:
-        workers = [p for p in multiprocessing.active_children() if p.name == WORKER_NAME]
+        workers = [p for p in multiprocessing.active_children()
+                   if p.name in (WORKER_NAME, NODE_NAME)]
         stores = stores_of(os.getpid())
         if not (workers or stores) or time.monotonic() > deadline:
             break

@@ -17,7 +17,7 @@ import threading
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,14 +57,22 @@ class PoseHistory:
         keep = max(2, math.ceil(history_s * 1e9 / tick_ns) + 1)
         #: per id: (t_ns, position, velocity, quat, rates) of each recorded tick
         self._history: dict[int, deque[tuple[int, F8, F8, F8, F8]]] = {
-            int(i): deque(maxlen=keep) for i in ids
+            int(i): deque(maxlen=keep) for i in sorted(ids)
         }
         self._lock = threading.Lock()
         self._recorded_ns = -1
         self._listeners: list[Callable[[int], None]] = []
+        self._mirror: Any = None
+
+    def mirror_to(self, ring: Any) -> None:
+        """Also write every tick that records all of :attr:`ids` to ``ring``
+        (:meth:`hil_bridge.server.pose_ring.PoseRing.write`, rows in the order of
+        :attr:`ids`)."""
+        self._mirror = ring
 
     @property
     def ids(self) -> tuple[int, ...]:
+        """The vehicles kept, in increasing id order."""
         return tuple(self._history)
 
     def add_listener(self, callback: Callable[[int], None]) -> None:
@@ -85,6 +93,7 @@ class PoseHistory:
         missing from ``ids`` records nothing). The same tick again replaces it."""
         if not self._history:
             return
+        rows = []
         with self._lock:
             for k, vid in enumerate(ids):
                 hist = self._history.get(vid)
@@ -94,7 +103,11 @@ class PoseHistory:
                     hist.pop()  # the same tick again: the newer computation replaces it
                 hist.append((t_ns, position[k].copy(), velocity[k].copy(), quat[k].copy(),
                              rates[k].copy()))
+                rows.append(k)
             self._recorded_ns = max(self._recorded_ns, t_ns)
+        if self._mirror is not None and len(rows) == len(self._history):
+            order = [rows[i] for i in np.argsort([ids[k] for k in rows], kind="stable")]
+            self._mirror.write(t_ns, position[order], velocity[order], quat[order], rates[order])
         for listener in self._listeners:
             listener(t_ns)
 

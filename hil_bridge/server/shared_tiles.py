@@ -32,6 +32,8 @@ __all__ = ["SharedTiles", "stores_of", "sweep_stale"]
 _MAGIC = b"ELTILE01"
 _HEADER = 64
 _TAG = "tiles"
+#: every kind of store a server shares with its children (the echo nodes' pose ring is "poses")
+_TAGS = (_TAG, "poses")
 
 
 class SharedTiles:
@@ -135,7 +137,7 @@ class SharedTiles:
 
 def _pid_of(store: Path) -> int | None:
     parts = store.name.split("-")
-    if len(parts) != 3 or parts[0] != _TAG or not parts[1].isdigit():
+    if len(parts) != 3 or parts[0] not in _TAGS or not parts[1].isdigit():
         return None
     return int(parts[1])
 
@@ -151,8 +153,8 @@ def _alive(pid: int) -> bool:
 
 
 def sweep_stale(domain: Domain) -> list[Path]:
-    """Remove the tile stores in ``domain`` whose process is gone (a killed run's); returns
-    what was removed."""
+    """Remove the tile stores (and pose rings) in ``domain`` whose process is gone (a killed
+    run's); returns what was removed."""
     base = shared_root() / domain.token
     removed: list[Path] = []
     if not base.is_dir():
@@ -166,7 +168,7 @@ def sweep_stale(domain: Domain) -> list[Path]:
 
 
 def stores_of(pid: int) -> list[Path]:
-    """Tile stores of process ``pid`` that still exist, in any domain (the test suite's leak
-    guard)."""
+    """Tile stores (and pose rings) of process ``pid`` that still exist, in any domain (the
+    test suite's leak guard)."""
     root = shared_root()
-    return sorted(s for s in root.glob(f"*/{_TAG}-*") if _pid_of(s) == pid)
+    return sorted(s for s in root.glob("*/*-*") if _pid_of(s) == pid)

@@ -119,7 +119,7 @@ class ServerParams:
     stop_after_s: float | None = None
     publish_thermals: bool = True
     forest_points: int = 20000
-    echo_worker: Literal["auto", "thread", "process", "pool"] = "auto"
+    echo_worker: Literal["auto", "thread", "process", "pool", "nodes"] = "auto"
     echo_workers: int | None = None
     echo_deadlines: bool = True
     pose_history_s: float = 2.0
@@ -231,7 +231,8 @@ class SimServer:
             history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
         )
         self._sonars = ServerSonars(
-            name, self.scene, self.fleet, self._gate, self.clock_spec, self.params, self._now_ns,
+            name, self.scene, self.fleet.history, self.tick_ns, self._gate, self.clock_spec,
+            self.params, self._now_ns,
             current_domain(),  # the run's: active while the launcher builds nodes
         )
         self._node: Any = None
@@ -288,13 +289,15 @@ class SimServer:
             )
         # the state of tick 0 before any callback can run: the first ping has a pose
         first = self.fleet.states()
-        self._sonars.attach(node, first)
+        self._sonars.attach(node, first, nodes_ok=self.clock_spec.mode != "lockstep"
+                            and not self.bus.startswith("mem://"))
         node.start()
+        self._sonars.start()
         # the first tick reaches every subscriber that was there before the server started
+        # (the echo nodes among them)
         if not node.transport.sync(BUS_SYNC_S):
             log.warning("%s: bus %s not in sync after %g s: subscribers may miss the first "
                         "ticks", self.name, self.bus, BUS_SYNC_S)
-        self._sonars.start()
         self._threads = [
             threading.Thread(target=self._tick_loop, name=f"{self.name}-tick", daemon=True),
         ]

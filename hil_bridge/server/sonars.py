@@ -18,18 +18,22 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
 from typing import Any, Literal, cast
 
 import numpy as np
 
 from hil_bridge.bus.messages import PointCloud, SonarEcho, SonarPing
 from hil_bridge.server.echo_compute import EchoRequest, EchoResult, Region, SonarPose
+from hil_bridge.server.echo_nodes import EchoNodes, NodeSpec
 from hil_bridge.server.echo_pool import usable_cores
 from hil_bridge.server.echo_service import EchoService
-from hil_bridge.server.emission import EmissionPoses
-from hil_bridge.server.fleet import Fleet, FleetStates
+from hil_bridge.server.emission import EMISSION_COUNTERS, EmissionPoses
+from hil_bridge.server.fleet import FleetStates
 from hil_bridge.server.lockstep import LockstepGate
-from hil_bridge.server.pose_history import VehiclePose
+from hil_bridge.server.pose_history import PoseHistory, VehiclePose
+from hil_bridge.server.pose_ring import PoseRing
+from sim_core.config import ConfigError
 from sim_core.pose import cross, pose_compose, quat_from_euler, quat_rotate
 from sim_core.scene import ClockSpec, Scene
 
@@ -55,72 +59,115 @@ ECHO_COUNTERS = {
 }
 
 
-Worker = Literal["thread", "process", "pool"]
+Worker = Literal["thread", "process", "pool", "nodes"]
 
 
-def choose_worker(asked: str, sonars: int, cores: int) -> Worker:
-    """The echo worker ``echo_worker: auto`` means: a pool when several sonars ping and there is
-    a core for each of two workers (their echoes then compute side by side), else a thread
-    (one sonar's echoes never overlap, and a thread costs no start-up); any other choice as
-    asked."""
-    if asked in ("thread", "process", "pool"):
+def choose_worker(asked: str, sonars: int, cores: int, *, nodes_ok: bool = True) -> Worker:
+    """The echo worker ``echo_worker: auto`` means: echo nodes when several sonars ping and
+    there is a core for each of two (their echoes then compute side by side, off the server's
+    interpreter), a pool where nodes cannot serve (``nodes_ok`` false: a lockstep clock or an
+    in-process bus), else a thread (one sonar's echoes never overlap, and a thread costs no
+    start-up); any other choice as asked."""
+    if asked == "nodes" and not nodes_ok:
+        raise ConfigError("echo_worker: nodes needs a realtime or fast clock and a bus other "
+                          "processes reach (not lockstep, not mem://); use pool or thread")
+    if asked in ("thread", "process", "pool", "nodes"):
         return cast(Worker, asked)
     if asked != "auto":
-        raise ValueError(f"echo_worker: expected auto, thread, process or pool, got {asked!r}")
-    return "pool" if sonars >= 2 and cores >= 2 else "thread"
+        raise ConfigError(f"echo_worker: expected auto, thread, process, pool or nodes, got "
+                          f"{asked!r}")
+    if sonars >= 2 and cores >= 2:
+        return "nodes" if nodes_ok else "pool"
+    return "thread"
 
 
 class ServerSonars:
-    """The sonars of ``scene`` served by the server ``name`` (module docstring).
+    """The sonars of ``scene`` (those of ``sonar_ids``, default all) served by the server (or
+    echo node) ``name`` (module docstring), at the poses of ``history``, recorded every
+    ``tick_ns``.
 
-    ``now_ns()`` is the server's latest tick (sim ns): a ping without an emission stamp was
-    emitted then, and echoes are stamped with it. ``params`` are the server's
+    ``now_ns()`` is the latest tick (sim ns): a ping without an emission stamp was emitted
+    then, and echoes are stamped with it. ``params`` are the server's
     :class:`hil_bridge.server.sim_server.ServerParams` (``forest_points``, ``echo_*``).
     """
 
-    def __init__(self, name: str, scene: Scene, fleet: Fleet, gate: LockstepGate,
-                 clock: ClockSpec, params: Any, now_ns: Any, domain: Any) -> None:
+    def __init__(self, name: str, scene: Scene, history: PoseHistory, tick_ns: int,
+                 gate: LockstepGate, clock: ClockSpec, params: Any, now_ns: Any, domain: Any,
+                 *, sonar_ids: Sequence[int] | None = None) -> None:
         self.name = name
         self.scene = scene
-        self.fleet = fleet
+        self.history = history
+        self._sonar_specs = [s for s in scene.spec.sonars
+                             if sonar_ids is None or s.id in sonar_ids]
         self._gate = gate
         self._clock = clock
         self._params = params
         self._now_ns = now_ns
         self._domain = domain
+        self._tick_ns = tick_ns
         self._vehicle_specs = {v.id: v for v in scene.spec.vehicles}
         self._mounts = {
             s.id: (s.mount, np.asarray(s.mount_offset_m, dtype=np.float64),
                    quat_from_euler(*s.mount_rpy_rad))
-            for s in scene.spec.sonars
+            for s in self._sonar_specs
         }
         self._lock = threading.Lock()
         self._c = dict.fromkeys(("pings_received", "echoes_published"), 0)
         wait_s = 0.0  # pose_wait_ticks 0: extrapolated at once
         if params.pose_wait_ticks > 0 and clock.mode == "realtime":
-            wait_s = params.pose_wait_ticks * fleet.tick_ns / 1e9 / clock.rate
+            wait_s = params.pose_wait_ticks * tick_ns / 1e9 / clock.rate
         elif params.pose_wait_ticks > 0:  # ticks not on the wall clock: a step's patience
             wait_s = clock.lockstep_timeout_s
-        self.emission = EmissionPoses(fleet.history, horizon_ns=round(params.pose_history_s * 1e9),
+        self.emission = EmissionPoses(history, horizon_ns=round(params.pose_history_s * 1e9),
                                       wait_s=wait_s, on_pose=self._answer)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._last_error = ""
         self._pubs: dict[str, Any] = {}
         self.service: EchoService | None = None
+        self.nodes: EchoNodes | None = None
+        self.ring: PoseRing | None = None
         self.worker: str = ""
 
-    def attach(self, node: Any, first: FleetStates) -> None:
-        """Publishers, ping subscriptions and the (not yet started) echo service on ``node``;
-        ``first`` is the fleet's state of tick 0 (where the points' routes start)."""
+    def attach(self, node: Any, first: FleetStates, *, nodes_ok: bool) -> None:
+        """The server's sonars on ``node``: echo nodes (``echo_worker: nodes``, chosen with
+        ``nodes_ok``: see :func:`choose_worker`) or publishers, ping subscriptions and the
+        (not yet started) echo service in this process; ``first`` is the fleet's state of
+        tick 0 (where the points' routes start, and the echo nodes' first poses)."""
+        if not self._sonar_specs:
+            return
+        p = self._params
+        self.worker = choose_worker(p.echo_worker, len(self._sonar_specs), usable_cores(),
+                                    nodes_ok=nodes_ok)
+        points = self.points_request(first) if p.forest_points > 0 else None
+        if self.worker != "nodes":
+            self.serve(node, self.worker, points)
+            return
+        from hil_bridge.bus.domain import current
+
+        self.ring = PoseRing.create(self._domain or current(), self.history.ids)
+        rows = [first.ids.index(v) for v in self.history.ids]
+        self.ring.write(first.t_ns, first.position[rows], first.velocity[rows],
+                        first.quat[rows], first.rates[rows])
+        self.history.mirror_to(self.ring)
+        spec = NodeSpec(
+            server=self.name, scene=self.scene.spec, bus=node.bus, params=p, clock=self._clock,
+            tick_ns=self._tick_ns, index=0, sonar_ids=tuple(s.id for s in self._sonar_specs),
+            ring=str(self.ring.path), points=points,
+        )
+        self.nodes = EchoNodes(spec, p.echo_workers or usable_cores(), node.faults)
+
+    def serve(self, node: Any, worker: Worker,
+              points: tuple[tuple[Region, ...], int] | None) -> None:
+        """Publishers, ping subscriptions and the (not yet started) echo service of
+        ``worker`` on ``node``, in this process; ``points``: the latched ``/forest/points``
+        request, or None."""
         from hil_bridge.bus.qos import LATCHED, SENSOR
 
-        sonars = self.scene.spec.sonars
-        if not sonars:
-            return
-        if self._params.forest_points > 0:
+        self.worker = worker
+        if points is not None:
             self._pubs["/forest/points"] = node.create_publisher(
                 PointCloud, "/forest/points", qos=LATCHED)
-        for sonar in sonars:
+        for sonar in self._sonar_specs:
             self._pubs[f"/sonar/{sonar.id}/echo"] = node.create_publisher(
                 SonarEcho, f"/sonar/{sonar.id}/echo", qos=SENSOR,
                 frame_id=f"glider/{sonar.mount}",
@@ -130,20 +177,25 @@ class ServerSonars:
                 qos=SENSOR,
             )
         p = self._params
-        self.worker = choose_worker(p.echo_worker, len(sonars), usable_cores())
         self.service = EchoService(
-            self.scene, worker=self.worker, workers=p.echo_workers, queue_size=p.echo_queue,
+            self.scene, worker=cast(Literal["thread", "process", "pool"], worker),
+            workers=p.echo_workers, queue_size=p.echo_queue,
             deadlines=p.echo_deadlines and self._clock.mode == "realtime",
             on_echo=self._publish_echo, on_error=self._echo_failed,
             on_drop=lambda req: self._gate.echo_done(req.sonar_id),
-            points=self.points_request(first) if "/forest/points" in self._pubs else None,
-            on_points=self._publish_points, lookahead=self.lookahead, domain=self._domain,
-            faults=node.faults,
+            points=points, on_points=self._publish_points, lookahead=self.lookahead,
+            domain=self._domain, faults=node.faults,
         )
 
     def start(self) -> None:
         """Start the echo service and wait (at most :data:`ECHO_READY_TIMEOUT_S`) until its
-        workers are up and the first tiles built: the server ticks after this."""
+        workers (or echo nodes) are up and the first tiles built: the server ticks after
+        this."""
+        if self.nodes is not None:
+            if not self.nodes.wait_ready(ECHO_READY_TIMEOUT_S):
+                log.warning("%s: echo nodes not ready after %.0f s; ticking anyway", self.name,
+                            ECHO_READY_TIMEOUT_S)
+            return
         if self.service is None:
             return
         self.emission.start(self.service.faults)
@@ -160,13 +212,23 @@ class ServerSonars:
         self.emission.close()
         if self.service is not None:
             self.service.close()
+        if self.nodes is not None:
+            self.nodes.close()
+        if self.ring is not None:
+            self.ring.remove()
 
     def stats(self) -> dict[str, Any]:
         """Ping and echo counters, the emission poses' counters
         (:data:`hil_bridge.server.emission.EMISSION_COUNTERS`, ``pings_waiting_tick``),
         ``last_echo_error``, the echo service's counters (named as in :data:`ECHO_COUNTERS`)
         and the raw ``ping_echo_ms`` / ``ping_wait_ms`` / ``ping_extrapolated_ms`` /
-        ``echo_compute_ms`` lists."""
+        ``echo_compute_ms`` lists; with echo nodes, theirs merged
+        (:meth:`hil_bridge.server.echo_nodes.EchoNodes.stats`)."""
+        if self.nodes is not None:  # zeros until each node's first counters arrive
+            out = dict.fromkeys(("pings_received", "echoes_published", "pings_waiting_tick",
+                                 *EMISSION_COUNTERS, *ECHO_COUNTERS.values()), 0)
+            out.update(self.nodes.stats())
+            return out
         echo = self.service.stats() if self.service is not None else {}
         with self._lock:
             out: dict[str, Any] = dict(self._c)
@@ -246,7 +308,7 @@ class ServerSonars:
         ``/forest/points``."""
         index = {vid: k for k, vid in enumerate(first.ids)}
         routes: list[list[Region]] = []
-        for sonar in self.scene.spec.sonars:
+        for sonar in self._sonar_specs:
             r = self.scene.query_radius_m(sonar.id)
             traj = self.scene.trajectories.get(sonar.mount) if self._vehicle_specs else None
             if traj is not None:
@@ -269,8 +331,8 @@ class ServerSonars:
         steps = round(LOOKAHEAD_HORIZON_S * LOOKAHEAD_STEPS)
         taus = np.linspace(0.0, LOOKAHEAD_HORIZON_S * rate, steps + 1)
         per_sonar: list[list[Region]] = []
-        for sonar in self.scene.spec.sonars:
-            latest = self.fleet.history.latest(sonar.mount)
+        for sonar in self._sonar_specs:
+            latest = self.history.latest(sonar.mount)
             if latest is None:
                 continue
             t_ns, p, v = latest
