@@ -1,21 +1,25 @@
-"""Eight sonar vehicles at 20 Hz on the machine's cores: one echo worker against the pool.
+"""Eight sonar vehicles at 20 Hz on the machine's cores: one echo worker, the pool, echo nodes.
 
 ``launch/bench_multisonar.yaml`` (8 sonar vehicles on figure-eights in a 978,432-leaf tiled
 maple forest, each pinged at 20 Hz with beamwidths U(30°, 65°), states at 250 Hz, realtime
 clock) is launched as ``echoloop launch`` does (a claimed domain, its ZeroMQ bus, every node a
-process of its own) for ``RUN_S`` wall seconds, twice in the same run: ``echo_worker: thread``
-(one worker: the server's echo thread, the single-worker path) and ``echo_worker: pool`` (one
-worker process per usable core, tiles shared in memory, deadlines). Figures are the server's
-summary over the whole run, start-up included: *answered* = ``echoes_published /
-pings_received``; ping → echo is the server's (ping received → echo published);
+process of its own) for ``RUN_S`` wall seconds, several times in the same run:
+``echo_worker: thread`` (one worker: the server's echo thread, the single-worker path),
+``echo_worker: pool`` (one worker process per usable core fed by the server's scheduler,
+tiles shared in memory, deadlines) and ``echo_worker: auto``, which picks echo nodes here (one
+process per usable core, each taking its sonars' pings from the bus and publishing their
+echoes itself: docs/server.md). Figures are the server's summary over the whole run
+(the echo nodes' counters merged into it), start-up included: *answered* =
+``echoes_published / pings_received``; ping → echo is ping received → echo published, where
+the echo is computed;
 *late ticks* are ticks that started more than one tick period behind the wall clock; *dropped*
 = ``pings_dropped`` (full queue) + ``pings_dropped_deadline`` (superseded by the sonar's next
 ping or out of time), *degraded* = echoes computed at ``realtime`` fidelity within the time
 left, *late echoes* = published after their sonar's next ping was due. CPU is user + system
 time of this process (the launcher and its bus monitor) and of its (reaped) child processes
-over the run: the node processes (server, pinger) and the echo workers; the third row starts
-the pinger apart from the launch, with no launcher of its own, as a hardware head would be.
-Issue 14's goal on 2 cores: ≥ 99 % answered, p99 ≤ 25 ms, late ticks ≤ 1 %.
+over the run: the node processes (server, pinger) and the echo workers or nodes; the last row
+starts the pinger apart from the launch, with no launcher of its own, as a hardware head would
+be. Issue 19's goal on 2 cores: ≥ 99 % answered, p99 ≤ 25 ms, late ticks ≤ 1 %.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from hil_bridge.bus.domain import claim_first_free
 from hil_bridge.files.config import load_yaml
 from hil_bridge.launch.runner import run as launch_run
 
-TITLE = "Eight sonar vehicles × 20 Hz: one echo worker and the pool"
+TITLE = "Eight sonar vehicles × 20 Hz: one echo worker, the pool and echo nodes"
 
 ROOT = Path(__file__).resolve().parent.parent
 LAUNCH = ROOT / "launch" / "bench_multisonar.yaml"
@@ -96,8 +100,9 @@ def row(r: dict[str, Any]) -> list[Any]:
     s = r["server"]
     pings = max(1, s["pings_received"])
     ticks = max(1, s["ticks"])
-    label = ("1 worker (echo thread)" if r["worker"] == "thread"
-             else f"pool of {s['echo_workers']} processes")
+    label = {"thread": "1 worker (echo thread)",
+             "pool": f"pool of {s['echo_workers']} processes"}.get(
+                 s["echo_worker"], f"auto: {s['echo_workers']} echo {s['echo_worker']}")
     if r["apart"]:
         label += ", pinger in its own process"
     return [
@@ -266,12 +271,20 @@ def _gather_s() -> float:
 
 
 def run(out_dir: Path) -> str:
-    rows = [measure("thread"), measure("pool"), measure("pool", pinger_apart=True)]
-    one, pool = (r["server"] for r in rows[:2])
-    ratio = pool["ping_echo_ms"]["p99"] / one["ping_echo_ms"]["p99"]
+    rows = [measure("thread"), measure("pool"), measure("auto"),
+            measure("auto", pinger_apart=True)]
+    one, pool, auto = (r["server"] for r in rows[:3])
+
+    def late(s: dict[str, Any]) -> float:
+        return 100.0 * s["late_ticks"] / max(1, s["ticks"])
+
     return (
         f"{__doc__}\n{RUN_S:.0f} s each, the same run:\n\n{table(HEADER, [row(r) for r in rows])}"
-        f"\n\nPool / one worker: ping → echo p99 × {ratio:.2f}.\n\n"
+        f"\n\nPing → echo p99 against one worker: pool × "
+        f"{pool['ping_echo_ms']['p99'] / one['ping_echo_ms']['p99']:.2f}, auto ("
+        f"{auto['echo_worker']}) × {auto['ping_echo_ms']['p99'] / one['ping_echo_ms']['p99']:.2f}"
+        f"; late ticks: one worker {late(one):.2f} %, pool {late(pool):.2f} %, auto "
+        f"{late(auto):.2f} %.\n\n"
         "### Echo cost against the cost model\n\n"
         "One ping of each sonar from three points of its route (t = 0, 4, 8 s) at each "
         "beamwidth, in this process (one core): CPU time of gathering the leaves in range "

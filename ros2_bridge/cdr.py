@@ -124,4 +124,4 @@ def image(stamp_ns: int, frame_id: str, samples: npt.NDArray[np.float32]) -> byt
     head += _strings(offset + 8, ("32FC1",), 1)
     offset = len(head) - len(ENCAPSULATION)
     head += b"\0" + _pad(offset + 1, 4) + struct.pack("<II", 4 * width, data.nbytes)
-    return b"".join((head, memoryview(data)))  # the samples copied once
+    return b"".join((head, data.data))  # the samples copied once

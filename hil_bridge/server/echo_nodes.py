@@ -221,6 +221,11 @@ class EchoNodes:
                                         name="echo-nodes", daemon=True)
         self._thread.start()
 
+    @classmethod
+    def spawn(cls, n: int, faults: Faults, **fields: Any) -> EchoNodes:
+        """``n`` nodes of the :class:`NodeSpec` ``fields`` (all but ``index``)."""
+        return cls(NodeSpec(index=0, **fields), n, faults)
+
     def wait_ready(self, timeout: float) -> bool:
         """Every node is on the bus with its first tiles built (within ``timeout`` s)."""
         deadline = time.monotonic() + timeout

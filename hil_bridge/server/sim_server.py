@@ -42,11 +42,14 @@ loop, at most ``pose_wait_ticks`` tick periods) for the tick that covers it
 (``ping_stamp_waited``), or is extrapolated from the latest tick when that tick is late
 (``ping_stamp_extrapolated``); stamps more than ``pose_history_s`` after the latest tick, or
 before the history, use the newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``).
-Echoes are computed off the tick loop by
-:class:`hil_bridge.server.echo_service.EchoService`: on a thread, or ``echo_worker: pool``,
-``echo_workers`` processes (default one per core) sharing the forest's tiles in shared memory at
-a lower CPU priority than the tick loop (``process``: a pool of one; the launching script must
-be import-safe). In ``realtime`` mode a ping's echo is due before its sonar's next ping
+Echoes are computed off the tick loop by :class:`hil_bridge.server.echo_service.EchoService`: on
+a thread, or ``echo_worker: pool``, ``echo_workers`` processes (default one per core) sharing
+the forest's tiles in shared memory at a lower CPU priority than the tick loop (``process``: a
+pool of one), or, with ``echo_worker: nodes`` (``auto``'s choice for several sonars on several
+cores), by echo nodes: processes that take the pings from the bus and publish the echoes
+themselves, at poses the server shares in memory (:mod:`hil_bridge.server.echo_nodes`); the
+server's process then never sees a ping. The launching script must be import-safe for any of the
+processes. In ``realtime`` mode a ping's echo is due before its sonar's next ping
 (``echo_deadlines``): one that cannot be ready by then is degraded to the ``realtime`` fidelity
 within the time left (``echoes_degraded``) or dropped (``pings_dropped_deadline``) instead of
 queuing. Without deadlines pings wait in a bounded queue per sonar (``echo_queue``; when full
@@ -95,6 +98,7 @@ from hil_bridge.bus.stats import percentiles
 from hil_bridge.files.scene import load_scene
 from hil_bridge.recording.logs import load_trajectory
 from hil_bridge.server.commands import AutopilotInputs
+from hil_bridge.server.echo_nodes import EchoNodes
 from hil_bridge.server.fleet import Fleet, FleetStates
 from hil_bridge.server.lockstep import LockstepGate
 from hil_bridge.server.sonars import ServerSonars
@@ -289,8 +293,8 @@ class SimServer:
             )
         # the state of tick 0 before any callback can run: the first ping has a pose
         first = self.fleet.states()
-        self._sonars.attach(node, first, nodes_ok=self.clock_spec.mode != "lockstep"
-                            and not self.bus.startswith("mem://"))
+        nodes_ok = self.clock_spec.mode != "lockstep" and not self.bus.startswith("mem://")
+        self._sonars.attach(node, first, EchoNodes.spawn if nodes_ok else None)
         node.start()
         self._sonars.start()
         # the first tick reaches every subscriber that was there before the server started

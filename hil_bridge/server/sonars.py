@@ -1,8 +1,8 @@
 """The simulation server's sonar side: pings in, echoes out (:mod:`hil_bridge.server.sim_server`,
 "Echoes").
 
-:class:`ServerSonars` subscribes to every ``/sonar/<id>/ping``, answers each at its sonar's
-world pose and velocity at the ping's emission (the carrying vehicle's, from the fleet's
+:class:`ServerSonars` subscribes to its sonars' ``/sonar/<id>/ping``, answers each at its
+sonar's world pose and velocity at the ping's emission (the carrying vehicle's, from a pose
 history, found by :class:`hil_bridge.server.emission.EmissionPoses`: a ping stamped just after
 the newest tick waits for the tick that covers it; composed with the sonar's mount) through
 :class:`hil_bridge.server.echo_service.EchoService`, and
@@ -10,6 +10,11 @@ publishes ``/sonar/<id>/echo`` (frame ``glider/<mount id>``) and the latched
 ``/forest/points``. It tells the echo service where the sonars are going (:meth:`lookahead`)
 so the tiles they will reach are built ahead, and which regions ``/forest/points`` covers
 (:meth:`points_request`). Its counters join the server's summary (:meth:`stats`).
+
+In the server (:meth:`ServerSonars.attach`) it serves every sonar from the fleet's history, in
+the server's process, or hands them to echo nodes (:mod:`hil_bridge.server.echo_nodes`), each
+of which runs a :class:`ServerSonars` of its share of the sonars (:meth:`ServerSonars.serve`)
+on the history it copies from the server's pose ring.
 """
 
 from __future__ import annotations
@@ -18,14 +23,13 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, Literal, cast
 
 import numpy as np
 
 from hil_bridge.bus.messages import PointCloud, SonarEcho, SonarPing
 from hil_bridge.server.echo_compute import EchoRequest, EchoResult, Region, SonarPose
-from hil_bridge.server.echo_nodes import EchoNodes, NodeSpec
 from hil_bridge.server.echo_pool import usable_cores
 from hil_bridge.server.echo_service import EchoService
 from hil_bridge.server.emission import EMISSION_COUNTERS, EmissionPoses
@@ -124,22 +128,24 @@ class ServerSonars:
         self._last_error = ""
         self._pubs: dict[str, Any] = {}
         self.service: EchoService | None = None
-        self.nodes: EchoNodes | None = None
+        self.nodes: Any = None  # hil_bridge.server.echo_nodes.EchoNodes
         self.ring: PoseRing | None = None
         self.worker: str = ""
 
-    def attach(self, node: Any, first: FleetStates, *, nodes_ok: bool) -> None:
-        """The server's sonars on ``node``: echo nodes (``echo_worker: nodes``, chosen with
-        ``nodes_ok``: see :func:`choose_worker`) or publishers, ping subscriptions and the
-        (not yet started) echo service in this process; ``first`` is the fleet's state of
+    def attach(self, node: Any, first: FleetStates,
+               spawn_nodes: Callable[..., Any] | None) -> None:
+        """The server's sonars on ``node``: echo nodes (``echo_worker: nodes``, started by
+        ``spawn_nodes``, :meth:`hil_bridge.server.echo_nodes.EchoNodes.spawn`; None where
+        nodes cannot serve: see :func:`choose_worker`) or publishers, ping subscriptions and
+        the (not yet started) echo service in this process; ``first`` is the fleet's state of
         tick 0 (where the points' routes start, and the echo nodes' first poses)."""
         if not self._sonar_specs:
             return
         p = self._params
         self.worker = choose_worker(p.echo_worker, len(self._sonar_specs), usable_cores(),
-                                    nodes_ok=nodes_ok)
+                                    nodes_ok=spawn_nodes is not None)
         points = self.points_request(first) if p.forest_points > 0 else None
-        if self.worker != "nodes":
+        if self.worker != "nodes" or spawn_nodes is None:
             self.serve(node, self.worker, points)
             return
         from hil_bridge.bus.domain import current
@@ -149,12 +155,12 @@ class ServerSonars:
         self.ring.write(first.t_ns, first.position[rows], first.velocity[rows],
                         first.quat[rows], first.rates[rows])
         self.history.mirror_to(self.ring)
-        spec = NodeSpec(
-            server=self.name, scene=self.scene.spec, bus=node.bus, params=p, clock=self._clock,
-            tick_ns=self._tick_ns, index=0, sonar_ids=tuple(s.id for s in self._sonar_specs),
+        self.nodes = spawn_nodes(
+            p.echo_workers or usable_cores(), node.faults, server=self.name,
+            scene=self.scene.spec, bus=node.bus, params=p, clock=self._clock,
+            tick_ns=self._tick_ns, sonar_ids=tuple(s.id for s in self._sonar_specs),
             ring=str(self.ring.path), points=points,
         )
-        self.nodes = EchoNodes(spec, p.echo_workers or usable_cores(), node.faults)
 
     def serve(self, node: Any, worker: Worker,
               points: tuple[tuple[Region, ...], int] | None) -> None:
@@ -225,10 +231,11 @@ class ServerSonars:
         ``echo_compute_ms`` lists; with echo nodes, theirs merged
         (:meth:`hil_bridge.server.echo_nodes.EchoNodes.stats`)."""
         if self.nodes is not None:  # zeros until each node's first counters arrive
-            out = dict.fromkeys(("pings_received", "echoes_published", "pings_waiting_tick",
-                                 *EMISSION_COUNTERS, *ECHO_COUNTERS.values()), 0)
-            out.update(self.nodes.stats())
-            return out
+            merged: dict[str, Any] = dict.fromkeys(
+                ("pings_received", "echoes_published", "pings_waiting_tick",
+                 *EMISSION_COUNTERS, *ECHO_COUNTERS.values()), 0)
+            merged.update(self.nodes.stats())
+            return merged
         echo = self.service.stats() if self.service is not None else {}
         with self._lock:
             out: dict[str, Any] = dict(self._c)
