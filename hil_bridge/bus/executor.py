@@ -117,6 +117,10 @@ class Executor:
             self._timers.append(timer)
         self.wake()
 
+    @property
+    def has_timers(self) -> bool:
+        return bool(self._timers)
+
     def timers(self) -> list[Timer]:
         with self._lock:
             return list(self._timers)
