@@ -168,20 +168,23 @@ def test_echoloop_run_joins_the_bus_of_a_launch_that_skips_its_node(domain: Doma
     assert launch.returncode == 0, out + err[-3000:]
 
 
-def test_a_launcher_killed_with_sigkill_leaves_nothing_behind(domain: Domain) -> None:
+@pytest.mark.parametrize("worker", ["pool", "nodes"])
+def test_a_launcher_killed_with_sigkill_leaves_nothing_behind(domain: Domain,
+                                                              worker: str) -> None:
     launch = _cli("launch", str(ROOT / "launch" / "demo.yaml"), "--duration", "120",
-                  "--param", "server.echo_worker=pool", "--param", "server.echo_workers=1",
+                  "--param", f"server.echo_worker={worker}", "--param", "server.echo_workers=1",
                   domain=domain)
     try:
         _wait_for_line(launch, "running server")
         hosts = _children(launch.pid)
         workers = [c for h in hosts for c in _children(h)]
         assert len(hosts) == 6, hosts
-        assert workers, "the server's echo pool has no worker process"
+        assert workers, f"the server's echo {worker} has no process"
         link = domain.path("sonar0")
         assert link.is_symlink()
+        # the pool's shared tiles, the echo nodes' pose ring
         stores = [s for h in hosts for s in stores_of(h)]
-        assert stores, "the server's echo pool shares no tile store"
+        assert stores, f"the server's echo {worker} shares nothing in memory"
     finally:
         launch.kill()
         launch.communicate(timeout=60)
@@ -190,7 +193,7 @@ def test_a_launcher_killed_with_sigkill_leaves_nothing_behind(domain: Domain) ->
     while time.monotonic() < deadline:
         left = {"processes": [p for p in hosts + workers if _alive(p)],
                 "link": link.is_symlink() or link.exists(),
-                "tile stores": [s for s in stores if s.exists()],
+                "shared stores": [s for s in stores if s.exists()],
                 "bus ports": [p for p in domain.ports if not _port_free(p)]}
         if not any(left.values()):
             break

@@ -7,6 +7,9 @@ import multiprocessing
 import os
 import queue
 import signal
+import subprocess
+import sys
+import textwrap
 import time
 from pathlib import Path
 from typing import Any
@@ -14,7 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from hil_bridge.bus.domain import Domain
+from hil_bridge.bus.domain import Domain, shared_root
 from hil_bridge.bus.messages import SonarEcho, SonarPing
 from hil_bridge.bus.node import Node
 from hil_bridge.files.scene import load_scene
@@ -29,6 +32,7 @@ from sim_core.pose import pose_compose, quat_from_euler
 
 ECHO = {"samples": 8000}  # 20 ms at 400 kHz: leaves up to 3.4 m, keeps the test quick
 TICK_NS = 50_000_000
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _scene() -> dict[str, Any]:
@@ -157,3 +161,58 @@ def test_nodes_are_refused_where_they_cannot_serve(scene: dict[str, Any], tmp_pa
             srv.start()
     finally:
         srv.stop()
+
+
+CRASH = textwrap.dedent("""
+    import multiprocessing, os, sys, time
+    from hil_bridge.bus.domain import Domain, use
+    from hil_bridge.server.sim_server import SimServer
+    if __name__ == "__main__":
+        with use(Domain.private(sys.argv[1])) as domain:
+            srv = SimServer("server", bus="ipc://" + sys.argv[1] + "/bus", scene={scene!r},
+                            echo_worker="nodes", echo_workers=2)
+            srv.start()
+            print(domain.token, *[p.pid for p in multiprocessing.active_children()
+                                  if p.name == {name!r}], flush=True)
+            time.sleep(600)
+""")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie (exited, not yet reaped by init) is gone too
+        return Path(f"/proc/{pid}/status").read_text().find("State:\tZ") < 0
+    except OSError:
+        return False
+
+
+def test_nodes_of_a_killed_server_exit_and_its_ring_is_swept_by_the_next_run(
+    tmp_path: Path,
+) -> None:
+    script = tmp_path / "crash.py"
+    script.write_text(CRASH.format(scene={**_scene(), "clock": {"mode": "realtime"}},
+                                   name=NODE_NAME))
+    (tmp_path / "d").mkdir()
+    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path / "d")],
+                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        line = proc.stdout.readline().split() if proc.stdout else []
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        if proc.stdout:
+            proc.stdout.close()
+    token, nodes = line[0], [int(p) for p in line[1:]]
+    assert len(nodes) == 2
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and any(_alive(p) for p in nodes):
+        time.sleep(0.05)
+    assert not any(_alive(p) for p in nodes), "an echo node outlived its killed server"
+    stale = list((shared_root() / token).iterdir())
+    assert [s.name.split("-")[0] for s in stale] == ["poses"]  # the killed server's ring ...
+    ring = PoseRing.create(Domain(None, token, tmp_path / "d"), (1,))
+    ring.remove()
+    assert not stale[0].exists()  # ... swept by the next run in its domain
