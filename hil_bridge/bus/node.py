@@ -114,7 +114,7 @@ class Node:
             periodic=self._periodic, counters=self._topic,
         )
         self.transport.on_subscribe = self._on_remote_subscribe
-        self.clock.add_listener(self._on_clock)
+        self.clock.add_listener(self._clock_stepped)
 
     # -- construction API (rclpy shapes) ---------------------------------------------------
     def _topic(self, topic: str) -> dict[str, int]:
@@ -245,7 +245,7 @@ class Node:
                 return
             self._stopped = True
         self._executor.stop()
-        self.clock.remove_listener(self._on_clock)
+        self.clock.remove_listener(self._clock_stepped)
         self.transport.close()
 
     @property
@@ -297,7 +297,7 @@ class Node:
         return Diagnostics(stamp_ns=self.clock.now_ns(), node=self.name, counters=counters)
 
     # -- internals ---------------------------------------------------------------------------
-    def _on_clock(self) -> None:
+    def _clock_stepped(self) -> None:
         """The clock moved: only timers run on sim time (diagnostics and retransmissions on
         the wall clock), so the executor is woken only when there are timers; a server
         stepping its clock at 250 Hz would otherwise wake a worker thread every tick."""
