@@ -243,14 +243,15 @@ def cost_table(rows: list[dict[str, Any]]) -> str:
 
 
 _KERNEL_COST = (
-    "import time, numba, sim_core.world, sim_core.world.ball as b\n"
-    "t = time.process_time(); b.warm_up(); print(time.process_time() - t)\n"
+    "import time, numba, sim_core.world, sim_core.world.ball as b, sim_core.sonar.precull as p\n"
+    "t = time.process_time(); b.warm_up(); p.warm_up(); print(time.process_time() - t)\n"
 )
 
 
 def kernel_cost() -> tuple[float, float]:
-    """CPU seconds of :func:`sim_core.world.ball.warm_up` in a fresh process: compiling (an
-    empty numba cache) and loading from the cache it left (numba and the world imported)."""
+    """CPU seconds of :func:`sim_core.world.ball.warm_up` and
+    :func:`sim_core.sonar.precull.warm_up` in a fresh process: compiling (an empty numba
+    cache) and loading from the cache they left (numba and the world imported)."""
     import os
     import subprocess
     import sys
@@ -291,8 +292,9 @@ def run(out_dir: Path) -> str:
         "from built tiles and of the `fast` synthesis, medians of "
         f"{COST_REPEAT} calls, beside `sim_core.sonar.cost.COST` (docs/sonar.md).\n\n"
         f"{cost_table(cost_rows())}"
-        "\nThe compiled gather's own cost, once per process (CPU s of `ball.warm_up()` in a "
-        "fresh process, numba imported): compiling it into an empty cache {:.2f} s, loading it "
-        "from that cache {:.2f} s (`make` compiles it at install; the server's echo worker "
-        "loads it before its first ping).\n".format(*kernel_cost())
+        "\nThe compiled kernels' own cost, once per process (CPU s of `ball.warm_up()` and "
+        "`precull.warm_up()`, the leaf gather and the selection's pre-cull, in a fresh "
+        "process, numba imported): compiling them into an empty cache {:.2f} s, loading them "
+        "from that cache {:.2f} s (`make` compiles them at install; the server's echo workers "
+        "and nodes load them before their first ping).\n".format(*kernel_cost())
     )

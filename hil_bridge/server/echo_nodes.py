@@ -111,13 +111,15 @@ def _node_main(spec: NodeSpec, conn: Connection, parent_pid: int) -> None:
     from hil_bridge.recording.logs import load_trajectory
     from hil_bridge.server.lockstep import LockstepGate
     from hil_bridge.server.sonars import ServerSonars
-    from sim_core.world.ball import warm_up
+    from sim_core.sonar import precull
+    from sim_core.world import ball
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     lower_priority(WORKER_NICE)
     name = f"{spec.server}_echo{spec.index}"
     scene = load_scene(spec.scene, trajectory_reader=load_trajectory)
-    warm_up()
+    ball.warm_up()  # the leaf gather and the pre-cull compiled (or loaded) before a ping
+    precull.warm_up()
     ring = PoseRing.open(spec.ring)
     history = PoseHistory(ring.ids, tick_ns=spec.tick_ns, history_s=spec.params.pose_history_s)
     ring.follow(history)

@@ -151,12 +151,14 @@ def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
     from hil_bridge.files.scene import load_scene
     from hil_bridge.recording.logs import load_trajectory
     from hil_bridge.server.shared_tiles import SharedTiles
-    from sim_core.world.ball import warm_up
+    from sim_core.sonar import precull
+    from sim_core.world import ball
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     lower_priority(nice)
     scene = load_scene(spec, trajectory_reader=load_trajectory)
-    warm_up()  # the leaf gather compiled (or loaded) before the first job
+    ball.warm_up()  # the leaf gather and the pre-cull compiled (or loaded) before the first job
+    precull.warm_up()
     built: list[tuple[Tile, int]] = []
     forest = None
     if store_dir is not None:

@@ -302,9 +302,11 @@ class EchoService:
     def _run(self) -> None:
         try:
             if self.worker == "thread":
-                from sim_core.world.ball import warm_up
+                from sim_core.sonar import precull
+                from sim_core.world import ball
 
-                warm_up()  # the leaf gather compiled (or loaded) before the first ping
+                ball.warm_up()  # the leaf gather and the pre-cull compiled (or loaded) before
+                precull.warm_up()  # the first ping
                 self._serve(ThreadWorker(self.scene, self.cost))
             else:
                 self._pool = ProcessPool(self.scene, self.n_workers, self._stop,

@@ -20,8 +20,9 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim_core.sonar.geometry import GEOMETRY_BLOCK, Cut, Kept, Scene, leaf_terms, off_axis_squared
+from sim_core.sonar.geometry import Cut, Kept, Scene, leaf_terms, off_axis_squared
 from sim_core.sonar.params import Beam, EchoParams
+from sim_core.sonar.precull import precull
 from sim_core.sonar.workspace import Workspace
 
 __all__ = [
@@ -218,34 +219,21 @@ class _Selection:
             r_min2=params.r_min**2,
         )
 
-    def precull(
-        self, cb: F64, nb: F64, ab: F64
-    ) -> tuple[NDArray[np.bool_], int, F64, F64, F64, F64, F64, F64]:
-        """Guards, range and cone on a block (no transcendental): (candidates, dropped by the
-        guards, r, r . b, dx, dy, dz, |n|^2)."""
-        pos, axis = self.pos, self.axis
-        dx, dy, dz = cb[:, 0] - pos[0], cb[:, 1] - pos[1], cb[:, 2] - pos[2]
-        nx, ny, nz = nb[:, 0], nb[:, 1], nb[:, 2]
-        with np.errstate(invalid="ignore", over="ignore"):
-            r2 = dx * dx
-            r2 += dy * dy
-            r2 += dz * dz
-            nn2 = nx * nx
-            nn2 += ny * ny
-            nn2 += nz * nz
-            valid = nn2 > 0.0
-            valid &= r2 >= self.r_min2
-            if not math.isfinite(float(r2.sum()) + float(nn2.sum()) + float(ab.sum())):
-                valid &= np.isfinite(dx + dy + dz + (nx + ny + nz) + ab)
-            dropped = ab.shape[0] - int(np.count_nonzero(valid))
-            valid &= r2 <= self.reach2
-            r = np.sqrt(r2, out=r2)
-            proj = dx * axis[0]
-            proj += dy * axis[1]
-            proj += dz * axis[2]
-            if self.cone:
-                valid &= proj >= self.cos_reach * r
-        return valid, dropped, r, proj, dx, dy, dz, nn2
+    def cull(self, c: F64, n: F64, a: F64, rows: NDArray[np.intp] | None, ws: Workspace,
+             ) -> tuple[int, int, NDArray[np.intp], F64, F64, F64, F64]:
+        """The compiled pre-cull (:func:`sim_core.sonar.precull.precull`: guards, range and
+        cone) of the leaves (``rows`` of them, if given): (survivors, dropped by the guards,
+        and the survivors' rows, r, r . b, offsets (K, 3), n_hat . d), in ``ws`` scratch."""
+        total = c.shape[0] if rows is None else rows.shape[0]
+        out = (ws.array("cull_rows", total, np.intp), ws.array("cull_r", total, np.float64),
+               ws.array("cull_proj", total, np.float64),
+               ws.array("cull_d", 3 * total, np.float64).reshape(total, 3),
+               ws.array("cull_nd", total, np.float64))
+        found, dropped = precull(c, n, a, rows, self.pos, self.axis, r_min2=self.r_min2,
+                                 reach2=self.reach2, cone=self.cone, cos_reach=self.cos_reach,
+                                 out=out)
+        rows_k, r, proj, d, nd = (x[:found] for x in out)
+        return found, dropped, rows_k, r, proj, d, nd
 
 
 def _nearest(
@@ -256,19 +244,8 @@ def _nearest(
     kept), the number dropped by the guards, the number that passed, and the farther ones left
     untested (their bound takes the beam gain at its peak A0)."""
     total = c.shape[0]
-    rows = ws.array("near_rows", total, np.intp)
-    ranges = ws.array("near_r", total, np.float64)
-    found = 0
-    dropped = 0
-    for start in range(0, total, GEOMETRY_BLOCK):
-        stop = min(start + GEOMETRY_BLOCK, total)
-        valid, gone, r = sel.precull(c[start:stop], n[start:stop], a[start:stop])[:3]
-        dropped += gone
-        hit = np.flatnonzero(valid)
-        rows[found : found + hit.shape[0]] = hit + start
-        ranges[found : found + hit.shape[0]] = r.compress(valid)
-        found += hit.shape[0]
-    rows, ranges = rows[:found], ranges[:found]
+    found, dropped, rows, ranges = sel.cull(c, n, a, None, ws)[:4]
+    rows, ranges = rows.copy(), ranges.copy()  # the selection's own cull reuses the scratch
     untested = Cut(0, np.zeros(params.channels))
     count = budget.tested(total, found)
     if found > count:
@@ -296,7 +273,7 @@ def _select(
     ``kept`` holds the kept rows of ``c`` with their r, theta^2 (the spec's off-axis angle, or
     the seed2020 az/el form), S1 and n_hat.d (the unit normal dotted with the offset, m). Every
     leaf first passes the guards and a range and cone pre-cull without
-    transcendentals (:meth:`_Selection.precull`); the waterdrop test r <= r0 S1 is taken on
+    transcendentals (:meth:`_Selection.cull`, compiled); the waterdrop test r <= r0 S1 is taken on
     logarithms, and with the spec's exact expression where both sides are within
     _SELECTION_SLACK. With a ``budget`` that cannot afford every candidate (pre-cull survivor),
     only the nearest it affords are tested (:func:`_nearest`; ``untested`` the others). The
@@ -311,64 +288,34 @@ def _select(
     if budget is not None and total > budget.candidates(total):
         rows_in, dropped, found, untested = _nearest(c, n, a, sel, budget, params, ws)
         total = rows_in.shape[0]
-    tested = 0
     r0, a0, sigma = sel.r0, sel.a0, sel.sigma
     inv2s2 = 1.0 / (2.0 * sigma * sigma)
     log_scale = 1.0 / (r0 * a0)
-    index = ws.array("index", total, np.intp)
-    outs = [ws.array(name, total, np.float64) for name in ("r", "th2", "s1", "nd")]
-    kept = 0
-    for start in range(0, total, GEOMETRY_BLOCK):
-        stop = min(start + GEOMETRY_BLOCK, total)
-        if rows_in is None:
-            cb, nb, ab = c[start:stop], n[start:stop], a[start:stop]
-        else:
-            rb = rows_in[start:stop]
-            cb, nb, ab = c.take(rb, axis=0), n.take(rb, axis=0), a.take(rb)
-        valid, gone, r, proj, dx, dy, dz, nn = sel.precull(cb, nb, ab)
-        dropped += gone
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nd = nb[:, 0] * dx
-            nd += nb[:, 1] * dy
-            nd += nb[:, 2] * dz
-            nd /= np.sqrt(nn, out=nn)
-        everyone = bool(valid.all())
-        if not everyone:
-            if not valid.any():
-                continue
-            r, proj, nd = r.compress(valid), proj.compress(valid), nd.compress(valid)
-        tested += r.shape[0]
+    tested, gone, rows, r, proj, d, nd = sel.cull(c, n, a, rows_in, ws)
+    dropped += gone
+    with np.errstate(invalid="ignore", divide="ignore"):
         if params.seed2020:
-            d = np.stack([dx, dy, dz], 1)
-            th2 = off_axis_squared(d if everyone else d.compress(valid, axis=0), sel.axis, params)
+            th2 = off_axis_squared(d, sel.axis, params)
         else:
             proj /= r
             np.clip(proj, -1.0, 1.0, out=proj)
             th2 = np.arccos(proj, out=proj)
             th2 *= th2
         test = np.log(r * log_scale)
-        test += th2 * inv2s2
-        keep = test <= 0.0
-        near = np.abs(test) < _SELECTION_SLACK
-        if near.any():
-            at = np.flatnonzero(near)
-            keep[at] = r[at] <= r0 * (a0 * np.exp(-th2[at] / (2.0 * sigma * sigma)))
-        rows = np.arange(start, stop) if everyone else np.flatnonzero(valid) + start
-        if not keep.all():
-            rows, r, th2 = rows.compress(keep), r.compress(keep), th2.compress(keep)
-            nd = nd.compress(keep)
-        k = rows.shape[0]
-        index[kept : kept + k] = rows if rows_in is None else rows_in.take(rows)
-        outs[0][kept : kept + k] = r
-        outs[1][kept : kept + k] = th2
-        th2 *= -inv2s2
-        outs[2][kept : kept + k] = _exp(th2)
-        outs[3][kept : kept + k] = nd
-        kept += k
-    r, th2, s1, nd = (x[:kept] for x in outs)
+    test += th2 * inv2s2
+    keep = test <= 0.0
+    near = np.abs(test) < _SELECTION_SLACK
+    if near.any():
+        at = np.flatnonzero(near)
+        keep[at] = r[at] <= r0 * (a0 * np.exp(-th2[at] / (2.0 * sigma * sigma)))
+    if not keep.all():
+        rows, r, th2 = rows.compress(keep), r.compress(keep), th2.compress(keep)
+        nd = nd.compress(keep)
+    s1 = th2 * -inv2s2
+    s1 = _exp(s1)
     s1 *= a0
     found = tested if found < 0 else found
-    return Kept(index[:kept], r, th2, s1, nd), dropped, found, tested, untested
+    return Kept(rows, r, th2, s1, nd), dropped, found, tested, untested
 
 
 def _strongest(
@@ -407,7 +354,7 @@ def prepare(
     N / fs) a ValueError names the numbers. For INDEX_MIN_LEAVES or more leaves with a
     ``query_ball(point, r)`` method (``sim_core.world.Leaves``) only that ball is examined.
 
-    Blocks of GEOMETRY_BLOCK leaves over coordinate columns: the selection (:func:`_select`),
+    The selection (:func:`_select`, its pre-cull one compiled pass over the leaves),
     then incidence, gain and delay for the kept leaves only
     (:func:`~sim_core.sonar.geometry.leaf_terms`). With a ``budget`` (:class:`LeafBudget`) the
     waterdrop test sees only the nearest candidates it affords, and of the selected leaves only
