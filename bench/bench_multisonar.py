@@ -134,6 +134,7 @@ def cost_rows() -> list[dict[str, Any]]:
     from three points of its route, at each of :data:`BEAMWIDTHS_DEG`, against the cost model
     (:data:`sim_core.sonar.cost.COST`): medians of :data:`COST_REPEAT` calls, tiles built."""
     import time
+    from unittest.mock import patch
 
     import numpy as np
 
@@ -141,7 +142,7 @@ def cost_rows() -> list[dict[str, Any]]:
     from sim_core.pose import quat_from_euler
     from sim_core.sonar import synthesize
     from sim_core.sonar.cost import COST
-    from sim_core.sonar.model import precull_half_angle
+    from sim_core.sonar.model import _Selection, precull_half_angle
     from sim_core.sonar.mount import ping_beam
 
     spec = load_yaml(LAUNCH)["nodes"][0]["params"]["scene"]
@@ -161,28 +162,96 @@ def cost_rows() -> list[dict[str, Any]]:
                 beam = ping_beam(p, q, 0.0, 0.0, np.radians(bw))
                 scene.leaves_near(p, radius)  # its tiles built
                 _kdtree_gather(scene.forest_source, p, radius)  # the tiles' k-d trees built
-                gather, synth, kdtree = [], [], []
+                gather, synth, kdtree, numpy_synth = [], [], [], []
                 for _ in range(COST_REPEAT):
                     c0 = time.process_time()
                     leaves = scene.leaves_near(p, radius)
                     c1 = time.process_time()
-                    synthesize(leaves, beam, params, fidelity="fast")
+                    echo = synthesize(leaves, beam, params, fidelity="fast")
                     c2 = time.process_time()
                     baseline = _kdtree_gather(scene.forest_source, p, radius)
                     c3 = time.process_time()
+                    with patch.object(_Selection, "cull", _numpy_cull):
+                        c4 = time.process_time()
+                        old = synthesize(leaves, beam, params, fidelity="fast")
+                        c5 = time.process_time()
                     gather.append(c1 - c0)
                     synth.append(c2 - c1)
                     kdtree.append(c3 - c2)
+                    numpy_synth.append(c5 - c4)
                 if baseline != leaves:
                     raise AssertionError(f"sonar {sonar.id} t={t}: the k-d tree gathers other "
                                          "leaves")
+                if not np.array_equal(old.samples, echo.samples):
+                    raise AssertionError(f"sonar {sonar.id} t={t}: the numpy pre-cull gives "
+                                         "another echo")
                 n = len(leaves)
                 out.append({"bw": bw, "n": n, "gather": float(np.median(gather)),
                             "kdtree": float(np.median(kdtree)),
                             "synth": float(np.median(synth)),
+                            "numpy_synth": float(np.median(numpy_synth)),
                             "gather_model": COST.gather_s * n,
                             "synth_model": COST.estimate(n, precull_half_angle(beam, params))})
     return out
+
+
+def _numpy_cull(sel: Any, c: Any, n: Any, a: Any, rows: Any, ws: Any) -> tuple[Any, ...]:
+    """The baseline of the selection's pre-cull: ``sim_core.sonar.model._Selection.cull`` as
+    numpy computed it before ``sim_core/sonar/precull.py`` (blocks of ``GEOMETRY_BLOCK`` leaves,
+    the guards, range and cone as array passes, then the survivors compacted); the offsets are
+    not gathered (only the ``seed2020`` off-axis form needs them, and the scene has none)."""
+    import math
+
+    import numpy as np
+
+    from sim_core.sonar.geometry import GEOMETRY_BLOCK
+
+    total = c.shape[0] if rows is None else rows.shape[0]
+    out_rows, out_r = np.empty(total, np.intp), np.empty(total)
+    out_proj, out_nd = np.empty(total), np.empty(total)
+    found = dropped = 0
+    pos, axis = sel.pos, sel.axis
+    for start in range(0, total, GEOMETRY_BLOCK):
+        stop = min(start + GEOMETRY_BLOCK, total)
+        if rows is None:
+            cb, nb, ab = c[start:stop], n[start:stop], a[start:stop]
+        else:
+            rb = rows[start:stop]
+            cb, nb, ab = c.take(rb, axis=0), n.take(rb, axis=0), a.take(rb)
+        dx, dy, dz = cb[:, 0] - pos[0], cb[:, 1] - pos[1], cb[:, 2] - pos[2]
+        nx, ny, nz = nb[:, 0], nb[:, 1], nb[:, 2]
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            r2 = dx * dx
+            r2 += dy * dy
+            r2 += dz * dz
+            nn2 = nx * nx
+            nn2 += ny * ny
+            nn2 += nz * nz
+            valid = nn2 > 0.0
+            valid &= r2 >= sel.r_min2
+            if not math.isfinite(float(r2.sum()) + float(nn2.sum()) + float(ab.sum())):
+                valid &= np.isfinite(dx + dy + dz + (nx + ny + nz) + ab)
+            dropped += ab.shape[0] - int(np.count_nonzero(valid))
+            valid &= r2 <= sel.reach2
+            r = np.sqrt(r2, out=r2)
+            proj = dx * axis[0]
+            proj += dy * axis[1]
+            proj += dz * axis[2]
+            if sel.cone:
+                valid &= proj >= sel.cos_reach * r
+            nd = nb[:, 0] * dx
+            nd += nb[:, 1] * dy
+            nd += nb[:, 2] * dz
+            nd /= np.sqrt(nn2, out=nn2)
+        hit = np.flatnonzero(valid)
+        k = hit.shape[0]
+        out_rows[found:found + k] = hit + start if rows is None else rows[start:stop][hit]
+        out_r[found:found + k] = r.compress(valid)
+        out_proj[found:found + k] = proj.compress(valid)
+        out_nd[found:found + k] = nd.compress(valid)
+        found += k
+    return (found, dropped, out_rows[:found], out_r[:found], out_proj[:found],
+            np.empty((found, 3)), out_nd[:found])
 
 
 def _kdtree_gather(forest: Any, p: Any, r: float) -> Any:
@@ -220,25 +289,31 @@ def cost_table(rows: list[dict[str, Any]]) -> str:
                 f"{med('n'):,.0f}", f"{1e3 * med('gather'):.2f} ({1e3 * med('gather_model'):.2f})",
                 f"{1e3 * med('kdtree'):.2f}",
                 f"{1e3 * med('synth'):.2f} ({1e3 * med('synth_model'):.2f})",
-                f"{(med('gather') + med('synth')) / (med('kdtree') + med('synth')):.2f}",
+                f"{1e3 * med('numpy_synth'):.2f}",
+                f"{(med('gather') + med('synth')) / (med('kdtree') + med('numpy_synth')):.2f}",
                 f"{med('synth') / med('synth_model'):.2f}",
             ])
     ratio = float(np.median([r["synth"] / r["synth_model"] for r in rows]))
     gather = float(np.median([r["gather"] / max(1, r["n"]) for r in rows]))
     kdtree = float(np.median([r["kdtree"] / max(1, r["n"]) for r in rows]))
-    echo = float(np.median([(r["gather"] + r["synth"]) / (r["kdtree"] + r["synth"])
+    echo = float(np.median([(r["gather"] + r["synth"]) / (r["kdtree"] + r["numpy_synth"])
                             for r in rows]))
+    pre = float(np.median([r["synth"] / r["numpy_synth"] for r in rows]))
     return (
         table(["beamwidth", "leaves in range", "pings", "median leaves",
                "gather CPU ms (model)", "k-d tree gather CPU ms (baseline)",
-               "fast echo CPU ms (model)", "echo CPU / with k-d tree", "measured / model"],
+               "fast echo CPU ms (model)", "fast echo CPU ms, numpy pre-cull (baseline)",
+               "echo CPU / baseline", "measured / model"],
               lines)
         + f"\n\nAll {len(rows)} pings: measured / model {ratio:.2f} (median); gathering "
         f"{1e9 * gather:.0f} ns per leaf in range (model {1e9 * _gather_s():.0f} ns), against "
         f"{1e9 * kdtree:.0f} ns with the k-d trees of the baseline (the gather before "
-        f"`sim_core/world/ball.py`, measured beside it: the same leaves, same order); a whole "
-        f"echo (gather + `fast`) takes {echo:.2f} of its CPU time with the k-d tree gather "
-        f"(median).\n"
+        f"`sim_core/world/ball.py`, measured beside it: the same leaves, same order); the "
+        f"`fast` synthesis takes {pre:.2f} of its CPU time with the numpy pre-cull of the "
+        f"baseline (the selection before `sim_core/sonar/precull.py`, measured beside it: the "
+        f"same echo, bit for bit); a whole echo (gather + `fast`) takes {echo:.2f} of the "
+        f"baseline's (the k-d tree gather and the numpy pre-cull: the echo as issue 19 found "
+        f"it) (median).\n"
     )
 
 
@@ -290,7 +365,10 @@ def run(out_dir: Path) -> str:
         "One ping of each sonar from three points of its route (t = 0, 4, 8 s) at each "
         "beamwidth, in this process (one core): CPU time of gathering the leaves in range "
         "from built tiles and of the `fast` synthesis, medians of "
-        f"{COST_REPEAT} calls, beside `sim_core.sonar.cost.COST` (docs/sonar.md).\n\n"
+        f"{COST_REPEAT} calls, beside `sim_core.sonar.cost.COST` (docs/sonar.md) and beside "
+        "the baseline of issue 19's goal (a `fast` echo at ≤ ½ of its CPU time): the echo as "
+        "the issue found it, the leaves gathered with k-d trees and selected with numpy's "
+        "pre-cull, both measured in the same loop.\n\n"
         f"{cost_table(cost_rows())}"
         "\nThe compiled kernels' own cost, once per process (CPU s of `ball.warm_up()` and "
         "`precull.warm_up()`, the leaf gather and the selection's pre-cull, in a fresh "
