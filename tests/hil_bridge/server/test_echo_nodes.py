@@ -135,6 +135,7 @@ def test_echo_nodes_answer_on_the_bus_as_the_servers_own_thread_would(tmp_path: 
     assert _nodes() == [] and stores_of(os.getpid()) == []
 
 
+@pytest.mark.processes  # lifecycle: no float result to check without AVX-512
 def test_an_echo_node_killed_fails_the_server_naming_it(tmp_path: Path) -> None:
     srv = SimServer("server", bus=f"ipc://{tmp_path}/bus", scene=_scene(), stop_after_s=600.0,
                     echo_worker="nodes", echo_workers=2)
@@ -152,6 +153,7 @@ def test_an_echo_node_killed_fails_the_server_naming_it(tmp_path: Path) -> None:
     assert f"(pid {victim.pid})" in failure and f"exited (code -{int(signal.SIGKILL)})" in failure
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize("scene", [{"clock": {"mode": "lockstep"}}, {}], ids=["lockstep", "mem"])
 def test_nodes_are_refused_where_they_cannot_serve(scene: dict[str, Any], tmp_path: Path) -> None:
     bus = "mem://nodes_refused" if not scene else f"ipc://{tmp_path}/bus"
@@ -189,6 +191,7 @@ def _alive(pid: int) -> bool:
         return False
 
 
+@pytest.mark.processes  # lifecycle: no float result to check without AVX-512
 def test_nodes_of_a_killed_server_exit_and_its_ring_is_swept_by_the_next_run(
     tmp_path: Path,
 ) -> None:
