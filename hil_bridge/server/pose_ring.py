@@ -12,8 +12,9 @@ Layout (native byte order, int64 then float64): a header of 8 int64 (``b"ELPOSE0
 vehicles, slots, ``written`` = ticks written so far), the M vehicle ids, the slots' tick stamps
 (slots,), then per slot and vehicle 13 float64: position (3), velocity (3), quat (4), rates (3).
 The writer fills slot ``written % slots`` and then increments ``written``; a reader takes the
-ticks after the last it saw, and keeps only those whose slot was not written again meanwhile
-(it reads ``written`` again after copying). The server removes the file when it stops; a killed
+ticks after the last it saw, and keeps only those whose slot was not being written or written
+again meanwhile (it reads ``written`` again after copying: of the last ``slots`` ticks, the
+oldest shares its slot with the one being written). The server removes the file when it stops; a killed
 run's file is swept with the domain's stale tile stores
 (:func:`hil_bridge.server.shared_tiles.sweep_stale`).
 """
@@ -96,7 +97,8 @@ class PoseRing:
         """Record the ticks written since the last call in ``history`` (oldest first); returns
         how many."""
         written = int(self._mm[_WRITTEN])
-        first = max(self.seen, written - self.slots)
+        # the writer may be filling the slot of tick `written` (that of `written - slots`)
+        first = max(self.seen, written - self.slots + 1)
         self.missed += first - self.seen
         if written <= first:
             return 0
@@ -104,7 +106,7 @@ class PoseRing:
         times = self._t[ks].copy()
         data = self._data[ks].copy()
         now = int(self._mm[_WRITTEN])
-        keep = np.arange(first, written) >= now - self.slots  # not written again meanwhile
+        keep = np.arange(first, written) > now - self.slots  # not written again meanwhile
         self.missed += int((~keep).sum())
         self.seen = written
         for t_ns, d in zip(times[keep].tolist(), data[keep], strict=True):
