@@ -288,6 +288,8 @@ class EchoNodes:
                     self.faults.report(f"echo node of sonars {list(p.sonar_ids)}", failure)
 
     def _lost(self, p: _Proc) -> None:
+        if p.gone:  # its pipe and its sentinel may both say so
+            return
         for obj in (p.conn, p.proc.sentinel):
             with contextlib.suppress(KeyError, ValueError, OSError):
                 self._selector.unregister(obj)
