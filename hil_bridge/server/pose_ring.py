@@ -14,8 +14,8 @@ vehicles, slots, ``written`` = ticks written so far), the M vehicle ids, the slo
 The writer fills slot ``written % slots`` and then increments ``written``; a reader takes the
 ticks after the last it saw, and keeps only those whose slot was not being written or written
 again meanwhile (it reads ``written`` again after copying: of the last ``slots`` ticks, the
-oldest shares its slot with the one being written). The server removes the file when it stops; a killed
-run's file is swept with the domain's stale tile stores
+oldest shares its slot with the one being written). The server removes the file when it stops; a
+killed run's file is swept with the domain's stale tile stores
 (:func:`hil_bridge.server.shared_tiles.sweep_stale`).
 """
 
