@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from hil_bridge.bus.faults import Faults
-from hil_bridge.lifetime import die_with_parent
+from hil_bridge.lifetime import die_with_parent, reap
 from hil_bridge.priority import lower_priority
 from hil_bridge.server.echo_compute import Region
 from hil_bridge.server.echo_pool import WORKER_NICE
@@ -311,15 +311,7 @@ class EchoNodes:
         for p in self._procs:
             with contextlib.suppress(BrokenPipeError, OSError):
                 p.conn.send(None)
-        deadline = time.monotonic() + STOP_TIMEOUT_S
-        for p in self._procs:
-            p.proc.join(timeout=max(0.0, deadline - time.monotonic()))
-            if p.proc.is_alive():
-                p.proc.terminate()
-                p.proc.join(timeout=5.0)
-            if p.proc.is_alive():  # pragma: no cover - ignored SIGTERM
-                p.proc.kill()
-                p.proc.join()
+        reap([p.proc for p in self._procs], STOP_TIMEOUT_S)
         os.write(self._wake_w, b"\0")
         self._thread.join()
         for p in self._procs:  # their last counters, sent as they stopped

@@ -40,14 +40,13 @@ import os
 import selectors
 import signal
 import threading
-import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
 from hil_bridge.bus.faults import Faults
-from hil_bridge.lifetime import die_with_parent
+from hil_bridge.lifetime import die_with_parent, reap
 from hil_bridge.priority import lower_priority
 from hil_bridge.server.echo_compute import (
     DeadlinePlanner,
@@ -409,15 +408,8 @@ class ProcessPool:
         for s in self._slots:
             with contextlib.suppress(BrokenPipeError, OSError):
                 s.conn.send(None)
-        deadline = time.monotonic() + STOP_TIMEOUT_S
+        reap([s.proc for s in self._slots], STOP_TIMEOUT_S)
         for s in self._slots:
-            s.proc.join(timeout=max(0.0, deadline - time.monotonic()))
-            if s.proc.is_alive():
-                s.proc.terminate()
-                s.proc.join(timeout=5.0)
-            if s.proc.is_alive():  # pragma: no cover - ignored SIGTERM
-                s.proc.kill()
-                s.proc.join()
             self._forget_slot(s)
         self._slots = []
         self._selector.close()

@@ -7,8 +7,6 @@ import multiprocessing
 import os
 import queue
 import signal
-import subprocess
-import sys
 import textwrap
 import time
 from pathlib import Path
@@ -29,10 +27,10 @@ from hil_bridge.server.shared_tiles import stores_of
 from hil_bridge.server.sim_server import SimServer
 from sim_core.config import ConfigError
 from sim_core.pose import pose_compose, quat_from_euler
+from tests.hil_bridge.server._killed import kill_server
 
 ECHO = {"samples": 8000}  # 20 ms at 400 kHz: leaves up to 3.4 m, keeps the test quick
 TICK_NS = 50_000_000
-ROOT = Path(__file__).resolve().parents[3]
 
 
 def _scene() -> dict[str, Any]:
@@ -181,17 +179,6 @@ CRASH = textwrap.dedent("""
 """)
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:  # a zombie (exited, not yet reaped by init) is gone too
-        return Path(f"/proc/{pid}/status").read_text().find("State:\tZ") < 0
-    except OSError:
-        return False
-
-
 @pytest.mark.processes  # lifecycle: no float result to check without AVX-512
 def test_nodes_of_a_killed_server_exit_and_its_ring_is_swept_by_the_next_run(
     tmp_path: Path,
@@ -200,21 +187,8 @@ def test_nodes_of_a_killed_server_exit_and_its_ring_is_swept_by_the_next_run(
     script.write_text(CRASH.format(scene={**_scene(), "clock": {"mode": "realtime"}},
                                    name=NODE_NAME))
     (tmp_path / "d").mkdir()
-    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path / "d")],
-                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    try:
-        line = proc.stdout.readline().split() if proc.stdout else []
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-        if proc.stdout:
-            proc.stdout.close()
-    token, nodes = line[0], [int(p) for p in line[1:]]
-    assert len(nodes) == 2
-    deadline = time.monotonic() + 20.0
-    while time.monotonic() < deadline and any(_alive(p) for p in nodes):
-        time.sleep(0.05)
-    assert not any(_alive(p) for p in nodes), "an echo node outlived its killed server"
+    token, left = kill_server(script, tmp_path / "d")
+    assert not left, "an echo node outlived its killed server"
     stale = list((shared_root() / token).iterdir())
     assert [s.name.split("-")[0] for s in stale] == ["poses"]  # the killed server's ring ...
     ring = PoseRing.create(Domain(None, token, tmp_path / "d"), (1,))

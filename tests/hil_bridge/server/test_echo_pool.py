@@ -7,8 +7,6 @@ import dataclasses
 import os
 import queue
 import signal
-import subprocess
-import sys
 import textwrap
 import time
 from pathlib import Path
@@ -27,8 +25,7 @@ from hil_bridge.server.shared_tiles import SharedTiles, stores_of
 from sim_core.pose import quat_from_euler
 from sim_core.scene import Scene
 from sim_core.sonar.cost import EchoCost
-
-ROOT = Path(__file__).resolve().parents[3]
+from tests.hil_bridge.server._killed import kill_server
 
 SCENE: dict[str, Any] = {
     "forest": {"preset": "seed000-fig5d", "tile_size_m": 10.0, "query_radius_m": 4.0},
@@ -282,37 +279,13 @@ def test_workers_of_a_killed_server_exit_and_its_tiles_are_swept_by_the_next_run
 ) -> None:
     script = tmp_path / "crash.py"
     script.write_text(CRASH.format(scene={**SCENE, "clock": {"mode": "fast"}}))
-    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path / "d")],
-                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    try:
-        line = proc.stdout.readline().split() if proc.stdout else []
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
-        if proc.stdout:
-            proc.stdout.close()
-    token, workers = line[0], [int(p) for p in line[1:]]
-    assert len(workers) == 2
-    deadline = time.monotonic() + 20.0
-    while time.monotonic() < deadline and any(_alive(p) for p in workers):
-        time.sleep(0.05)
-    assert not any(_alive(p) for p in workers), "a worker outlived its killed server"
+    token, left = kill_server(script, tmp_path / "d")
+    assert not left, "a worker outlived its killed server"
     stale = list((shared_root() / token).iterdir())
     assert len(stale) == 1  # the killed server could not remove its tiles ...
     store = SharedTiles.create(Domain(None, token, tmp_path / "d"), ["maple"])
     store.remove_all()
     assert not stale[0].exists()  # ... the next run in its domain did
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:  # a zombie (exited, not yet reaped by init) is gone too
-        return Path(f"/proc/{pid}/status").read_text().find("State:\tZ") < 0
-    except OSError:
-        return False
 
 
 def test_a_dead_worker_is_replaced_and_its_echo_reported() -> None:
