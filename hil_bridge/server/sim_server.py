@@ -65,7 +65,9 @@ answered their state steps and the sonar heads that ping on sim time sent their 
 swarm glider's answer to a control step is needed before the period it governs is flown;
 ``/clock`` says ``lockstep`` so adapters drive their devices on sim time). Within a tick,
 neighbour lists are published before the states of the same step. Stamps are integer sim
-nanoseconds and never decrease.
+nanoseconds and never decrease. In ``realtime`` mode the tick thread runs at ``tick_nice``
+(-10) where the OS allows it (``tick_priority`` in stats), ahead of the other processes of the
+loop when the cores are short.
 """
 
 from __future__ import annotations
@@ -96,6 +98,7 @@ from hil_bridge.bus.messages import (
 )
 from hil_bridge.bus.stats import percentiles
 from hil_bridge.files.scene import load_scene
+from hil_bridge.priority import raise_priority
 from hil_bridge.recording.logs import load_trajectory
 from hil_bridge.server.commands import AutopilotInputs
 from hil_bridge.server.echo_nodes import EchoNodes
@@ -128,6 +131,7 @@ class ServerParams:
     echo_deadlines: bool = True
     pose_history_s: float = 2.0
     pose_wait_ticks: float = 2.0
+    tick_nice: int = -10
 
     def __post_init__(self) -> None:
         if not isinstance(self.scene, str | Mapping | Path):
@@ -147,6 +151,8 @@ class ServerParams:
         if not 0 <= self.pose_wait_ticks <= 100:
             raise ValueError(f"pose_wait_ticks: expected 0 <= ticks <= 100, got "
                              f"{self.pose_wait_ticks}")
+        if not -20 <= self.tick_nice <= 0:
+            raise ValueError(f"tick_nice: expected -20 <= nice <= 0, got {self.tick_nice}")
         if self.echo_workers is not None and self.echo_workers < 1:
             raise ValueError(f"echo_workers: expected >= 1 or null (one per core), got "
                              f"{self.echo_workers}")
@@ -170,7 +176,7 @@ class SimServer:
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
     publish_thermals=True, forest_points=20000, echo_worker="auto", echo_workers=None,
-    echo_deadlines=True, pose_history_s=2.0, pose_wait_ticks=2.0)``.
+    echo_deadlines=True, pose_history_s=2.0, pose_wait_ticks=2.0, tick_nice=-10)``.
     ``scene`` is a scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and
     ``state_rate_hz`` override the scene's. ``stop_after_s``: stop ticking at that sim time
     (the node keeps answering pings). ``forest_points``: at most this many leaf centres around
@@ -180,6 +186,10 @@ class SimServer:
     after the newest tick waits for the tick that covers it (0: extrapolated at once; module
     docstring, "Echoes").
     ``echo_worker``, ``echo_workers``, ``echo_deadlines``: see the module docstring.
+    ``tick_nice``: in ``realtime`` mode the tick thread asks for this nice (-20..0; 0: as
+    started), so that on short cores it preempts the other processes of the loop; where the OS
+    does not allow it the thread runs on as started (:func:`hil_bridge.priority.raise_priority`).
+    Stats say which as ``tick_priority``.
     """
 
     #: ``embed_proxy`` (default true) runs the bus's proxy in this node's process; a launch
@@ -212,6 +222,7 @@ class SimServer:
         self._tick_cpu_s = 0.0
         self._tick_wall = (0.0, 0.0)  # monotonic time of the first and of the last tick
         self._tick_error = ""
+        self._tick_priority = "unchanged"
         #: what went wrong: the tick loop, bus callbacks, the echo service and its workers
         self.faults = Faults(name)
         self._flown_gliders: dict[int, dict[str, Any]] = {}
@@ -334,6 +345,7 @@ class SimServer:
             out["tick_wall_s"] = wall
             out["rate_achieved"] = self._sim_ns / 1e9 / wall if wall > 0 else math.nan
             out["tick_error"] = self._tick_error
+            out["tick_priority"] = self._tick_priority
             out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
         out.update(self._inputs.stats())
         out.update(self._gate.stats())
@@ -504,6 +516,11 @@ class SimServer:
         last: tuple[FleetStates, bool] | None = None  # the last published tick
         if fleet.swarm is not None:
             self._publish_thermals(0)
+        if mode == "realtime" and self.params.tick_nice < 0:
+            self._tick_priority = raise_priority(self.params.tick_nice)
+            if "not permitted" in self._tick_priority:
+                log.info("%s: tick thread at %s; see docs/server.md, Tick priority", self.name,
+                         self._tick_priority)
         cpu0 = time.thread_time()
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns
