@@ -17,7 +17,7 @@ import contextlib
 import os
 import threading
 
-__all__ = ["lower_priority", "raise_priority"]
+__all__ = ["can_raise", "lower_priority", "raise_priority"]
 
 
 def lower_priority(nice: int, *, thread_only: bool = False) -> None:
@@ -34,6 +34,16 @@ def lower_priority(nice: int, *, thread_only: bool = False) -> None:
     for tid in tids:
         with contextlib.suppress(OSError):
             os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
+
+
+def can_raise(nice: int) -> bool:
+    """Whether a thread of this process may set its nice to ``nice`` (probed on a thread of its
+    own, which ends)."""
+    got: list[str] = []
+    probe = threading.Thread(target=lambda: got.append(raise_priority(nice)), name="nice-probe")
+    probe.start()
+    probe.join()
+    return bool(got) and "not permitted" not in got[0] and not got[0].startswith("unchanged")
 
 
 def raise_priority(nice: int) -> str:

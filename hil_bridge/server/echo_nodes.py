@@ -18,7 +18,8 @@ the scene's sonars (the k-th, (k+n)-th, ... in id order). A node
 The server's process then never decodes a ping or encodes an echo: its interpreter is left to
 the tick loop. The nodes run at a lower CPU priority (nice
 :data:`~hil_bridge.server.echo_pool.WORKER_NICE`), so when the cores are short the tick loop
-comes first. Each builds the tiles its sonars reach (no tiles are shared between nodes: each
+comes first, or at nice 0 when the server's tick thread holds a raised priority of its own
+(``tick_nice``). Each builds the tiles its sonars reach (no tiles are shared between nodes: each
 node's sonars fly their own part of the forest).
 
 **Counters.** Every :data:`STATS_PERIOD_S` (and when it stops) a node sends its counters and
@@ -42,6 +43,7 @@ run on the server's host.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import multiprocessing
 import os
@@ -87,8 +89,9 @@ class NodeSpec:
     """What one echo node needs: the server's ``server`` name, ``scene`` spec, ``bus`` URL,
     ``params`` (:class:`~hil_bridge.server.sim_server.ServerParams`), ``clock``
     (:class:`~sim_core.scene.ClockSpec`) and ``tick_ns``; its ``index`` and ``sonar_ids``;
-    the ``ring`` of the server's poses (:class:`~hil_bridge.server.pose_ring.PoseRing` path)
-    and ``points`` (the ``/forest/points`` request, node 0 only)."""
+    the ``ring`` of the server's poses (:class:`~hil_bridge.server.pose_ring.PoseRing` path),
+    ``points`` (the ``/forest/points`` request, node 0 only) and the ``nice`` it adds to its
+    CPU priority."""
 
     server: str
     scene: Any
@@ -100,6 +103,7 @@ class NodeSpec:
     sonar_ids: tuple[int, ...]
     ring: str
     points: tuple[tuple[Region, ...], int] | None
+    nice: int = WORKER_NICE
 
 
 def _node_main(spec: NodeSpec, conn: Connection, parent_pid: int) -> None:
@@ -115,7 +119,7 @@ def _node_main(spec: NodeSpec, conn: Connection, parent_pid: int) -> None:
     from sim_core.world import ball
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    lower_priority(WORKER_NICE)
+    lower_priority(spec.nice)
     name = f"{spec.server}_echo{spec.index}"
     scene = load_scene(spec.scene, trajectory_reader=load_trajectory)
     ball.warm_up()  # the leaf gather and the pre-cull compiled (or loaded) before a ping
@@ -204,12 +208,8 @@ class EchoNodes:
         self._procs: list[_Proc] = []
         for k in range(n):
             mine = ids[k::n]
-            spec = NodeSpec(
-                server=template.server, scene=template.scene, bus=template.bus,
-                params=template.params, clock=template.clock, tick_ns=template.tick_ns,
-                index=k, sonar_ids=mine, ring=template.ring,
-                points=template.points if k == 0 else None,
-            )
+            spec = dataclasses.replace(template, index=k, sonar_ids=mine,
+                                       points=template.points if k == 0 else None)
             ours, theirs = ctx.Pipe(duplex=True)
             proc = ctx.Process(target=_node_main, args=(spec, theirs, os.getpid()),
                                name=NODE_NAME, daemon=True)

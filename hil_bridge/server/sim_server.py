@@ -98,10 +98,11 @@ from hil_bridge.bus.messages import (
 )
 from hil_bridge.bus.stats import percentiles
 from hil_bridge.files.scene import load_scene
-from hil_bridge.priority import raise_priority
+from hil_bridge.priority import can_raise, raise_priority
 from hil_bridge.recording.logs import load_trajectory
 from hil_bridge.server.commands import AutopilotInputs
 from hil_bridge.server.echo_nodes import EchoNodes
+from hil_bridge.server.echo_pool import WORKER_NICE
 from hil_bridge.server.fleet import Fleet, FleetStates
 from hil_bridge.server.lockstep import LockstepGate
 from hil_bridge.server.sonars import ServerSonars
@@ -245,10 +246,15 @@ class SimServer:
             self.scene, tick_ns=self.tick_ns, substeps=self.substeps,
             history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
         )
+        # echo workers yield to the tick loop (nice WORKER_NICE) unless the tick thread will
+        # hold a raised priority of its own: then they compete as equals with the other nodes
+        self._raises_tick = (self.clock_spec.mode == "realtime" and self.params.tick_nice < 0
+                             and can_raise(self.params.tick_nice))
         self._sonars = ServerSonars(
             name, self.scene, self.fleet.history, self.tick_ns, self._gate, self.clock_spec,
             self.params, self._now_ns,
             current_domain(),  # the run's: active while the launcher builds nodes
+            worker_nice=0 if self._raises_tick else WORKER_NICE,
         )
         self._node: Any = None
         self._proxy: Any = None
@@ -346,6 +352,7 @@ class SimServer:
             out["rate_achieved"] = self._sim_ns / 1e9 / wall if wall > 0 else math.nan
             out["tick_error"] = self._tick_error
             out["tick_priority"] = self._tick_priority
+            out["echo_worker_nice"] = self._sonars.worker_nice
             out["flown"] = {str(g): dict(v) for g, v in sorted(self._flown_gliders.items())}
         out.update(self._inputs.stats())
         out.update(self._gate.stats())

@@ -30,7 +30,7 @@ import numpy as np
 
 from hil_bridge.bus.messages import PointCloud, SonarEcho, SonarPing
 from hil_bridge.server.echo_compute import EchoRequest, EchoResult, Region, SonarPose
-from hil_bridge.server.echo_pool import usable_cores
+from hil_bridge.server.echo_pool import WORKER_NICE, usable_cores
 from hil_bridge.server.echo_service import EchoService
 from hil_bridge.server.emission import EMISSION_COUNTERS, EmissionPoses
 from hil_bridge.server.fleet import FleetStates
@@ -97,8 +97,10 @@ class ServerSonars:
 
     def __init__(self, name: str, scene: Scene, history: PoseHistory, tick_ns: int,
                  gate: LockstepGate, clock: ClockSpec, params: Any, now_ns: Any, domain: Any,
-                 *, sonar_ids: Sequence[int] | None = None) -> None:
+                 *, sonar_ids: Sequence[int] | None = None,
+                 worker_nice: int = WORKER_NICE) -> None:
         self.name = name
+        self.worker_nice = worker_nice
         self.scene = scene
         self.history = history
         self._sonar_specs = [s for s in scene.spec.sonars
@@ -159,7 +161,7 @@ class ServerSonars:
             p.echo_workers or usable_cores(), node.faults, server=self.name,
             scene=self.scene.spec, bus=node.bus, params=p, clock=self._clock,
             tick_ns=self._tick_ns, sonar_ids=tuple(s.id for s in self._sonar_specs),
-            ring=str(self.ring.path), points=points,
+            ring=str(self.ring.path), points=points, nice=self.worker_nice,
         )
 
     def serve(self, node: Any, worker: Worker,
@@ -190,7 +192,7 @@ class ServerSonars:
             on_echo=self._publish_echo, on_error=self._echo_failed,
             on_drop=lambda req: self._gate.echo_done(req.sonar_id),
             points=points, on_points=self._publish_points, lookahead=self.lookahead,
-            domain=self._domain, faults=node.faults,
+            domain=self._domain, faults=node.faults, worker_nice=self.worker_nice,
         )
 
     def start(self) -> None:

@@ -9,7 +9,8 @@ import threading
 import pytest
 
 from hil_bridge.launch.monitor import BusMonitor
-from hil_bridge.priority import lower_priority, raise_priority
+from hil_bridge.priority import can_raise, lower_priority, raise_priority
+from hil_bridge.server.echo_pool import WORKER_NICE
 from hil_bridge.server.sim_server import SimServer
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "setpriority"), reason="no per-thread nice")
@@ -78,6 +79,23 @@ def test_a_refused_raise_is_named_not_raised(monkeypatch: pytest.MonkeyPatch) ->
     assert raise_priority(-10) == "nice 0 (nice -10 not permitted: Operation not permitted)"
     with pytest.raises(ValueError, match="nice: expected <= 0"):
         raise_priority(3)
+
+
+def test_can_raise_probes_on_a_thread_of_its_own(monkeypatch: pytest.MonkeyPatch) -> None:
+    main_before = _nice(threading.get_native_id())
+    assert can_raise(main_before)  # its own nice: always allowed
+    assert _nice(threading.get_native_id()) == main_before  # the probe changed no other thread
+    monkeypatch.setattr(os, "setpriority", lambda which, who, prio: (_ for _ in ()).throw(
+        PermissionError(1, "Operation not permitted")))
+    assert not can_raise(main_before - 1)
+
+
+@pytest.mark.parametrize(("mode", "asked"), [("realtime", -3), ("realtime", 0), ("fast", -3)])
+def test_echo_workers_yield_unless_the_tick_thread_is_raised(mode: str, asked: int) -> None:
+    scene = {"state_rate_hz": 50.0, "clock": {"mode": mode}}
+    srv = SimServer("prio", bus=f"mem://prio_w_{mode}_{-asked}", scene=scene, tick_nice=asked)
+    raised = mode == "realtime" and asked < 0 and can_raise(asked)
+    assert srv.stats()["echo_worker_nice"] == (0 if raised else WORKER_NICE)
 
 
 def _thread_nice(name: str) -> int | None:

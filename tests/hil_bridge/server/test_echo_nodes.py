@@ -19,8 +19,10 @@ from hil_bridge.bus.domain import Domain, shared_root
 from hil_bridge.bus.messages import SonarEcho, SonarPing
 from hil_bridge.bus.node import Node
 from hil_bridge.files.scene import load_scene
+from hil_bridge.priority import can_raise
 from hil_bridge.server.echo_compute import compute_echo
 from hil_bridge.server.echo_nodes import NODE_NAME
+from hil_bridge.server.echo_pool import WORKER_NICE
 from hil_bridge.server.pose_history import PoseHistory
 from hil_bridge.server.pose_ring import PoseRing
 from hil_bridge.server.shared_tiles import stores_of
@@ -101,6 +103,10 @@ def test_echo_nodes_answer_on_the_bus_as_the_servers_own_thread_would(tmp_path: 
     try:
         nodes = _nodes()
         assert len(nodes) == 2  # one per sonar: started, each on the bus, before the first tick
+        # a fast clock raises no tick thread: the nodes yield to the server's process
+        own = os.getpriority(os.PRIO_PROCESS, 0)
+        assert [os.getpriority(os.PRIO_PROCESS, p.pid) for p in nodes] == [
+            min(own + WORKER_NICE, 19)] * 2
         assert len(stores_of(os.getpid())) == 1  # the pose ring
         assert srv.wait_done(timeout=30)
         assert head.transport.sync(10.0)
@@ -132,6 +138,22 @@ def test_echo_nodes_answer_on_the_bus_as_the_servers_own_thread_would(tmp_path: 
         np.testing.assert_array_equal(echo.position, position.astype(echo.position.dtype))
         assert echo.leaves_in_beam == direct.leaves_in_beam > 0
     assert _nodes() == [] and stores_of(os.getpid()) == []
+
+
+@pytest.mark.processes  # lifecycle: no float result to check without AVX-512
+def test_echo_nodes_compete_as_equals_when_the_tick_thread_is_raised(tmp_path: Path) -> None:
+    scene = {**_scene(), "clock": {"mode": "realtime"}}
+    srv = SimServer("server", bus=f"ipc://{tmp_path}/bus", scene=scene, echo_worker="nodes",
+                    echo_workers=2, tick_nice=-3)
+    raised = can_raise(-3)
+    srv.start()
+    try:
+        nodes = _nodes()
+        nice = [os.getpriority(os.PRIO_PROCESS, p.pid) for p in nodes]
+    finally:
+        srv.stop()
+    own = os.getpriority(os.PRIO_PROCESS, 0)
+    assert nice == [own if raised else min(own + WORKER_NICE, 19)] * 2
 
 
 @pytest.mark.processes  # lifecycle: no float result to check without AVX-512
