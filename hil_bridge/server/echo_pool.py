@@ -17,10 +17,8 @@ at a time (so an idle worker is known and no job waits behind another), over one
   ``max_cache_bytes`` of shared leaf arrays, plus per worker its interpreter (~150 MB with
   numpy, scipy and finufft); gathering leaves from a tile builds no index
   (:func:`sim_core.world.ball.ball_mask`).
-- **The tick loop first.** Workers run at a lower CPU priority (``nice``, default
-  :data:`WORKER_NICE`), so when the cores are short the server's tick loop, bus and scheduler
-  threads get them first; the server passes 0 when its tick thread holds a raised priority of
-  its own (``tick_nice``), which puts it first anyway.
+- **The tick loop first.** Workers run at a lower CPU priority (nice :data:`WORKER_NICE`), so
+  when the cores are short the server's tick loop, bus and scheduler threads get them first.
   Prefetching takes at most ``n - 1`` workers (with one worker, only an idle one), all of
   them before the server's first tick.
 - **Nothing outlives the server.** ``close()`` stops the workers (terminating one that does not
@@ -212,8 +210,7 @@ class ProcessPool:
     """``n`` worker processes sharing forest tiles (module docstring)."""
 
     def __init__(self, scene: Scene, n: int, stop: threading.Event, *, domain: Any = None,
-                 cost: EchoCost = COST, faults: Faults | None = None,
-                 nice: int = WORKER_NICE) -> None:
+                 cost: EchoCost = COST, faults: Faults | None = None) -> None:
         from hil_bridge.bus.domain import current
         from hil_bridge.server.shared_tiles import SharedTiles
         from sim_core.world import TiledForest
@@ -221,7 +218,6 @@ class ProcessPool:
         self.scene = scene
         self.n = n
         self.cost = cost
-        self.nice = nice
         self.faults = faults if faults is not None else Faults("echo_pool")
         self._stop = stop
         self._ctx = multiprocessing.get_context("spawn")
@@ -260,7 +256,7 @@ class ProcessPool:
         proc = self._ctx.Process(
             target=_worker_main,
             args=(self.scene.spec, None if self.store is None else str(self.store.directory),
-                  theirs, self.nice, self.cost, os.getpid()),
+                  theirs, WORKER_NICE, self.cost, os.getpid()),
             name=WORKER_NAME, daemon=True,
         )
         proc.start()

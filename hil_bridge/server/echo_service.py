@@ -70,7 +70,7 @@ from hil_bridge.server.echo_compute import (
     Region,
     region_tiles,
 )
-from hil_bridge.server.echo_pool import WORKER_NICE, ProcessPool, ThreadWorker, usable_cores
+from hil_bridge.server.echo_pool import ProcessPool, ThreadWorker, usable_cores
 from sim_core.scene import Scene
 from sim_core.sonar.cost import COST, EchoCost
 
@@ -123,7 +123,6 @@ class EchoService:
         domain: Any = None,
         cost: EchoCost = COST,
         faults: Faults | None = None,
-        worker_nice: int = WORKER_NICE,
     ) -> None:
         if queue_size < 1:
             raise ValueError(f"queue_size: expected >= 1, got {queue_size}")
@@ -142,7 +141,6 @@ class EchoService:
         self._lookahead = lookahead
         self._domain = domain
         self.cost = cost
-        self.worker_nice = worker_nice
         self.faults = faults if faults is not None else Faults("echo_service")
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -313,7 +311,7 @@ class EchoService:
             else:
                 self._pool = ProcessPool(self.scene, self.n_workers, self._stop,
                                          domain=self._domain, cost=self.cost,
-                                         faults=self.faults, nice=self.worker_nice)
+                                         faults=self.faults)
                 try:
                     self._serve(self._pool)
                 finally:

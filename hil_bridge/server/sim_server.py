@@ -246,15 +246,16 @@ class SimServer:
             self.scene, tick_ns=self.tick_ns, substeps=self.substeps,
             history_s=self.params.pose_history_s, history_ids={s.mount for s in spec.sonars},
         )
-        # echo workers yield to the tick loop (nice WORKER_NICE) unless the tick thread will
-        # hold a raised priority of its own: then they compete as equals with the other nodes
+        # echo nodes yield to the tick loop (nice WORKER_NICE) unless the tick thread will hold
+        # a raised priority of its own: then they compete as equals with the other nodes (a
+        # pool keeps yielding: its scheduler thread shares the tick loop's interpreter)
         self._raises_tick = (self.clock_spec.mode == "realtime" and self.params.tick_nice < 0
                              and can_raise(self.params.tick_nice))
         self._sonars = ServerSonars(
             name, self.scene, self.fleet.history, self.tick_ns, self._gate, self.clock_spec,
             self.params, self._now_ns,
             current_domain(),  # the run's: active while the launcher builds nodes
-            worker_nice=0 if self._raises_tick else WORKER_NICE,
+            node_nice=0 if self._raises_tick else WORKER_NICE,
         )
         self._node: Any = None
         self._proxy: Any = None

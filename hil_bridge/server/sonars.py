@@ -98,9 +98,9 @@ class ServerSonars:
     def __init__(self, name: str, scene: Scene, history: PoseHistory, tick_ns: int,
                  gate: LockstepGate, clock: ClockSpec, params: Any, now_ns: Any, domain: Any,
                  *, sonar_ids: Sequence[int] | None = None,
-                 worker_nice: int = WORKER_NICE) -> None:
+                 node_nice: int = WORKER_NICE) -> None:
         self.name = name
-        self.worker_nice = worker_nice
+        self.node_nice = node_nice
         self.scene = scene
         self.history = history
         self._sonar_specs = [s for s in scene.spec.sonars
@@ -134,6 +134,15 @@ class ServerSonars:
         self.ring: PoseRing | None = None
         self.worker: str = ""
 
+    @property
+    def worker_nice(self) -> int | None:
+        """The nice the echo workers add to theirs: ``node_nice`` for echo nodes,
+        :data:`~hil_bridge.server.echo_pool.WORKER_NICE` for a pool, 0 for the thread (it runs
+        at the server's), None before :meth:`attach` (or without sonars)."""
+        if not self.worker:
+            return None
+        return {"nodes": self.node_nice, "thread": 0}.get(self.worker, WORKER_NICE)
+
     def attach(self, node: Any, first: FleetStates,
                spawn_nodes: Callable[..., Any] | None) -> None:
         """The server's sonars on ``node``: echo nodes (``echo_worker: nodes``, started by
@@ -161,7 +170,7 @@ class ServerSonars:
             p.echo_workers or usable_cores(), node.faults, server=self.name,
             scene=self.scene.spec, bus=node.bus, params=p, clock=self._clock,
             tick_ns=self._tick_ns, sonar_ids=tuple(s.id for s in self._sonar_specs),
-            ring=str(self.ring.path), points=points, nice=self.worker_nice,
+            ring=str(self.ring.path), points=points, nice=self.node_nice,
         )
 
     def serve(self, node: Any, worker: Worker,
@@ -192,7 +201,7 @@ class ServerSonars:
             on_echo=self._publish_echo, on_error=self._echo_failed,
             on_drop=lambda req: self._gate.echo_done(req.sonar_id),
             points=points, on_points=self._publish_points, lookahead=self.lookahead,
-            domain=self._domain, faults=node.faults, worker_nice=self.worker_nice,
+            domain=self._domain, faults=node.faults,
         )
 
     def start(self) -> None:

@@ -91,11 +91,11 @@ def test_can_raise_probes_on_a_thread_of_its_own(monkeypatch: pytest.MonkeyPatch
 
 
 @pytest.mark.parametrize(("mode", "asked"), [("realtime", -3), ("realtime", 0), ("fast", -3)])
-def test_echo_workers_yield_unless_the_tick_thread_is_raised(mode: str, asked: int) -> None:
+def test_echo_nodes_yield_unless_the_tick_thread_is_raised(mode: str, asked: int) -> None:
     scene = {"state_rate_hz": 50.0, "clock": {"mode": mode}}
     srv = SimServer("prio", bus=f"mem://prio_w_{mode}_{-asked}", scene=scene, tick_nice=asked)
     raised = mode == "realtime" and asked < 0 and can_raise(asked)
-    assert srv.stats()["echo_worker_nice"] == (0 if raised else WORKER_NICE)
+    assert srv._sonars.node_nice == (0 if raised else WORKER_NICE)
 
 
 def _thread_nice(name: str) -> int | None:
