@@ -1,14 +1,14 @@
 """CPU priority (Linux nice, which is per thread): work that must yield to the loop, and the
 loop itself.
 
-Echo workers (:mod:`hil_bridge.server.echo_pool`, the whole process), the server's echo thread
-and the launch's bus monitor (:mod:`hil_bridge.launch.monitor`, its receive thread) call
-:func:`lower_priority`, so that when the cores are short the server's tick loop and the nodes get
-them first. The server's tick thread calls :func:`raise_priority` in ``realtime`` mode
-(``tick_nice``): a negative nice needs ``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` that allows it
-(``ulimit -e``; ``/etc/security/limits.conf``: ``@realtime - nice -10``), as ros2_control's
-real-time thread priority needs its limits; where it is not allowed, the thread keeps its nice
-and says why.
+Echo workers and echo nodes (:mod:`hil_bridge.server.echo_pool`,
+:mod:`hil_bridge.server.echo_nodes`, the whole process) and the launch's bus monitor
+(:mod:`hil_bridge.launch.monitor`, its receive thread) call :func:`lower_priority`, so that when
+the cores are short the server's tick loop and the nodes get them first. The server's tick
+thread calls :func:`raise_priority` in ``realtime`` mode (``tick_nice``): a negative nice needs
+``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` that allows it (``ulimit -e``;
+``/etc/security/limits.conf``: ``@realtime - nice -10``), as ros2_control's real-time thread
+priority needs its limits; where it is not allowed, the thread keeps its nice and says why.
 """
 
 from __future__ import annotations

@@ -128,7 +128,8 @@ def headline(summary: RunSummary) -> list[str]:
             f"{srv['echoes_published']} echoes"
             + (f" ({srv['echo_worker']} echo worker)" if srv.get("echo_worker") else "")
             + f", {srv['stalls']} lockstep stalls, {srv.get('late_ticks', 0)} late ticks"
-            + (f" (tick thread at {srv['tick_priority']})" if srv.get("tick_priority") else "")
+            + (f" (tick thread at {srv['tick_priority']})"
+               if srv.get("tick_priority", "unchanged") != "unchanged" else "")
             + (f", gliders alive {alive}" if alive is not None else "")
         )
     return lines
