@@ -22,6 +22,7 @@ from hil_bridge.bus.domain import Domain, claim_first_free, use
 from hil_bridge.launch.runner import EXIT_FAILED, run
 from hil_bridge.server.shared_tiles import stores_of
 from sim_core.config import ConfigError
+from tests.hil_bridge.server._killed import alive
 
 pytestmark = pytest.mark.processes
 
@@ -143,14 +144,6 @@ def _port_free(port: int) -> bool:
     return True
 
 
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 def test_echoloop_run_joins_the_bus_of_a_launch_that_skips_its_node(domain: Domain) -> None:
     launch = _cli("launch", str(ROOT / "launch" / "demo.yaml"), "--duration", "60",
                   "--skip", "autopilot", "--expect", "server.cmd_applied > 0", domain=domain)
@@ -191,7 +184,7 @@ def test_a_launcher_killed_with_sigkill_leaves_nothing_behind(domain: Domain,
     deadline = time.monotonic() + 60
     left: dict[str, Any] = {}
     while time.monotonic() < deadline:
-        left = {"processes": [p for p in hosts + workers if _alive(p)],
+        left = {"processes": [p for p in hosts + workers if alive(p)],
                 "link": link.is_symlink() or link.exists(),
                 "shared stores": [s for s in stores if s.exists()],
                 "bus ports": [p for p in domain.ports if not _port_free(p)]}
