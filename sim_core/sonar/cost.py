@@ -30,7 +30,7 @@ class EchoCost:
     """Seconds per echo and per leaf (module docstring)."""
 
     overhead_s: float = 1.0e-3
-    gather_s: float = 6.0e-8
+    gather_s: float = 3.5e-8
     per_examined_s: float = 1.5e-8
     per_candidate_s: float = 2.0e-8
     per_selected_s: float = 2.5e-8

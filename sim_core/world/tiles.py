@@ -6,8 +6,8 @@ tiles. ``leaves_near(point, r)`` therefore visits every tile within ``r`` plus t
 reach of ``point``. Tile content is a pure function of (spec, seed, tile) — candidates are drawn
 per cell from their own streams and the minimum-distance merge is resolved locally and exactly —
 so building a region tile by tile gives the same trees and leaves as a one-shot build of it.
-Built tiles sit in an LRU cache bounded in bytes (leaf arrays, plus k-d trees where a caller
-built one). A tile missing
+Built tiles sit in an LRU cache bounded in bytes (leaf arrays and the boxes of the gather's
+leaf blocks, plus k-d trees where a caller built one). A tile missing
 from the cache comes from ``source`` (default :meth:`TiledForest.build`): a runner may put a store
 shared between processes in front of the build (``hil_bridge.server.shared_tiles``); ``sim_core``
 itself
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim_core.world.ball import ball_mask
+from sim_core.world.ball import ball_rows, block_bounds
 from sim_core.world.forest import Forest, ForestEngine
 from sim_core.world.ipp import Box
 from sim_core.world.leaves import Leaves
@@ -96,6 +96,8 @@ class TiledForest:
         self._range = None if dom is None else (*self.tile_of(dom[0], dom[1]),
                                                 *self.tile_of(dom[2], dom[3]))
         self._cache: OrderedDict[TileKey, Tile] = OrderedDict()
+        #: per cached tile, the boxes of its leaf blocks (:func:`~sim_core.world.ball.block_bounds`)
+        self._bounds: dict[TileKey, NDArray[np.float64]] = {}
         self._bytes: dict[TileKey, int] = {}
         self._total = 0
         self.tiles_built = 0
@@ -145,6 +147,7 @@ class TiledForest:
     def forget(self, tile: TileKey) -> None:
         """Drop ``tile`` from the cache (it is fetched from ``source`` again when needed)."""
         if self._cache.pop(tile, None) is not None:
+            self._bounds.pop(tile, None)
             self._total -= self._bytes.pop(tile)
 
     def _get(self, tile: TileKey) -> Tile:
@@ -155,25 +158,28 @@ class TiledForest:
             return hit
         got = self.source(tile)
         self._cache[tile] = got
+        self._bounds[tile] = block_bounds(got.leaves.centers)
         self._account(tile, got)
         self._evict()
         return got
 
     def _account(self, tile: TileKey, got: Tile) -> None:
         if tile in self._cache:
-            new = got.leaves.nbytes + TILE_OVERHEAD_BYTES
+            new = got.leaves.nbytes + self._bounds[tile].nbytes + TILE_OVERHEAD_BYTES
             self._total += new - self._bytes.get(tile, 0)
             self._bytes[tile] = new
 
     def _evict(self) -> None:
         while self._cache and self._total > self.max_cache_bytes:
             old, _ = self._cache.popitem(last=False)
+            del self._bounds[old]
             self._total -= self._bytes.pop(old)
             self.evictions += 1
 
     @property
     def cache_bytes(self) -> int:
-        """Bytes held by the cached tiles (leaf arrays, built k-d trees, a fixed overhead)."""
+        """Bytes held by the cached tiles (leaf arrays and their blocks' boxes, built k-d trees,
+        a fixed overhead)."""
         return self._total
 
     @property
@@ -208,9 +214,10 @@ class TiledForest:
     def leaves_near(self, point: ArrayLike, radius_m: float) -> Leaves:
         """Leaves whose centre is within ``radius_m`` of ``point (3,)`` (metres, world frame).
 
-        Tree ids in the result are renumbered to be unique within it (tile by tile). Each tile
-        is tested leaf by leaf (:func:`~sim_core.world.ball.ball_mask`, compiled): the leaves
-        keep their order, tile after tile in :meth:`tiles_near`'s order.
+        Tree ids in the result are renumbered to be unique within it (tile by tile). Each tile's
+        leaves are tested by :func:`~sim_core.world.ball.ball_rows` (compiled; blocks of leaves
+        beyond the ball skipped by their boxes): the leaves keep their order, tile after tile in
+        :meth:`tiles_near`'s order.
         """
         p = np.asarray(point, dtype=np.float64)
         parts: list[Leaves] = []
@@ -219,12 +226,15 @@ class TiledForest:
             tile = self._get(t)
             self._account(t, tile)  # a tile evicted on arrival stays out
             leaves = tile.leaves
-            inside = ball_mask(leaves.centers, p, radius_m)
-            if inside.any():
-                parts.append(Leaves(leaves.centers.compress(inside, axis=0),
-                                    leaves.normals.compress(inside, axis=0),
-                                    leaves.radii.compress(inside),
-                                    leaves.tree_id.compress(inside) + offset))
+            bounds = self._bounds.get(t)  # None for a tile evicted on arrival
+            if bounds is None:
+                bounds = block_bounds(leaves.centers)
+            rows = ball_rows(leaves.centers, bounds, p, radius_m)
+            if rows.shape[0]:
+                parts.append(Leaves(leaves.centers.take(rows, axis=0),
+                                    leaves.normals.take(rows, axis=0),
+                                    leaves.radii.take(rows),
+                                    leaves.tree_id.take(rows) + offset))
             offset += tile.tree_xy.shape[0]
         self._evict()
         return Leaves.concat(parts)

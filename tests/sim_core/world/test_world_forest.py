@@ -28,6 +28,7 @@ from sim_core.world import (
     named_files,
     preset_names,
 )
+from sim_core.world.ball import block_bounds
 
 # a small, quick mixed forest: a bush IPP and an L++ species at low growth level, 6 m merge
 SMALL = ForestSpec(
@@ -235,6 +236,12 @@ def test_tiled_cache_is_bounded_and_unbounded_worlds_work() -> None:
         _build(spec, seed=1)
 
 
+def _charged(world: TiledForest) -> int:
+    """What the cache should charge: leaf arrays, their blocks' boxes, 1 KiB a tile."""
+    return sum(world.tile(t).nbytes + block_bounds(world.tile(t).centers).nbytes + 1024
+               for t in world.cached_tiles)
+
+
 def test_a_bounded_forest_visits_only_its_own_tiles_and_a_source_stands_in_for_build() -> None:
     built: list[tuple[int, int]] = []
     world = TiledForest(SMALL, seed=6, files=files_of(SMALL),
@@ -249,10 +256,10 @@ def test_a_bounded_forest_visits_only_its_own_tiles_and_a_source_stands_in_for_b
     near = world.leaves_near(np.array([30.0, 30.0, 2.0]), 5000.0)
     assert sorted(built) == [(i, j) for i in range(4) for j in range(4)]
     assert len(near) == len(_build(SMALL, seed=6).leaves)
-    assert world.cache_bytes == sum(world.tile(t).nbytes + 1024 for t in world.cached_tiles)
+    assert world.cache_bytes == _charged(world)
     world.forget((1, 1))
     assert (1, 1) not in world.cached_tiles
-    assert world.cache_bytes == sum(world.tile(t).nbytes + 1024 for t in world.cached_tiles)
+    assert world.cache_bytes == _charged(world)
     tile = world.ensure((1, 1))  # fetched again; gathering from it needs no index
     assert built.count((1, 1)) == 2 and (1, 1) in world.cached_tiles
     assert tile.leaves.nbytes == 60 * len(tile.leaves)
