@@ -11,14 +11,15 @@ and with x_i = 2 pi (fs/N) tau_i and f_k = (m0 + k) fs/N
 where the inner sums, one per node p, are P type-1 NUFFTs of the delays (finufft on a cached
 plan, K0 = B // 2 centres the modes). Cost O(P M + P B log B) instead of O(M B) for B band bins.
 The weights at the nodes are evaluated in float32 (SIMD transcendentals, error ~1e-6) and the
-NUFFT runs in single precision for eps >= 1e-5; the large phase (m0 + K0) x_i is reduced
-modulo 2 pi in float64 first and added to the weight's phase. The leaves are processed in
-blocks of BLOCK on workspace arrays (fresh pages cost more than the arithmetic). The
-window w_k, like every leaf-independent factor, multiplies after the sum. Geometry, guards and
-selection are shared with ``reference`` (model.prepare). ``realtime`` gives ``prepare`` a
-:class:`~sim_core.sonar.model.LeafBudget` for the whole echo: it tests and synthesises only the
-leaves its budget affords, those with the largest waterdrop metric S1/r (the selection
-threshold G raised), and bounds the rest.
+NUFFT runs in single precision for eps >= 1e-5, as do the band spectra it returns (so the
+output transform, :func:`~sim_core.sonar.api.assemble`, runs in float32 too); the large phase
+(m0 + K0) x_i is reduced modulo 2 pi in float64 first and added to the weight's phase. The
+leaves are processed in blocks of BLOCK on workspace arrays (fresh pages cost more than the
+arithmetic). The window w_k, like every leaf-independent factor, multiplies after the sum.
+Geometry, guards and selection are shared with ``reference`` (model.prepare). ``realtime``
+gives ``prepare`` a :class:`~sim_core.sonar.model.LeafBudget` for the whole echo: it tests and
+synthesises only the leaves its budget affords, those with the largest waterdrop metric S1/r
+(the selection threshold G raised), and bounds the rest.
 """
 
 from __future__ import annotations
@@ -138,9 +139,11 @@ class Fast(Fidelity):
         g = params.grid
         B = g.count
         C = scene.beta.shape[0]
+        # single precision end to end: the spectra, and so the output transform (assemble)
+        cdt = np.complex64 if self.eps >= SINGLE_EPS else np.complex128
         if scene.count == 0:
-            return Band(np.zeros((C, B), dtype=np.complex128), g.m0, 0.0)
-        out = np.empty((C, B), dtype=np.complex128)
+            return Band(np.zeros((C, B), dtype=cdt), g.m0, 0.0)
+        out = np.empty((C, B), dtype=cdt)
         bound = 0.0
         centre_f = 0.5 * (g.m0 + g.m1) * g.df
         for ch in range(C):
@@ -236,8 +239,8 @@ class Fast(Fidelity):
             plan.setpts(x)
             for p in range(P):
                 plan.execute(strengths[p], out=modes[p])
-        tail, weight = _interpolation_error(scene, ch, params, nodes, kinked, ws)
-        return np.einsum("kp,pk->k", basis, modes), tail, weight
+        tail, weight = _interpolation_error(scene, ch, params, nodes, kinked, ws, single=single)
+        return np.einsum("kp,pk->k", basis.astype(rdt, copy=False), modes), tail, weight
 
     def order_for(self, params: EchoParams) -> int:
         """Nodes used for ``params``: at least INCIDENT_FREQ_ORDER with the BW(f) beam."""
@@ -305,12 +308,15 @@ def _interpolation_error(
     nodes: NDArray[np.float64],
     skip: NDArray[np.intp],
     ws: Workspace,
+    *,
+    single: bool,
 ) -> tuple[float, float]:
     """A-posteriori interpolation error of a group: (relative error, amplitude weight).
 
     On an even sample of at most CHECK_SAMPLE leaves the interpolant is compared with the exact
-    weights at 2P + 1 check frequencies (Chebyshev points interleaved with the nodes; float64,
-    the float32 evaluation of the synthesis adds its own ~1e-6 floor):
+    weights at 2P + 1 check frequencies (Chebyshev points interleaved with the nodes), evaluated
+    in the synthesis's precision (``single``: float32, whose ~1e-6 rounding the error then
+    includes, as the synthesis does):
     error = sum_i max_f |interp - exact| / sum_i max_f |exact|. The weight is that amplitude
     sum rescaled to all leaves of the group. Leaves ``skip`` (sorted) are not sampled.
     """
@@ -328,7 +334,7 @@ def _interpolation_error(
     centre, half = 0.5 * (f_lo + f_hi), 0.5 * (f_hi - f_lo)
     check = chebyshev_nodes(2 * nodes.shape[0] + 1)
     both = leaf_weights(scene.select(pick), ch, centre + half * np.concatenate([check, nodes]),
-                        params, workspace=ws)
+                        params, single=single, workspace=ws)
     exact, w = both[:, : check.shape[0]], both[:, check.shape[0] :]
     approx = np.einsum("mp,pc->mc", w, _check_basis(nodes.shape[0]).astype(w.real.dtype))
     amp = np.abs(exact).max(axis=1)
