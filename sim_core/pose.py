@@ -89,10 +89,17 @@ def cross(a: ArrayLike, b: ArrayLike) -> FloatArray:
     return out
 
 
+def _wxyz(q: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The components of quaternions ``(..., 4)`` as views (cheaper than ``np.moveaxis``, whose
+    axis bookkeeping cost more than the arithmetic on a tick's few quaternions)."""
+    fq = _f(q)
+    return fq[..., 0], fq[..., 1], fq[..., 2], fq[..., 3]
+
+
 def quat_multiply(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """Hamilton product ``a ⊗ b`` (apply ``b`` first, then ``a``), shape ``(..., 4)``."""
-    aw, ax, ay, az = np.moveaxis(_f(a), -1, 0)
-    bw, bx, by, bz = np.moveaxis(_f(b), -1, 0)
+    aw, ax, ay, az = _wxyz(a)
+    bw, bx, by, bz = _wxyz(b)
     return np.stack([
         aw * bw - ax * bx - ay * by - az * bz,
         aw * bx + ax * bw + ay * bz - az * by,
@@ -139,7 +146,7 @@ def euler_from_quat(q: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
     At pitch ±π/2 (gimbal lock) roll and yaw are not separable; the sum is put in yaw and
     roll is 0 there up to rounding.
     """
-    w, x, y, z = np.moveaxis(_f(q), -1, 0)
+    w, x, y, z = _wxyz(q)
     roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
     yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
@@ -157,7 +164,7 @@ def quat_rotate(q: ArrayLike, v: ArrayLike) -> FloatArray:
 
 def quat_to_matrix(q: ArrayLike) -> FloatArray:
     """Rotation matrices ``(..., 3, 3)`` of unit quaternions: ``R @ v == quat_rotate(q, v)``."""
-    w, x, y, z = np.moveaxis(_f(q), -1, 0)
+    w, x, y, z = _wxyz(q)
     return np.stack([
         np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
         np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
