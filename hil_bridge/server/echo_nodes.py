@@ -6,9 +6,12 @@ spawned processes, each a bus participant named ``<server>_echo<k>`` that serves
 the scene's sonars (the k-th, (k+n)-th, ... in id order). A node
 
 - subscribes to its sonars' ``/sonar/<id>/ping``, and keeps the pose history the server's
-  fleet keeps (:class:`hil_bridge.server.pose_history.PoseHistory`), copied every half tick
-  from the server's ring in shared memory (:mod:`hil_bridge.server.pose_ring`): the same
-  float64 values, so a ping's pose at emission is the one the server would find;
+  fleet keeps (:class:`hil_bridge.server.pose_history.PoseHistory`), copied from the server's
+  ring in shared memory (:mod:`hil_bridge.server.pose_ring`): the same float64 values, so a
+  ping's pose at emission is the one the server would find. The ring is read when a ping
+  arrives, every half tick while a ping waits for its tick, and otherwise only every
+  :data:`RING_POLL_S` (a quarter of the ring at most), so that it never wraps unread: a node
+  between pings does not wake for every tick;
 - answers each ping as the server's own echo thread does (it runs a
   :class:`~hil_bridge.server.sonars.ServerSonars` of its sonars with a thread worker:
   emission poses, deadlines, degradation, the tiles ahead of its sonars) and publishes
@@ -77,8 +80,11 @@ STATS_PERIOD_S = 1.0
 STOP_TIMEOUT_S = 5.0
 #: seconds a node waits for its bus endpoint to be in sync before it says it is ready
 NODE_SYNC_S = 10.0
-#: bounds of how often (wall s) a node reads new ticks from the pose ring (half a tick)
+#: bounds of how often (wall s) a node reads new ticks from the pose ring while a ping waits
+#: for its tick (half a tick)
 MIN_POLL_S, MAX_POLL_S = 0.0005, 0.005
+#: how often (wall s) a node reads the pose ring between pings (at most a quarter of the ring)
+RING_POLL_S = 0.1
 
 #: the raw lists of the counters (joined, not summed, across nodes)
 RAW = ("ping_echo_ms", "ping_wait_ms", "ping_extrapolated_ms", "echo_compute_ms")
@@ -126,22 +132,31 @@ def _node_main(spec: NodeSpec, conn: Connection, parent_pid: int) -> None:
     precull.warm_up()
     ring = PoseRing.open(spec.ring)
     history = PoseHistory(ring.ids, tick_ns=spec.tick_ns, history_s=spec.params.pose_history_s)
-    ring.follow(history)
+    ring_lock = threading.Lock()
+
+    def refresh() -> None:
+        with ring_lock:
+            ring.follow(history)
+
+    refresh()
+    rate = spec.clock.rate if spec.clock.mode == "realtime" else 1.0
+    tick_s = spec.tick_ns / 1e9 / rate
     faults = Faults(name)
     gate = LockstepGate(lockstep=False, timeout_s=1.0, max_stalls=1, start_timeout_s=1.0)
     sonars = ServerSonars(name, scene, history, spec.tick_ns, gate, spec.clock, spec.params,
-                          lambda: max(history.recorded_ns, 0), None, sonar_ids=spec.sonar_ids)
+                          lambda: max(history.recorded_ns, 0), None, sonar_ids=spec.sonar_ids,
+                          pose_refresh=refresh,
+                          pose_refresh_s=min(MAX_POLL_S, max(MIN_POLL_S, tick_s / 2)))
     node = Node(name, bus=spec.bus, clock=SimClock("lockstep"), faults=faults)
     sonars.serve(node, "thread", spec.points)
     node.start()
     node.transport.sync(NODE_SYNC_S)
     stop = threading.Event()
-    rate = spec.clock.rate if spec.clock.mode == "realtime" else 1.0
-    period = min(MAX_POLL_S, max(MIN_POLL_S, spec.tick_ns / 1e9 / rate / 2))
+    period = min(RING_POLL_S, ring.slots * tick_s / 4)
 
     def follow() -> None:
         while not stop.wait(period):
-            ring.follow(history)
+            refresh()
 
     follower = threading.Thread(target=faults.guarded("pose ring", follow), name="pose-ring",
                                 daemon=True)

@@ -24,6 +24,12 @@ The tick loop never waits for any of it: the history tells :meth:`EmissionPoses.
 recorded tick, which only wakes this module's thread; that thread finds the poses of the pings
 a tick released and hands them on (``on_pose``), in stamp order. Pings found at once are
 handed on from the caller's thread (the bus's).
+
+A history that is fed from elsewhere on demand (an echo node's, from the server's pose ring)
+comes with ``refresh``: it is called before each ping's stamp is compared with the newest tick,
+and every ``refresh_s`` by this module's thread while pings are held. Nothing polls the
+history's source between pings, then, and a held ping waits at most ``refresh_s`` longer than
+its tick.
 """
 
 from __future__ import annotations
@@ -63,16 +69,23 @@ class EmissionPoses:
     server's time (waited for, or extrapolated); ``wait_s``: how long (wall s after its
     arrival) a ping stamped after the newest tick waits for its tick before it is
     extrapolated (0: never held). ``on_pose(payload, pose, received)`` gets every ping's pose.
+    ``refresh()`` (optional) brings the history up to date, every ``refresh_s`` wall seconds
+    while pings are held (module docstring); it must not be called with this object's lock held
+    by another thread, and it records ticks into the history (so it re-enters ``on_tick``).
     ``start()`` starts the thread, ``ticks_ended()`` says the server stopped ticking (held
     pings are extrapolated now, later ones at once), ``close()`` does the same and joins the
     thread.
     """
 
     def __init__(self, history: PoseHistory, *, horizon_ns: int, wait_s: float,
-                 on_pose: Callable[[Any, VehiclePose, float], None]) -> None:
-        if horizon_ns < 0 or not wait_s >= 0:
-            raise ValueError(f"horizon_ns, wait_s: expected >= 0, got {horizon_ns}, {wait_s}")
+                 on_pose: Callable[[Any, VehiclePose, float], None],
+                 refresh: Callable[[], None] | None = None, refresh_s: float = 0.001) -> None:
+        if horizon_ns < 0 or not wait_s >= 0 or not refresh_s > 0:
+            raise ValueError(f"horizon_ns, wait_s, refresh_s: expected >= 0, >= 0, > 0, got "
+                             f"{horizon_ns}, {wait_s}, {refresh_s}")
         self.history = history
+        self._refresh = refresh
+        self.refresh_s = float(refresh_s)
         self.horizon_ns = int(horizon_ns)
         self.wait_s = float(wait_s)
         self._on_pose = on_pose
@@ -120,6 +133,8 @@ class EmissionPoses:
     def request(self, vid: int, t_ns: int, payload: Any, received: float) -> None:
         """Find vehicle ``vid``'s pose at emission ``t_ns`` for ``payload`` (arrived at
         ``received``, ``time.monotonic()``): at once, or once its tick is recorded."""
+        if self._refresh is not None:
+            self._refresh()
         with self._cond:
             hold = (self._ticking and self._thread is not None
                     and self._newest < t_ns <= self._newest + self.horizon_ns)
@@ -156,7 +171,8 @@ class EmissionPoses:
 
     def _due(self) -> list[_Held] | None:
         """Under the lock: the held pings to answer now (stamp order), once there are some;
-        None when closed with nothing held."""
+        None when closed with nothing held; an empty list when the history should be refreshed
+        (``refresh_s`` passed with pings held)."""
         while True:
             now = time.monotonic()
             due: list[_Held] = []
@@ -171,7 +187,12 @@ class EmissionPoses:
             if self._closed:
                 return None
             first = min((h.received for h in self._held), default=None)
-            self._cond.wait(None if first is None else first + self.wait_s - now)
+            if first is None:
+                self._cond.wait()
+            elif self._refresh is None:
+                self._cond.wait(first + self.wait_s - now)
+            elif not self._cond.wait(min(first + self.wait_s - now, self.refresh_s)):
+                return []
 
     def _run(self) -> None:
         while True:
@@ -179,6 +200,10 @@ class EmissionPoses:
                 due = self._due()
             if due is None:
                 return
+            if not due:  # pings held: read the history's source (outside the lock)
+                if self._refresh is not None:
+                    self._refresh()
+                continue
             for h in due:
                 try:
                     self._answer(h, held=True)

@@ -93,12 +93,16 @@ class ServerSonars:
     ``now_ns()`` is the latest tick (sim ns): a ping without an emission stamp was emitted
     then, and echoes are stamped with it. ``params`` are the server's
     :class:`hil_bridge.server.sim_server.ServerParams` (``forest_points``, ``echo_*``).
+    ``pose_refresh`` (an echo node's) brings ``history`` up to date before a ping is placed and
+    every ``pose_refresh_s`` while one waits for its tick (:class:`~hil_bridge.server.
+    emission.EmissionPoses`).
     """
 
     def __init__(self, name: str, scene: Scene, history: PoseHistory, tick_ns: int,
                  gate: LockstepGate, clock: ClockSpec, params: Any, now_ns: Any, domain: Any,
                  *, sonar_ids: Sequence[int] | None = None,
-                 node_nice: int = WORKER_NICE) -> None:
+                 node_nice: int = WORKER_NICE, pose_refresh: Callable[[], None] | None = None,
+                 pose_refresh_s: float = 0.001) -> None:
         self.name = name
         self.node_nice = node_nice
         self.scene = scene
@@ -125,7 +129,8 @@ class ServerSonars:
         elif params.pose_wait_ticks > 0:  # ticks not on the wall clock: a step's patience
             wait_s = clock.lockstep_timeout_s
         self.emission = EmissionPoses(history, horizon_ns=round(params.pose_history_s * 1e9),
-                                      wait_s=wait_s, on_pose=self._answer)
+                                      wait_s=wait_s, on_pose=self._answer,
+                                      refresh=pose_refresh, refresh_s=pose_refresh_s)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._last_error = ""
         self._pubs: dict[str, Any] = {}

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from hil_bridge.bus.domain import Domain, shared_root
+from hil_bridge.bus.faults import Faults
 from hil_bridge.bus.messages import SonarEcho, SonarPing
 from hil_bridge.bus.node import Node
 from hil_bridge.files.scene import load_scene
@@ -23,6 +24,7 @@ from hil_bridge.priority import can_raise
 from hil_bridge.server.echo_compute import compute_echo
 from hil_bridge.server.echo_nodes import NODE_NAME
 from hil_bridge.server.echo_pool import WORKER_NAME, WORKER_NICE
+from hil_bridge.server.emission import EmissionPoses
 from hil_bridge.server.pose_history import PoseHistory
 from hil_bridge.server.pose_ring import PoseRing
 from hil_bridge.server.shared_tiles import stores_of
@@ -87,6 +89,48 @@ def test_a_ring_reader_keeps_the_writers_history_bit_for_bit(tmp_path: Path) -> 
     finally:
         ring.remove()
     assert not ring.path.exists()
+
+
+def test_a_node_reads_the_ring_when_a_ping_comes_and_while_it_waits_not_every_tick(
+        tmp_path: Path) -> None:
+    """A node's emission poses refresh its history from the ring: before a ping is placed (a
+    tick in the ring but not yet read answers it at once), and every refresh_s while a ping
+    waits for its tick (written after the ping came, read with no one else polling)."""
+    ring = PoseRing.create(Domain.private(tmp_path), (7,), slots=64)
+    reader = PoseRing.open(ring.path)
+    history = PoseHistory(reader.ids, tick_ns=TICK_NS, history_s=1.0)
+    reads: list[int] = []
+
+    def refresh() -> None:
+        reads.append(reader.follow(history))
+
+    got: queue.Queue[tuple[Any, Any]] = queue.Queue()
+    poses = EmissionPoses(history, horizon_ns=4 * TICK_NS, wait_s=600.0,
+                          on_pose=lambda payload, pose, _t: got.put((payload, pose)),
+                          refresh=refresh, refresh_s=0.002)
+    poses.start(Faults("node"))
+    ticks = _ticks(6, 1)
+    try:
+        for tick in ticks[:3]:
+            ring.write(*tick)
+        poses.request(7, 2 * TICK_NS, "in the ring", time.monotonic())
+        payload, pose = got.get_nowait()  # read on request: answered at once, not held
+        assert payload == "in the ring" and pose.source == "history" and reads == [3]
+        poses.request(7, 4 * TICK_NS + 5, "ahead", time.monotonic())
+        assert got.empty() and poses.stats()["pings_waiting_tick"] == 1
+        for tick in ticks[3:]:
+            ring.write(*tick)  # only the waiting ping's refreshes read these
+        payload, pose = got.get(timeout=30)
+        assert payload == "ahead" and (pose.t_ns, pose.source) == (4 * TICK_NS + 5, "history")
+        assert sum(reads) == 6 and history.recorded_ns == 5 * TICK_NS
+        waited = len(reads)
+        time.sleep(0.05)  # nothing held: nothing polls the ring
+        assert len(reads) == waited
+    finally:
+        poses.close()
+        ring.remove()
+    with pytest.raises(ValueError, match="refresh_s"):
+        EmissionPoses(history, horizon_ns=0, wait_s=0.0, on_pose=print, refresh_s=0.0)
 
 
 def test_echo_nodes_answer_on_the_bus_as_the_servers_own_thread_would(tmp_path: Path) -> None:
