@@ -70,8 +70,8 @@ class EmissionPoses:
     arrival) a ping stamped after the newest tick waits for its tick before it is
     extrapolated (0: never held). ``on_pose(payload, pose, received)`` gets every ping's pose.
     ``refresh()`` (optional) brings the history up to date, every ``refresh_s`` wall seconds
-    while pings are held (module docstring); it must not be called with this object's lock held
-    by another thread, and it records ticks into the history (so it re-enters ``on_tick``).
+    while pings are held (module docstring); it is never called under this object's lock, since
+    it records ticks into the history, which calls ``on_tick``.
     ``start()`` starts the thread, ``ticks_ended()`` says the server stopped ticking (held
     pings are extrapolated now, later ones at once), ``close()`` does the same and joins the
     thread.
