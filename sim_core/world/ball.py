@@ -42,25 +42,25 @@ def block_bounds(centers: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 @njit(cache=True, nogil=True)
+def _gap(p: float, lo: float, hi: float) -> float:  # pragma: no cover - compiled
+    """Offset from ``p`` to the nearest point of ``[lo, hi]`` (0 inside, and for NaN bounds,
+    which compare false)."""
+    if p < lo:
+        return lo - p
+    if p > hi:
+        return hi - p
+    return 0.0
+
+
+@njit(cache=True, nogil=True)
 def _rows(c: NDArray[np.float64], bounds: NDArray[np.float64], px: float, py: float,
           pz: float, r2: float) -> NDArray[np.intp]:  # pragma: no cover - compiled
     out = np.empty(c.shape[0], np.intp)
     found = 0
     for b in range(bounds.shape[0]):
-        # the box's nearest point; NaN bounds compare false and leave the offset at 0
-        bx = by = bz = 0.0
-        if px < bounds[b, 0, 0]:
-            bx = bounds[b, 0, 0] - px
-        elif px > bounds[b, 1, 0]:
-            bx = bounds[b, 1, 0] - px
-        if py < bounds[b, 0, 1]:
-            by = bounds[b, 0, 1] - py
-        elif py > bounds[b, 1, 1]:
-            by = bounds[b, 1, 1] - py
-        if pz < bounds[b, 0, 2]:
-            bz = bounds[b, 0, 2] - pz
-        elif pz > bounds[b, 1, 2]:
-            bz = bounds[b, 1, 2] - pz
+        bx = _gap(px, bounds[b, 0, 0], bounds[b, 1, 0])
+        by = _gap(py, bounds[b, 0, 1], bounds[b, 1, 1])
+        bz = _gap(pz, bounds[b, 0, 2], bounds[b, 1, 2])
         if not bx * bx + by * by + bz * bz <= r2:
             continue
         for i in range(b * BLOCK, min((b + 1) * BLOCK, c.shape[0])):

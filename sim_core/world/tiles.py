@@ -96,7 +96,8 @@ class TiledForest:
         self._range = None if dom is None else (*self.tile_of(dom[0], dom[1]),
                                                 *self.tile_of(dom[2], dom[3]))
         self._cache: OrderedDict[TileKey, Tile] = OrderedDict()
-        #: per cached tile, the boxes of its leaf blocks (:func:`~sim_core.world.ball.block_bounds`)
+        #: per cached tile gathered from, the boxes of its leaf blocks
+        #: (:func:`~sim_core.world.ball.block_bounds`)
         self._bounds: dict[TileKey, NDArray[np.float64]] = {}
         self._bytes: dict[TileKey, int] = {}
         self._total = 0
@@ -158,21 +159,22 @@ class TiledForest:
             return hit
         got = self.source(tile)
         self._cache[tile] = got
-        self._bounds[tile] = block_bounds(got.leaves.centers)
         self._account(tile, got)
         self._evict()
         return got
 
     def _account(self, tile: TileKey, got: Tile) -> None:
         if tile in self._cache:
-            new = got.leaves.nbytes + self._bounds[tile].nbytes + TILE_OVERHEAD_BYTES
+            boxes = self._bounds.get(tile)
+            new = (got.leaves.nbytes + (0 if boxes is None else boxes.nbytes)
+                   + TILE_OVERHEAD_BYTES)
             self._total += new - self._bytes.get(tile, 0)
             self._bytes[tile] = new
 
     def _evict(self) -> None:
         while self._cache and self._total > self.max_cache_bytes:
             old, _ = self._cache.popitem(last=False)
-            del self._bounds[old]
+            self._bounds.pop(old, None)
             self._total -= self._bytes.pop(old)
             self.evictions += 1
 
@@ -224,11 +226,13 @@ class TiledForest:
         offset = 0
         for t in self.tiles_near(p, radius_m):
             tile = self._get(t)
-            self._account(t, tile)  # a tile evicted on arrival stays out
             leaves = tile.leaves
-            bounds = self._bounds.get(t)  # None for a tile evicted on arrival
-            if bounds is None:
+            bounds = self._bounds.get(t)
+            if bounds is None:  # the first gather from it: boxed, and kept while it is cached
                 bounds = block_bounds(leaves.centers)
+                if t in self._cache:
+                    self._bounds[t] = bounds
+            self._account(t, tile)  # a tile evicted on arrival stays out
             rows = ball_rows(leaves.centers, bounds, p, radius_m)
             if rows.shape[0]:
                 parts.append(Leaves(leaves.centers.take(rows, axis=0),
