@@ -96,7 +96,7 @@ class TiledForest:
         self._range = None if dom is None else (*self.tile_of(dom[0], dom[1]),
                                                 *self.tile_of(dom[2], dom[3]))
         self._cache: OrderedDict[TileKey, Tile] = OrderedDict()
-        #: per cached tile gathered from, the boxes of its leaf blocks
+        #: per cached tile gathered from or ensured, the boxes of its leaf blocks
         #: (:func:`~sim_core.world.ball.block_bounds`)
         self._bounds: dict[TileKey, NDArray[np.float64]] = {}
         self._bytes: dict[TileKey, int] = {}
@@ -139,8 +139,10 @@ class TiledForest:
         return self._get(tile).leaves
 
     def ensure(self, tile: TileKey) -> Tile:
-        """Tile ``tile`` cached (so a later query does not pay for building it)."""
+        """Tile ``tile`` cached and boxed for the gather (so a later query does not pay for
+        building it, nor for its boxes)."""
         got = self._get(tile)
+        self._boxes(tile, got)
         self._account(tile, got)
         self._evict()
         return got
@@ -162,6 +164,16 @@ class TiledForest:
         self._account(tile, got)
         self._evict()
         return got
+
+    def _boxes(self, tile: TileKey, got: Tile) -> NDArray[np.float64]:
+        """The boxes of ``got``'s leaf blocks: built the first time, kept while it is cached
+        (not for a tile evicted on arrival)."""
+        bounds = self._bounds.get(tile)
+        if bounds is None:
+            bounds = block_bounds(got.leaves.centers)
+            if tile in self._cache:
+                self._bounds[tile] = bounds
+        return bounds
 
     def _account(self, tile: TileKey, got: Tile) -> None:
         if tile in self._cache:
@@ -227,11 +239,7 @@ class TiledForest:
         for t in self.tiles_near(p, radius_m):
             tile = self._get(t)
             leaves = tile.leaves
-            bounds = self._bounds.get(t)
-            if bounds is None:  # the first gather from it: boxed, and kept while it is cached
-                bounds = block_bounds(leaves.centers)
-                if t in self._cache:
-                    self._bounds[t] = bounds
+            bounds = self._boxes(t, tile)
             self._account(t, tile)  # a tile evicted on arrival stays out
             rows = ball_rows(leaves.centers, bounds, p, radius_m)
             if rows.shape[0]:

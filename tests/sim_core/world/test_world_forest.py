@@ -237,8 +237,8 @@ def test_tiled_cache_is_bounded_and_unbounded_worlds_work() -> None:
 
 
 def _charged(world: TiledForest) -> int:
-    """What the cache should charge when every cached tile was gathered from: leaf arrays,
-    their blocks' boxes, 1 KiB a tile."""
+    """What the cache should charge when every cached tile was gathered from or ensured: leaf
+    arrays, their blocks' boxes, 1 KiB a tile."""
     return sum(world.tile(t).nbytes + block_bounds(world.tile(t).centers).nbytes + 1024
                for t in world.cached_tiles)
 
@@ -261,9 +261,11 @@ def test_a_bounded_forest_visits_only_its_own_tiles_and_a_source_stands_in_for_b
     world.forget((1, 1))
     assert (1, 1) not in world.cached_tiles
     assert world.cache_bytes == _charged(world)
-    tile = world.ensure((1, 1))  # fetched again; boxed only when gathered from
+    world.tile((1, 1))  # fetched again, not boxed: only gathers and ensure() box a tile
+    assert world.cache_bytes == _charged(world) - block_bounds(world.tile((1, 1)).centers).nbytes
+    tile = world.ensure((1, 1))  # boxed ahead of the gathers
     assert built.count((1, 1)) == 2 and (1, 1) in world.cached_tiles
-    assert world.cache_bytes == _charged(world) - block_bounds(tile.leaves.centers).nbytes
+    assert world.cache_bytes == _charged(world)
     assert tile.leaves.nbytes == 60 * len(tile.leaves)
 
 
