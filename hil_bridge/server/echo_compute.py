@@ -53,6 +53,8 @@ Region = tuple[tuple[float, float, float], float]
 MAX_POINT_TILES = 64
 #: time kept free after an echo for publishing it (s)
 PUBLISH_MARGIN_S = 1e-3
+#: echoes a deadline planner gives up in a row before it tries one on the cost model alone
+PROBE_AFTER = 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -134,15 +136,26 @@ class DeadlinePlanner:
     """Decides, for an echo with a deadline, between the scene's fidelity, ``realtime`` within
     the time left, or nothing. Its prediction is the cost model (``fast``; a ``realtime``
     sonar's own budget) times the ratio of measured to predicted times of this worker's last
-    32 echoes of that fidelity (machine speed and load, this scene's leaves; 1 until known)."""
+    32 echoes of that fidelity (machine speed and load, this scene's leaves; 1 until known).
+
+    A ratio is only measured on echoes computed, so one slow echo (the first of a process,
+    cold) could stop every later one: after :data:`PROBE_AFTER` echoes in a row it gave up
+    (:meth:`refused`), it plans the next with the cost model alone, and what that echo measures
+    joins the ratios."""
 
     def __init__(self, cost: EchoCost = COST) -> None:
         self.cost = cost
         self._ratios: dict[str, deque[float]] = {}
+        self._refused = 0
 
     def scale(self, fidelity: str) -> float:
         ratios = self._ratios.get(fidelity)
-        return float(statistics.median(ratios)) if ratios else 1.0
+        return float(statistics.median(ratios)) if ratios and not self.probing else 1.0
+
+    @property
+    def probing(self) -> bool:
+        """Whether the next echo is planned with the cost model alone (class docstring)."""
+        return self._refused >= PROBE_AFTER
 
     def budget_scale(self) -> float:
         """Measured / planned time of ``realtime`` echoes (else of ``fast``: the same model)."""
@@ -151,7 +164,12 @@ class DeadlinePlanner:
                 return self.scale(name)
         return 1.0
 
+    def refused(self) -> None:
+        """An echo was given up: its predicted time did not fit before its deadline."""
+        self._refused += 1
+
     def observe(self, fidelity: str, predicted_s: float, measured_s: float) -> None:
+        self._refused = 0
         if predicted_s > 0 and measured_s > 0:
             self._ratios.setdefault(fidelity, deque(maxlen=32)).append(measured_s / predicted_s)
 
@@ -196,6 +214,7 @@ def answer_echo(
             scale = planner.budget_scale()
             budget = left / scale
             if budget <= planner.cost.overhead_s * params.channels:
+                planner.refused()
                 return None
             fidelity, predicted = "realtime", budget
             # Doppler is the reference fidelity's only: a degraded echo goes without

@@ -18,7 +18,16 @@ import pytest
 from hil_bridge.bus.domain import Domain, shared_root
 from hil_bridge.bus.messages import SonarPing
 from hil_bridge.files.scene import load_scene
-from hil_bridge.server.echo_compute import EchoRequest, EchoResult, SonarPose, compute_echo
+from hil_bridge.server.echo_compute import (
+    PROBE_AFTER,
+    DeadlinePlanner,
+    EchoJob,
+    EchoRequest,
+    EchoResult,
+    SonarPose,
+    answer_echo,
+    compute_echo,
+)
 from hil_bridge.server.echo_pool import WORKER_NAME
 from hil_bridge.server.echo_service import EchoService
 from hil_bridge.server.shared_tiles import SharedTiles, stores_of
@@ -171,6 +180,25 @@ def test_an_echo_that_cannot_be_ready_in_time_is_degraded_or_dropped_and_counted
     assert sink.dropped == [late]
     st = svc.stats()
     assert (st["expired"], st["degraded"], st["answered"]) == (1, 1, 1)
+
+
+def test_one_slow_echo_does_not_stop_the_echoes_after_it() -> None:
+    """The planner scales the cost model by the ratios its echoes measured: after a slow first
+    echo (a cold process) every later one is predicted not to fit and given up, so nothing new
+    is measured. After PROBE_AFTER echoes given up in a row it tries one on the model alone,
+    and that echo's measurement brings the ratio back."""
+    scene = load_scene(SCENE)
+    planner = DeadlinePlanner()
+    job = EchoJob(0, np.array([2.0, 5.0, 2.0]), quat_from_euler(0.0, 0.0, 0.0), 0.0, 0.0,
+                  0.5, deadline=time.monotonic() + 0.25)
+    planner.observe("fast", 1e-3, 10.0)  # ten thousand times the model's time
+    for _ in range(PROBE_AFTER):
+        assert answer_echo(scene, job, planner) is None
+    assert planner.probing and planner.scale("fast") == 1.0
+    probe = answer_echo(scene, dataclasses.replace(job, deadline=time.monotonic() + 0.25),
+                        planner)
+    assert probe is not None and not probe.degraded and not planner.probing
+    assert planner.scale("fast") < 1e4  # the median of the outlier and the probe's ratio
 
 
 def test_without_deadlines_each_sonar_keeps_its_own_bounded_queue() -> None:
