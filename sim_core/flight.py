@@ -226,8 +226,8 @@ class FlightModel:
         self.glide: B8 = np.asarray(glide, dtype=bool)
         self.any_glide = bool(self.glide.any())
         self.A, self.B, self.C = (arr(c) for c in polar)
-        self._polar_flat: dict[tuple[int, ...], tuple[F8, F8, F8]] = {}
         self.g, self.ceiling, self.floor = arr(g), arr(ceiling), arr(floor)
+        self._tables: dict[tuple[int, ...], tuple[F8, B8]] = {}
         #: longest sub-step :meth:`step` takes, s: half the fastest time constant (RK4 is
         #: stable on a first-order lag up to 2.78 τ; at τ/2 its error there is 3e-4 per step)
         self.max_substep = 0.5 * float(min(np.min(self.bank_tau), np.min(self.speed_tau)))
@@ -254,36 +254,44 @@ class FlightModel:
         )
 
     # -- the right-hand side -----------------------------------------------------------------
+    def _table(self, shape: tuple[int, ...]) -> tuple[F8, B8]:
+        """The parameters broadcast to the state shape ``S`` and flattened, built once per
+        shape: (:data:`~sim_core.soaring.kernels.FP_ROWS`, M) rows ``FP_*`` of the compiled
+        kernels, and the glide mask (M,)."""
+        table = self._tables.get(shape)
+        if table is None:
+            rows = (self.bank_tau, self.bank_rate_max, self.speed_tau, self.speed_rate_max,
+                    self.A, self.B, self.C, self.g, self.floor, self.ceiling)
+            fp = np.stack([np.broadcast_to(r, shape).ravel() for r in rows]).astype(np.float64)
+            glide = np.ascontiguousarray(np.broadcast_to(self.glide, shape).ravel())
+            table = self._tables[shape] = (fp, glide)
+        return table
+
     def _sink(self, speed: F8, bank: F8) -> F8:
         """Polar sink (< 0), m/s: (A V² + B V + C) / √cos φ, the seed's compiled kernel (that
-        of :func:`sim_core.soaring.sink_rate`, called on flat arrays with the polar
-        coefficients flattened once per state shape)."""
+        of :func:`sim_core.soaring.sink_rate`)."""
         shape = np.broadcast_shapes(np.shape(speed), np.shape(bank))
+        fp = self._table(shape)[0]
 
-        def flat(a: ArrayLike) -> F8:  # a writable copy: the kernel's compiled signature
+        def flat(a: ArrayLike) -> F8:  # a contiguous copy: the kernel's compiled signature
             return np.array(np.broadcast_to(a, shape), dtype=np.float64).ravel()
 
-        abc = self._polar_flat.get(shape)
-        if abc is None:
-            abc = self._polar_flat[shape] = (flat(self.A), flat(self.B), flat(self.C))
-        v, b = flat(speed), flat(bank)
-        return np.asarray(kernels.sink_many(v, b, *abc)).reshape(shape)
+        return np.asarray(kernels.sink_many(flat(speed), flat(bank), fp[kernels.FP_A],
+                                            fp[kernels.FP_B], fp[kernels.FP_C])).reshape(shape)
 
     def derivative(self, y: F8, u: F8, w: F8 | float = 0.0) -> F8:
         """``dy/dt`` ``(6, *S)`` of states ``y (6, *S)`` under commands ``u (2, *S)`` with the
-        updraft ``w`` (m/s, broadcastable to ``S``) at the vehicles."""
-        psi, bank, v = y[HEADING], y[BANK], y[SPEED]
-        dy = np.empty((STATE_ROWS, *np.broadcast_shapes(y.shape[1:], u.shape[1:])))
-        np.multiply(v, np.cos(psi), out=dy[X])
-        np.multiply(v, np.sin(psi), out=dy[Y])
-        if self.any_glide:
-            dy[Z] = np.where(self.glide, self._sink(v, bank) + w, 0.0)
-        else:
-            dy[Z] = 0.0
-        dy[HEADING] = self.g * np.tan(bank) / v
-        dy[BANK] = np.clip((u[0] - bank) / self.bank_tau, -self.bank_rate_max, self.bank_rate_max)
-        dy[SPEED] = np.clip((u[1] - v) / self.speed_tau, -self.speed_rate_max,
-                            self.speed_rate_max)
+        updraft ``w`` (m/s, broadcastable to ``S``) at the vehicles: one compiled pass
+        (:func:`sim_core.soaring.kernels.flight_rhs`)."""
+        shape = np.broadcast_shapes(np.shape(y)[1:], np.shape(u)[1:])
+        fp, glide = self._table(shape)
+        yf = np.ascontiguousarray(np.broadcast_to(y, (STATE_ROWS, *shape)), dtype=np.float64)
+        uf = np.ascontiguousarray(np.broadcast_to(u, (2, *shape)), dtype=np.float64)
+        wf = np.ascontiguousarray(np.broadcast_to(w, shape), dtype=np.float64)
+        m = glide.size
+        dy = np.empty((STATE_ROWS, *shape))
+        kernels.flight_rhs(yf.reshape(STATE_ROWS, m), uf.reshape(2, m), wf.reshape(m), fp,
+                           glide, dy.reshape(STATE_ROWS, m))
         return dy
 
     def fun(self, u: ArrayLike, updraft: Updraft | None = None) -> Callable[[float, F8], F8]:
@@ -311,7 +319,8 @@ class FlightModel:
     ) -> tuple[F8, B8]:
         """Fly ``dt`` s from ``y (6, *S)`` under commands ``u (2, *S)`` (held): ``substeps``
         RK4 steps of ``dt / substeps`` (more if that exceeds :attr:`max_substep`), the height
-        limits applied after each.
+        limits applied after each (compiled: :func:`~sim_core.soaring.kernels.flight_rhs`,
+        ``flight_stage``, ``flight_finish``; ``updraft`` is called at each stage's positions).
 
         ``active`` (``S``, default all): vehicles to fly; the others keep their state. Returns
         the new state and the mask of vehicles grounded during this step (z reached 0 while
@@ -321,30 +330,43 @@ class FlightModel:
         if not dt >= 0:
             raise ValueError(f"dt: expected >= 0 s, got {dt}")
         cur = np.array(y, dtype=np.float64)
-        uu = np.asarray(u, dtype=np.float64)
-        live = np.ones(cur.shape[1:], dtype=bool) if active is None else np.array(active)
-        grounded = np.zeros(cur.shape[1:], dtype=bool)
+        shape = cur.shape[1:]
+        live = (np.ones(shape, dtype=bool) if active is None
+                else np.array(np.broadcast_to(active, shape), dtype=bool))
+        grounded = np.zeros(shape, dtype=bool)
         if dt == 0 or not live.any():
             return cur, grounded
         substeps = max(substeps, math.ceil(dt / self.max_substep - 1e-9))
-        fun = self.fun(uu, updraft)
+        fp, glide = self._table(shape)
+        m = glide.size
+        c = cur.reshape(STATE_ROWS, m)
+        uf = np.ascontiguousarray(np.broadcast_to(np.asarray(u, dtype=np.float64),
+                                                  (2, *shape))).reshape(2, m)
+        lf, gf = live.reshape(m), grounded.reshape(m)
+        k = np.empty((4, STATE_ROWS, m))
+        stage = np.empty((STATE_ROWS, m))
+        still = np.zeros(m)
+        winds = updraft is not None and self.any_glide
+
+        def rhs(state: F8, out: F8) -> None:
+            w = still
+            if winds:
+                assert updraft is not None
+                w = np.ascontiguousarray(np.broadcast_to(
+                    updraft(state[X : Y + 1].reshape(2, *shape)), shape),
+                    dtype=np.float64).reshape(m)
+            kernels.flight_rhs(state, uf, w, fp, glide, out)
+
         h = dt / substeps
-        for i in range(substeps):
-            t = i * h
-            k1 = fun(t, cur)
-            k2 = fun(t + h / 2, cur + (h / 2) * k1)
-            k3 = fun(t + h / 2, cur + (h / 2) * k2)
-            k4 = fun(t + h, cur + h * k3)
-            new = cur + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            if self.any_glide:
-                z = new[Z]
-                below = self.glide & (z < self.floor)
-                hit = below & (z <= 0.0) & live
-                new[Z] = np.where(self.glide & (z > self.ceiling), self.ceiling,
-                                  np.where(below, self.floor, z))
-                grounded |= hit
-                live = live & ~hit
-            cur = np.where(live, new, cur)
+        for _ in range(substeps):
+            rhs(c, k[0])
+            kernels.flight_stage(c, h / 2, k[0], stage)
+            rhs(stage, k[1])
+            kernels.flight_stage(c, h / 2, k[1], stage)
+            rhs(stage, k[2])
+            kernels.flight_stage(c, h, k[2], stage)
+            rhs(stage, k[3])
+            kernels.flight_finish(c, k[0], k[1], k[2], k[3], h, fp, glide, lf, gf)
         return cur, grounded
 
     # -- what a state implies ----------------------------------------------------------------

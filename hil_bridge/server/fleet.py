@@ -152,6 +152,11 @@ class Fleet:
 
     # -- stepping ----------------------------------------------------------------------------
     @property
+    def flies(self) -> bool:
+        """Whether the flight model flies any vehicle (a swarm, or a commanded vehicle)."""
+        return self.swarm is not None or self._vmodel is not None
+
+    @property
     def t_ns(self) -> int:
         return self.tick * self.tick_ns
 

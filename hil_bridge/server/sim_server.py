@@ -309,6 +309,11 @@ class SimServer:
             self._pubs[f"/glider/{gid}/neighbors"] = node.create_publisher(
                 GliderNeighbors, f"/glider/{gid}/neighbors", qos=SENSOR
             )
+        if self.fleet.flies:
+            # the flight kernels loaded now, not on the tick that first flies a vehicle
+            from sim_core.soaring import warm_up
+
+            warm_up()
         # the state of tick 0 before any callback can run: the first ping has a pose
         first = self.fleet.states()
         nodes_ok = self.clock_spec.mode != "lockstep" and not self.bus.startswith("mem://")
