@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+import io
+import json
 import statistics
+import subprocess
+import sys
+import tarfile
 import time
 import tracemalloc
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
+
+#: the repository (benchmarks run from a clone: ``git archive`` finds their baselines there)
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def time_it(
@@ -58,3 +67,24 @@ def table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
     return "\n".join(out)
+
+
+def python_json(code: str, *args: str, env: dict[str, str] | None = None) -> dict[str, Any]:
+    """Run ``code`` in a fresh interpreter (argv ``args``, from the repository) and return the
+    JSON object its last output line holds."""
+    out = subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True,
+                         text=True, env=env, cwd=ROOT)
+    return dict(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def git_tree(commit: str, dest: Path, paths: Sequence[str] = ("sim_core",)) -> bool:
+    """Extract ``paths`` of ``commit`` into ``dest`` (a baseline measured in the same run as
+    today's code); False where git or the commit is absent (e.g. a tarball, a shallow clone)."""
+    try:
+        tar = subprocess.run(["git", "-C", str(ROOT), "archive", commit, *paths], check=True,
+                             capture_output=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return False
+    with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
+        tf.extractall(dest, filter="data")
+    return True

@@ -17,11 +17,20 @@ controller every 0.5 s, the gliders integrated at the given rate in between): me
 the seeds, and the mean ± sd of the per-seed difference (continuous − discrete). Two more
 continuous rows check where the differences come from: half the integration rate, and near-
 instant bank and airspeed responses (τ = 0.05 s, no rate limits).
+
+**Cost of a step.** CPU time of one :meth:`~sim_core.flight.FlightModel.step` (one RK4 step of
+4 ms, the 250 Hz server's tick, in the seed's thermal field) and of one
+:meth:`~sim_core.flight.FlightModel.outputs`, for the 9 vehicles of the demo and the seed law's
+40 gliders: the median over 3 fresh processes of each one's median of 15 repeats of 500 calls,
+beside the same probe on the numpy step it replaced (``git archive e35bd35 sim_core``),
+the two alternating in the same run.
 """
 
 from __future__ import annotations
 
 import math
+import statistics
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -29,7 +38,7 @@ from typing import Any
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from bench._util import table
+from bench._util import ROOT, git_tree, python_json, table
 from sim_core.continuous_swarm import run_continuous
 from sim_core.flight import FlightModel, FlightParams, X, Y, Z
 from sim_core.rng import make_rng
@@ -37,6 +46,48 @@ from sim_core.soaring import Law, run_batch
 from sim_core.soaring.thermals import spawn_thermals, updraft
 
 TITLE = "Continuous flight: error vs dt, seed law discrete vs continuous"
+
+#: The baseline of the step's cost: the last commit whose flight step was numpy, before the
+#: compiled right-hand side and RK4 sub-step (sim_core/soaring/kernels.py, ``flight_*``).
+BASELINE_COMMIT = "e35bd35"
+#: probe runs per tree, alternating between the two trees
+ROUNDS = 3
+
+#: Timed in a subprocess against the ``sim_core`` in argv[1]: µs of CPU per step and per
+#: outputs call, for each vehicle count, medians of 15 repeats of 500 calls after a warm-up.
+_STEP_PROBE = """
+import json, statistics, sys, time
+sys.path.insert(0, sys.argv[1])
+import numpy as np
+from sim_core.flight import FlightModel, FlightParams
+from sim_core.rng import make_rng
+from sim_core.soaring import Law
+from sim_core.soaring.thermals import spawn_thermals, updraft
+
+law = Law()
+th = spawn_thermals(law, make_rng(0))
+out = {}
+for n in (9, 40):
+    model = FlightModel.from_params([FlightParams()] * n, glide=[True] * n,
+                                    polar=(law.Sink_A, law.Sink_B, law.Sink_C), g=law.g)
+    rng = make_rng(2)
+    y = np.stack([rng.uniform(-500, 500, n), rng.uniform(-500, 500, n), np.full(n, 800.0),
+                  rng.uniform(-3, 3, n), rng.uniform(-0.3, 0.3, n), np.full(n, 10.0)])
+    u = np.stack([rng.uniform(-0.3, 0.3, n), rng.uniform(8, 13, n)])
+    field = lambda xy: updraft(np.moveaxis(xy, 0, -1)[None], th)[0]
+    def per_call(fn, k=500):
+        fn()
+        reps = []
+        for _ in range(15):
+            c0 = time.process_time()
+            for _ in range(k):
+                fn()
+            reps.append((time.process_time() - c0) / k * 1e6)
+        return statistics.median(reps)
+    out[n] = [per_call(lambda: model.step(y, u, 0.004, updraft=field)),
+              per_call(lambda: model.outputs(y, u, field(y[:2])))]
+print(json.dumps(out))
+"""
 
 GLIDERS = 20
 T_END = 60.0
@@ -146,7 +197,35 @@ def _metrics(seeds: list[int]) -> str:
                   f"{results[1][0]} − discrete (paired)"], rows)
 
 
+def _step_cost() -> str:
+    runs: dict[str, list[dict[str, list[float]]]] = {"new": [], "old": []}
+    with tempfile.TemporaryDirectory(prefix="echoloop-bench-") as tmp:
+        trees = {"new": str(ROOT)}
+        if git_tree(BASELINE_COMMIT, Path(tmp)):
+            trees["old"] = tmp
+        for _ in range(ROUNDS):  # interleaved: the machine's speed drifts within minutes
+            for key, tree in trees.items():
+                runs[key].append(python_json(_STEP_PROBE, tree))
+
+    def cell(key: str, n: str, k: int) -> float:
+        return statistics.median(r[n][k] for r in runs[key])
+
+    rows = []
+    for n in ("9", "40"):
+        for k, what in enumerate(("step (RK4, 4 ms)", "outputs")):
+            new = cell("new", n, k)
+            if runs["old"]:
+                old = cell("old", n, k)
+                rows.append([n, what, f"{old:.1f}", f"{new:.1f}", f"{new / old:.2f}"])
+            else:
+                rows.append([n, what, "—", f"{new:.1f}", "—"])
+    return table(["vehicles", "call", f"numpy ({BASELINE_COMMIT}) µs", "compiled µs",
+                  "compiled / numpy"], rows)
+
+
 def run(out_dir: Path) -> str:
+    cost = _step_cost()
     conv = _convergence()
     text = _metrics(list(range(SEEDS)))
-    return f"{__doc__}\n{conv}\n\nSeed law, seeds 0..{SEEDS - 1} (mean ± sd):\n\n{text}\n"
+    return (f"{__doc__}\n{conv}\n\nSeed law, seeds 0..{SEEDS - 1} (mean ± sd):\n\n{text}\n"
+            f"\nCost of a step (CPU µs per call, same run):\n\n{cost}\n")

@@ -4,20 +4,14 @@ compile and cold-start cost, the dt speed/accuracy trade, and the seed 002 trend
 
 from __future__ import annotations
 
-import io
-import json
 import os
-import subprocess
-import sys
-import tarfile
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from bench._util import fmt_s, table
+from bench._util import fmt_s, git_tree, python_json, table
 from hil_bridge.plots.soaring import plot_survival_histograms, plot_trends
 from sim_core.soaring import Law, run_batch
 from sim_core.soaring import run as run_one
@@ -82,32 +76,14 @@ print(json.dumps({"import": [c1 - c0, t1 - t0], "first": [c2 - c1, t2 - t1],
 """
 
 
-def _python(code: str, *args: str, env: dict[str, str] | None = None) -> dict[str, Any]:
-    out = subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True,
-                         text=True, env=env, cwd=ROOT)
-    return dict(json.loads(out.stdout.strip().splitlines()[-1]))
-
-
-def _baseline_tree(dest: Path) -> bool:
-    """Extract ``sim_core`` of BASELINE_COMMIT into dest; False if git or the commit is absent."""
-    try:
-        tar = subprocess.run(["git", "-C", str(ROOT), "archive", BASELINE_COMMIT, "sim_core"],
-                             check=True, capture_output=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return False
-    with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
-        tf.extractall(dest, filter="data")
-    return True
-
-
 def _cost(lines: list[str]) -> None:
-    new = _python(_PROBE, str(ROOT), "5")
+    new = python_json(_PROBE, str(ROOT), "5")
     with tempfile.TemporaryDirectory(prefix="echoloop-bench-") as tmp:
-        old = _python(_PROBE, tmp, "3") if _baseline_tree(Path(tmp)) else None
+        old = python_json(_PROBE, tmp, "3") if git_tree(BASELINE_COMMIT, Path(tmp)) else None
         cache = Path(tmp) / "numba-cache"
         env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
-        cold = _python(_COLD, env=env)
-        warm = _python(_COLD, env=env)
+        cold = python_json(_COLD, env=env)
+        warm = python_json(_COLD, env=env)
     lines.append(
         "One run = 40 gliders × 7200 s at dt 0.5 (14,400 steps), the packaged seed law, flown by "
         "the compiled kernel (`sim_core/soaring/kernels.py`, numba). Baseline, measured in the "
