@@ -8,6 +8,14 @@ convolution of 64 Ki-sample signals), as the server's echo worker does. The base
 the same run under the same load, is a raw pyzmq PUB → SUB pair (no proxy, no codec, no node
 threads) sending the same bytes at the same rate; a third row sends them with raw pyzmq
 through a proxy, to separate the topology's cost from the bridge's.
+
+A node's receive cost: a feeder process runs a proxy and publishes what the 250 Hz demo's
+server does (``/clock`` and 8 glider states at 250 Hz, 2,250 messages a second); a subscriber
+:class:`~hil_bridge.bus.node.Node` with empty callbacks runs in a process of its own, and its
+process's CPU time and context switches (all its threads, ``/proc/self/task/*/status``) per
+message are measured over 8 s after 2 s of warm-up. Baseline: the same probe on the executor
+before its fast mode (``git archive e35bd35 hil_bridge sim_core``), alternating with today's
+code in the same run, 2 runs each (medians).
 """
 
 from __future__ import annotations
@@ -21,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import zmq
 
-from bench._util import fmt_s, median, table, time_it
+from bench._util import ROOT, fmt_s, git_tree, median, python_json, table, time_it
 from hil_bridge.bus.codec import Envelope, decode, encode
 from hil_bridge.bus.messages import GliderState, Message, SonarEcho
 from hil_bridge.bus.node import Node
@@ -32,6 +40,70 @@ TITLE = "Bus: state-path latency, recorder throughput, codec costs"
 
 RATE_HZ = 250.0
 RUN_S = 20.0
+
+#: the executor before fast mode (hil_bridge/bus/executor.py): each message handed between its
+#: two workers
+RX_BASELINE_COMMIT = "e35bd35"
+#: publishes the demo's 250 Hz state stream through a proxy of its own: argv domain number
+_FEEDER = """
+import sys, time
+from hil_bridge.bus.domain import Domain
+from hil_bridge.bus.messages import Clock, GliderState
+from hil_bridge.bus.node import Node
+from hil_bridge.bus.proxy import Proxy
+from hil_bridge.bus.transport.zmq import parse_zmq_url
+url = Domain(int(sys.argv[1])).bus_url
+ends = parse_zmq_url(url)
+with Proxy(ends.pub, ends.sub):
+    node = Node("feeder", bus=url, diagnostics_period_s=0).start()
+    clock = node.create_publisher(Clock, "/clock")
+    pubs = [node.create_publisher(GliderState, f"/glider/{i}/state") for i in range(8)]
+    print("ready", flush=True)
+    t0, k = time.monotonic(), 0
+    while True:
+        time.sleep(max(0.0, t0 + k / 250.0 - time.monotonic()))
+        clock.publish(Clock(stamp_ns=k * 4_000_000))
+        for i, p in enumerate(pubs):
+            p.publish(GliderState(stamp_ns=k * 4_000_000, x=float(i), y=2.0, z=40.0,
+                                  heading=0.3, bank=0.2, airspeed=10.0, vz=-0.6, glider_id=i,
+                                  step=k, roll=-0.2, pitch=0.05, yaw=0.3, qw=1.0, qx=0.0,
+                                  qy=0.0, qz=0.0, roll_rate=0.0, pitch_rate=0.0, yaw_rate=0.2))
+        k += 1
+"""
+#: a Node taking the feeder's 9 topics, against the hil_bridge in argv[1]: CPU and context
+#: switches of this process per message
+_RX_PROBE = """
+import json, os, sys, time
+sys.path.insert(0, sys.argv[1])
+from hil_bridge.bus.messages import Clock, GliderState
+from hil_bridge.bus.node import Node
+count = [0]
+def cb(msg):
+    count[0] += 1
+def switches():
+    total = 0
+    for t in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{t}/status") as f:
+                total += sum(int(l.split(":")[1]) for l in f if "ctxt_switches" in l)
+        except OSError:
+            pass
+    return total
+node = Node("probe", bus=sys.argv[2], diagnostics_period_s=0)
+node.create_subscription(Clock, "/clock", cb)
+for i in range(8):
+    node.create_subscription(GliderState, f"/glider/{i}/state", cb)
+node.start()
+time.sleep(2.0)
+t, n, x, w = os.times(), count[0], switches(), time.monotonic()
+time.sleep(8.0)
+t2, n2, x2, w2 = os.times(), count[0], switches(), time.monotonic()
+node.stop()
+msgs = max(n2 - n, 1)
+print(json.dumps({"rate": msgs / (w2 - w),
+                  "cpu_us": 1e6 * (t2.user + t2.system - t.user - t.system) / msgs,
+                  "ctx": (x2 - x) / msgs}))
+"""
 
 
 def _state(i: int) -> GliderState:
@@ -234,7 +306,44 @@ def _codec_row(label: str, msg: Message, frames: list[bytes]) -> list[str]:
     return [label, f"{sum(len(f) for f in frames)} B", fmt_s(t_enc), fmt_s(t_dec)]
 
 
+def _receive_cost() -> str:
+    """The node receive-cost table (module docstring)."""
+    import subprocess
+    import sys
+
+    from hil_bridge.bus.domain import claim_first_free
+
+    runs: dict[str, list[dict[str, float]]] = {"today": [], "before": []}
+    with tempfile.TemporaryDirectory(prefix="echoloop-bench-") as tmp, \
+            claim_first_free() as (dom, _):
+        trees = {"today": str(ROOT)}
+        if git_tree(RX_BASELINE_COMMIT, Path(tmp), ("hil_bridge", "sim_core")):
+            trees["before"] = tmp
+        feeder = subprocess.Popen([sys.executable, "-c", _FEEDER, str(dom.number)], cwd=ROOT,
+                                  stdout=subprocess.PIPE, text=True)
+        try:
+            assert feeder.stdout is not None
+            feeder.stdout.readline()
+            for _ in range(2):
+                for key, tree in trees.items():
+                    runs[key].append(python_json(_RX_PROBE, tree, dom.bus_url))
+        finally:
+            feeder.kill()
+            feeder.wait()
+
+    def cells(key: str) -> list[str]:
+        if not runs[key]:
+            return ["—", "—", "—"]
+        return [f"{median([r[k] for r in runs[key]]):{f}}"
+                for k, f in (("rate", ".0f"), ("cpu_us", ".1f"), ("ctx", ".2f"))]
+
+    return table(["subscriber", "messages/s", "CPU µs per message", "context switches per message"],
+                 [[f"executor of {RX_BASELINE_COMMIT} (a hand-off per message)", *cells("before")],
+                  ["today's executor (fast mode from 200 messages/s)", *cells("today")]])
+
+
 def run(out_dir: Path) -> str:
+    rx_cost = _receive_cost()
     n = int(RUN_S * RATE_HZ)
     state, echo = _state(7), _echo()
     state_frames = encode("/glider/0/state", state, seq=1, pub_ns=2)
@@ -291,6 +400,10 @@ def run(out_dir: Path) -> str:
         f"spec's topology requires accounts for {via['p50_ms'] - raw['p50_ms']:.3f} ms (raw "
         "pyzmq through the same kind of proxy); the rest is the bridge's own Python path "
         "(codec, locks, GIL hand-overs with the load thread).",
+        "",
+        "### A node's receive cost: /clock and 8 glider states at 250 Hz",
+        "",
+        rx_cost,
         "",
         "### Recorder throughput (in-process bus → MCAP, zstd, 64 KiB chunks)",
         "",

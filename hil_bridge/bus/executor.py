@@ -9,12 +9,17 @@ The workers run in a leader/follower pattern:
   node's :class:`SimClock`) and the node's periodic duties (``COMMAND`` retransmissions and the
   periodic ``/diagnostics``), one at a time (like rclpy's single-threaded executor).
 
-A leader that receives a message while the executor role is free and nothing is queued hands
-leadership to the other worker and runs the callback itself (no thread hand-off on the latency
-path). Otherwise the message goes to its subscription's keep-last queue (depth from the QoS
-profile; overflow dropped and counted; reliable subscriptions never drop an acknowledged
-message). Since a callback always leaves the other worker free to lead, a slow callback costs
-drops on its own queue, never stalled reception.
+A leader keeps leading from one message to the next. One that receives a message while the
+executor role is free and nothing is queued runs the callback itself (no thread hand-off on the
+latency path). At a low message rate it first hands leadership to the other worker, so that a
+slow callback costs drops on its own queue, never stalled reception. At :data:`FAST_RATE_HZ`
+messages a second or more, waking the other worker for every message would cost more than the
+callbacks (a context switch or two each, on the very cores the loop is short of): the leader
+then runs the callback *keeping* leadership, and the other worker, which wakes every
+:data:`WATCH_S` while the rate lasts, takes reception over if a callback holds it longer than
+that. Reception then stalls for at most about ``WATCH_S`` behind a slow callback. Otherwise
+the message goes to its subscription's keep-last queue (depth from the QoS profile; overflow
+dropped and counted; reliable subscriptions never drop an acknowledged message).
 
 A frame that does not decode (unknown type, newer version, wrong type for the topic, corrupt)
 is dropped and counted as ``decode_errors``: bad input, not a fault. An exception in a
@@ -41,15 +46,18 @@ from hil_bridge.bus.messages import Message
 from hil_bridge.bus.transport import Transport
 from hil_bridge.errors import CodecError
 
-__all__ = ["DECODE_LOG_PERIOD_S", "Executor"]
+__all__ = ["DECODE_LOG_PERIOD_S", "FAST_RATE_HZ", "WATCH_S", "Executor"]
 
 log = logging.getLogger(__name__)
 
 _RX_SLICE_S = 0.02
-#: a leader handles at most this many messages (or _RX_BATCH_S seconds) before handing on
-_RX_BATCH = 256
-_RX_BATCH_S = 0.005
 _MIN_RESET_PERIOD_S = 0.05
+#: messages a second from which the leader runs callbacks inline without handing leadership on
+FAST_RATE_HZ = 200.0
+#: the longest an inline callback holds reception at that rate before the other worker takes it
+WATCH_S = 0.005
+#: how often the leader measures the message rate (s)
+_RATE_WINDOW_S = 0.25
 #: undecodable messages are logged once per topic per this many seconds (with their count)
 DECODE_LOG_PERIOD_S = 10.0
 
@@ -97,6 +105,16 @@ class Executor:
         self._next_reset: dict[bytes, float] = {}
         self._leading = False
         self._busy = False
+        #: fast mode (module docstring): the idle worker watches the leader every WATCH_S
+        self._watch = False
+        #: the leader runs a callback inline, keeping leadership, since _inline_t0
+        self._inline_lead = False
+        self._inline_t0 = 0.0
+        #: bumped when the watching worker takes leadership from an inline callback
+        self._lead_gen = 0
+        #: the message rate's window (kept by whichever worker leads)
+        self._window_t0 = time.monotonic()
+        self._window_n = 0
         self._next_housekeeping = 0.0
         self._next_service = 0.0
         self.stopping = False
@@ -172,12 +190,23 @@ class Executor:
                         self._leading = True
                         mode = "lead"
                         break
-                    wait = self._next_housekeeping - time.monotonic()
+                    now = time.monotonic()
+                    if self._inline_lead and now - self._inline_t0 >= WATCH_S:
+                        # the leader is held up in a callback it runs inline: take reception
+                        # over (the callback keeps the executor role until it returns)
+                        self._inline_lead = False
+                        self._lead_gen += 1
+                        mode = "lead"
+                        break
+                    wait = self._next_housekeeping - now
                     if not self._busy and wait <= 0:
                         self._busy = True
                         mode = "housekeeping"
                         break
-                    cond.wait(wait if wait > 0 else None)
+                    timeout = wait if wait > 0 else None
+                    if self._watch:
+                        timeout = WATCH_S if timeout is None else min(timeout, WATCH_S)
+                    cond.wait(timeout)
             if mode == "lead":
                 inline = self._lead()
                 if inline is not None:
@@ -230,46 +259,70 @@ class Executor:
     # -- reception ---------------------------------------------------------------------------
     def _lead(self) -> tuple[Subscription[Any], Envelope] | None:
         """Receive as the leader: take messages off the transport (decode, deduplicate,
-        acknowledge, queue), up to ``_RX_BATCH`` of them or ``_RX_BATCH_S`` seconds while they
-        keep coming, then hand leadership on. Undecodable messages are dropped and counted here,
-        before they queue. Returns a delivery to run inline (the executor role is then reserved
-        for it): the first one that finds the executor idle and nothing queued."""
-        inline: tuple[Subscription[Any], Envelope] | None = None
+        acknowledge, queue) until the node stops, or until a delivery is to run inline with
+        leadership handed on (returned: the executor role is then reserved for it), or until
+        the other worker took leadership over from a callback run inline here (module
+        docstring). Undecodable messages are dropped and counted here, before they queue."""
         transport = self.transport
         cond = self._cond
+        gen = self._lead_gen
         try:
-            now = time.monotonic()
-            if now >= self._next_service:
-                transport.service(0.0)
-                self._next_service = now + _RX_SLICE_S
-            frames = transport.recv(timeout=_RX_SLICE_S)
-            handled = 0
-            until = time.monotonic() + _RX_BATCH_S
-            while frames is not None and not self.stopping:
+            while not self.stopping:
+                now = time.monotonic()
+                if now >= self._next_service:
+                    transport.service(0.0)
+                    self._next_service = now + _RX_SLICE_S
+                if now - self._window_t0 >= _RATE_WINDOW_S:
+                    self._set_watch(self._window_n / (now - self._window_t0) >= FAST_RATE_HZ)
+                    self._window_t0, self._window_n = now, 0
+                frames = transport.recv(timeout=_RX_SLICE_S)
+                if frames is None:
+                    continue
+                self._window_n += 1
                 subs = self._subs.get(frames[0])
                 deliveries = self._process(subs, frames) if subs else []
-                if deliveries:
-                    with cond:
-                        if (len(deliveries) == 1 and not self._busy and not self._ready_hi
-                                and not self._ready):
-                            self._busy = True
-                            inline = deliveries[0]
-                        else:
-                            for sub, envelope in deliveries:
-                                self._enqueue(sub, envelope)
+                if not deliveries:
+                    continue
+                inline: tuple[Subscription[Any], Envelope] | None = None
+                with cond:
+                    if (len(deliveries) == 1 and not self._busy and not self._ready_hi
+                            and not self._ready):
+                        self._busy = True
+                        inline = deliveries[0]
+                        if not self._watch:
+                            self._leading = False  # the other worker leads meanwhile
                             cond.notify_all()
-                    if inline is not None:
-                        break
-                handled += 1
-                if handled >= _RX_BATCH or (handled & 15 == 0 and time.monotonic() >= until):
-                    break
-                frames = transport.recv(timeout=0.0)
+                            return inline
+                        self._inline_lead, self._inline_t0 = True, time.monotonic()
+                    else:
+                        for sub, envelope in deliveries:
+                            self._enqueue(sub, envelope)
+                        cond.notify_all()
+                if inline is not None:
+                    self._run_callback(*inline)
+                    with cond:
+                        self._busy = False
+                        if self._ready_hi or self._ready:
+                            cond.notify_all()
+                        if gen != self._lead_gen:  # the other worker leads now
+                            return None
+                        self._inline_lead = False
         except Exception as exc:  # never let one message end reception; but say so
             self.faults.report("receiving", exc)
         with cond:
-            self._leading = False
+            if gen == self._lead_gen:
+                self._inline_lead = False
+                self._leading = False
             cond.notify_all()
-        return inline
+        return None
+
+    def _set_watch(self, fast: bool) -> None:
+        """Enter or leave fast mode; entering wakes the other worker to watch."""
+        with self._cond:
+            if fast != self._watch:
+                self._watch = fast
+                if fast:
+                    self._cond.notify_all()
 
     def _process(
         self, subs: list[Subscription[Any]], frames: list[bytes]
