@@ -57,6 +57,7 @@ from sim_core.pose import (
     quat_from_euler,
 )
 from sim_core.soaring import kernels
+from sim_core.soaring import warm_up as soaring_warm_up
 from sim_core.soaring.glider import sink_rate
 from sim_core.soaring.law import Law
 from sim_core.trajectory import Trajectory, sample_paths
@@ -80,6 +81,7 @@ __all__ = [
     "glide_attitude",
     "path_state",
     "path_states",
+    "warm_up",
 ]
 
 F8 = NDArray[np.float64]
@@ -468,3 +470,16 @@ def path_state(traj: Trajectory, t: float, dt: float = 1e-3) -> PathState:
         outputs=FlightOutputs(vz=o.vz[0], omega=o.omega[0], roll=o.roll[0], pitch=o.pitch[0],
                               yaw=o.yaw[0], quat=o.quat[0], rates=o.rates[0]),
     )
+
+
+def warm_up() -> None:
+    """Compile, or load from the on-disk cache, the continuous flight model's kernels and the
+    soaring kernels (:func:`sim_core.soaring.warm_up`), so that no later step pays it: call it
+    before a realtime loop, or after installing."""
+    soaring_warm_up()
+    law = Law()
+    model = FlightModel.from_params([FlightParams()], glide=[True],
+                                    polar=(law.Sink_A, law.Sink_B, law.Sink_C), g=law.g)
+    y0, u0 = np.array([[0.0], [0.0], [100.0], [0.0], [0.0], [10.0]]), np.array([[0.1], [10.0]])
+    model.step(y0, u0, 0.02, updraft=lambda xy: np.zeros(xy.shape[1:]))
+    model.outputs(y0, u0)

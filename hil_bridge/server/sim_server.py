@@ -311,7 +311,7 @@ class SimServer:
             )
         if self.fleet.flies:
             # the flight kernels loaded now, not on the tick that first flies a vehicle
-            from sim_core.soaring import warm_up
+            from sim_core.flight import warm_up
 
             warm_up()
         # the state of tick 0 before any callback can run: the first ping has a pose

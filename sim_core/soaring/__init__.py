@@ -61,10 +61,10 @@ __all__ = [
 
 
 def warm_up() -> None:
-    """Compile every soaring kernel, those of the continuous flight model
-    (:class:`sim_core.flight.FlightModel`) included, once per installation and CPU (~10 s CPU),
-    or load it from the on-disk cache (~0.3 s CPU per process), through the public functions,
-    so that no later call pays it: call it before a realtime loop, or after installing."""
+    """Compile every soaring kernel, once per installation and CPU (~10 s CPU), or load it from
+    the on-disk cache (~0.3 s CPU per process), through the public functions, so that no later
+    call pays it: call it before a realtime loop, or after installing
+    (:func:`sim_core.flight.warm_up` does this and the continuous flight model's kernels)."""
     law = Law().replace(numAgents=3, numThermals=2, totalTime=1.0)
     sim = SwarmSim(law, seed=0)
     sim.step()
@@ -86,10 +86,3 @@ def warm_up() -> None:
                 np.zeros(0, dtype=np.intp), P, np.zeros((1, 3)))
     fade_step(th, by_time=P["fade_by_time"], rate=P["fade_rate"], top=P["fade_top"],
               bottom=P["fade_bottom"], dt=law.dt)
-    from sim_core.flight import FlightModel, FlightParams  # the continuous flight model's kernels
-
-    model = FlightModel.from_params([FlightParams()], glide=[True],
-                                    polar=(law.Sink_A, law.Sink_B, law.Sink_C), g=law.g)
-    y0, u0 = np.array([[0.0], [0.0], [100.0], [0.0], [0.0], [10.0]]), np.array([[0.1], [10.0]])
-    model.step(y0, u0, 0.02, updraft=lambda xy: np.zeros(xy.shape[1:]))
-    model.outputs(y0, u0)
