@@ -15,9 +15,10 @@ PACKAGES = ("sim_core", "hil_bridge", "drivers")
 MAX_LINES = 600
 #: modules allowed past MAX_LINES, and why
 LONGER = {
-    # the soaring step's numba kernels: numba re-validates a cached kernel only against its own
-    # file, so kernels calling each other across files would keep stale compiled copies
-    "sim_core/soaring/kernels.py": 620,
+    # the soaring step's numba kernels and the continuous flight model's (which call the seed's
+    # polar `sink`): numba re-validates a cached kernel only against its own file, so kernels
+    # calling each other across files would keep stale compiled copies
+    "sim_core/soaring/kernels.py": 700,
 }
 
 
