@@ -10,16 +10,16 @@ The workers run in a leader/follower pattern:
   periodic ``/diagnostics``), one at a time (like rclpy's single-threaded executor).
 
 A leader keeps leading from one message to the next. One that receives a message while the
-executor role is free and nothing is queued runs the callback itself (no thread hand-off on the
-latency path). At a low message rate it first hands leadership to the other worker, so that a
-slow callback costs drops on its own queue, never stalled reception. At :data:`FAST_RATE_HZ`
-messages a second or more, waking the other worker for every message would cost more than the
-callbacks (a context switch or two each, on the very cores the loop is short of): the leader
-then runs the callback *keeping* leadership, and the other worker, which wakes every
-:data:`WATCH_S` while the rate lasts, takes reception over if a callback holds it longer than
-that. Reception then stalls for at most about ``WATCH_S`` behind a slow callback. Otherwise
-the message goes to its subscription's keep-last queue (depth from the QoS profile; overflow
-dropped and counted; reliable subscriptions never drop an acknowledged message).
+executor role is free and nothing is queued runs its callbacks itself, in subscription order
+(no thread hand-off on the latency path). At a low message rate it first hands leadership to the
+other worker, so that a slow callback costs drops on its own queue, never stalled reception.
+At :data:`FAST_RATE_HZ` messages a second or more, waking the other worker for every message
+would cost more than the callbacks (a context switch or two each, on the very cores the loop is
+short of): the leader then runs the callbacks *keeping* leadership, and the other worker, which
+wakes every :data:`WATCH_S` while the rate lasts, takes reception over if a callback holds it
+longer than that. Reception then stalls for at most about ``WATCH_S`` behind a slow callback.
+Otherwise the message goes to its subscriptions' keep-last queues (depth from the QoS profile;
+overflow dropped and counted; reliable subscriptions never drop an acknowledged message).
 
 A frame that does not decode (unknown type, newer version, wrong type for the topic, corrupt)
 is dropped and counted as ``decode_errors``: bad input, not a fault. An exception in a
@@ -210,7 +210,8 @@ class Executor:
             if mode == "lead":
                 inline = self._lead()
                 if inline is not None:
-                    self._run_callback(*inline)
+                    for delivery in inline:
+                        self._run_callback(*delivery)
                     self._release()
             elif mode == "callback" and job is not None:
                 self._run_callback(*job)
@@ -257,10 +258,11 @@ class Executor:
             self._cond.notify_all()
 
     # -- reception ---------------------------------------------------------------------------
-    def _lead(self) -> tuple[Subscription[Any], Envelope] | None:
+    def _lead(self) -> list[tuple[Subscription[Any], Envelope]] | None:
         """Receive as the leader: take messages off the transport (decode, deduplicate,
-        acknowledge, queue) until the node stops, or until a delivery is to run inline with
-        leadership handed on (returned: the executor role is then reserved for it), or until
+        acknowledge, queue) until the node stops, or until a message's deliveries (one per
+        subscription of its topic) are to run inline with leadership handed on (returned: the
+        executor role is then reserved for them), or until
         the other worker took leadership over from a callback run inline here (module
         docstring). Undecodable messages are dropped and counted here, before they queue."""
         transport = self.transport
@@ -283,12 +285,11 @@ class Executor:
                 deliveries = self._process(subs, frames) if subs else []
                 if not deliveries:
                     continue
-                inline: tuple[Subscription[Any], Envelope] | None = None
+                inline: list[tuple[Subscription[Any], Envelope]] | None = None
                 with cond:
-                    if (len(deliveries) == 1 and not self._busy and not self._ready_hi
-                            and not self._ready):
+                    if not self._busy and not self._ready_hi and not self._ready:
                         self._busy = True
-                        inline = deliveries[0]
+                        inline = deliveries
                         if not self._watch:
                             self._leading = False  # the other worker leads meanwhile
                             cond.notify_all()
@@ -299,7 +300,8 @@ class Executor:
                             self._enqueue(sub, envelope)
                         cond.notify_all()
                 if inline is not None:
-                    self._run_callback(*inline)
+                    for delivery in inline:
+                        self._run_callback(*delivery)
                     with cond:
                         self._busy = False
                         if self._ready_hi or self._ready:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -184,6 +186,44 @@ def test_at_a_high_rate_a_slow_inline_callback_stalls_reception_only_briefly(
         release.set()
         assert poll_until(lambda: any(m.x == n - 1 for m in got.items))  # type: ignore[attr-defined]
         assert len(got.items) <= SENSOR.depth + 1
+
+
+@pytest.mark.parametrize("fast", [False, True], ids=["handed-on", "fast-mode"])
+def test_two_subscriptions_of_a_topic_get_every_message_in_order(
+    bus_url: str, monkeypatch: pytest.MonkeyPatch, fast: bool
+) -> None:
+    """A message's deliveries run inline together (hil_bridge.bus.executor), in subscription
+    order, whether the leader hands leadership on or keeps it."""
+    from hil_bridge.bus import executor
+
+    monkeypatch.setattr(executor, "FAST_RATE_HZ", 0.0 if fast else 1e12)
+    seen: list[tuple[str, int]] = []
+    lock = threading.Lock()
+
+    def record(name: str) -> Callable[[GliderState], None]:
+        def cb(msg: GliderState) -> None:
+            with lock:
+                seen.append((name, int(msg.x)))
+        return cb
+
+    n = 50
+    topic = "/glider/2/state"
+    with Node("pub", bus=bus_url) as a, Node("sub", bus=bus_url) as b:
+        a.start()
+        b.start()
+        pub = a.create_publisher(GliderState, topic)
+        b.create_subscription(GliderState, topic, record("first"), SENSOR)
+        b.create_subscription(GliderState, topic, record("second"), SENSOR)
+        assert poll_until(lambda: b._executor._watch == fast)
+        assert pub.wait_for_subscribers(WAIT)
+        for i in range(n):
+            pub.publish(_state(i))
+            time.sleep(0.001)
+        assert poll_until(lambda: len(seen) >= 2 * n)
+    assert [x for name, x in seen if name == "first"] == list(range(n))
+    assert [x for name, x in seen if name == "second"] == list(range(n))
+    assert all(seen[2 * i] == ("first", i) and seen[2 * i + 1] == ("second", i)
+               for i in range(n))
 
 
 def test_decode_errors_are_counted_and_reception_goes_on(bus_url: str) -> None:
