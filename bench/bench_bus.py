@@ -20,6 +20,8 @@ code in the same run, 2 runs each (medians).
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -31,6 +33,7 @@ import zmq
 
 from bench._util import ROOT, fmt_s, git_tree, median, python_json, table, time_it
 from hil_bridge.bus.codec import Envelope, decode, encode
+from hil_bridge.bus.domain import claim_first_free
 from hil_bridge.bus.messages import GliderState, Message, SonarEcho
 from hil_bridge.bus.node import Node
 from hil_bridge.bus.proxy import Proxy
@@ -308,11 +311,6 @@ def _codec_row(label: str, msg: Message, frames: list[bytes]) -> list[str]:
 
 def _receive_cost() -> str:
     """The node receive-cost table (module docstring)."""
-    import subprocess
-    import sys
-
-    from hil_bridge.bus.domain import claim_first_free
-
     runs: dict[str, list[dict[str, float]]] = {"today": [], "before": []}
     with tempfile.TemporaryDirectory(prefix="echoloop-bench-") as tmp, \
             claim_first_free() as (dom, _):
