@@ -18,6 +18,13 @@ server.scene.state_rate_hz=250``; issue 19 asks for gaps ≤ 10 ms and a publish
 with (``--param server.tick_nice=0``), the baseline of the tick priority; "late ticks" is the
 server's ``late_ticks`` (a tick published more than a period after its wall-clock due time) per
 tick, "tick thread" its ``tick_priority``.
+
+A full garbage collection in a node's process: in a fresh interpreter, one of the demo's nodes
+is built as its node host builds it (its entry imported, constructed with the launch file's
+params on an in-process bus, not started); the CPU time of ``gc.collect()`` (median of 5),
+which holds the interpreter lock throughout, before and after
+:func:`hil_bridge.lifetime.freeze_heap` (what the node hosts, echo nodes and echo workers do
+once built and once started).
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench._util import median, table
+from bench._util import median, python_json, table
 from hil_bridge.bus.domain import claim_first_free
 
 TITLE = "Nodes as processes: start-up, memory and CPU against threads"
@@ -109,7 +116,40 @@ def _once(mode: str, domain: int) -> dict[str, Any]:
     }
 
 
+#: builds one of the demo's nodes (argv: its name) and times a full collection before and after
+#: the heap is frozen
+_GC_PROBE = """
+import gc, json, sys, time
+from hil_bridge.files.config import load_yaml
+from hil_bridge.launch.spec import resolve_entry
+from hil_bridge.lifetime import freeze_heap
+node = next(n for n in load_yaml("launch/demo.yaml")["nodes"] if n["name"] == sys.argv[1])
+built = resolve_entry(node["entry"])(node["name"], bus="mem://gc-probe", **node["params"])
+def full_ms():
+    times = []
+    for _ in range(5):
+        t = time.process_time()
+        gc.collect()
+        times.append(1e3 * (time.process_time() - t))
+    return sorted(times)[2]
+before, tracked = full_ms(), len(gc.get_objects())
+frozen = freeze_heap(collect=True)
+print(json.dumps({"tracked": tracked, "before_ms": before, "after_ms": full_ms(),
+                  "frozen": frozen}))
+"""
+GC_NODES = ("server", "autopilot", "mock_autopilot_swarm")
+
+
+def _gc_rows() -> list[list[str]]:
+    rows = []
+    for name in GC_NODES:
+        r = python_json(_GC_PROBE, name)
+        rows.append([name, f"{r['tracked']:,}", f"{r['before_ms']:.1f}", f"{r['after_ms']:.3f}"])
+    return rows
+
+
 def run(out_dir: Path) -> str:
+    gc_rows = _gc_rows()
     results: dict[str, list[dict[str, Any]]] = {m: [] for m in MODES}
     with claim_first_free() as (dom, _):
         assert dom.number is not None
@@ -143,5 +183,8 @@ def run(out_dir: Path) -> str:
                  "exit"], rows)
         + f"\n\nCPU per sim second, processes / threads (same run): **{ratio:.2f}**.\n\n"
         "### Resident memory of each node's process (processes mode, MB)\n\n"
-        + table(["node", "RSS MB"], node_rows) + "\n"
+        + table(["node", "RSS MB"], node_rows) + "\n\n"
+        "### A full garbage collection in a node's process (CPU ms, median of 5)\n\n"
+        + table(["node", "objects tracked", "full collection ms",
+                 "after freeze_heap ms"], gc_rows) + "\n"
     )

@@ -14,7 +14,8 @@ Sub-packages, each a layer that imports only the layers below it (``importlinter
   ``.npz`` leaves and forests, tree maps, L++ grammars, CAD meshes, traces) and the package data
   behind presets: every reader and writer ``sim_core`` does not have;
 - ``errors``, ``outputs`` and ``lifetime`` — the error types, the never-clobber output files and
-  the parent-death signal every layer may use.
+  a node process's life (the parent-death signal, its heap frozen once built) every layer may
+  use.
 
 Everything here may import ``sim_core`` (the pure world); nothing here imports ``drivers``.
 """

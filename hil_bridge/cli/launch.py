@@ -23,6 +23,7 @@ from typing import Any
 from hil_bridge.bus.domain import Domain
 from hil_bridge.cli._args import add_domain_argument, domain_for_run, seconds
 from hil_bridge.launch.runner import LaunchSpec, RunSummary, parse_param_overrides, run
+from hil_bridge.lifetime import freeze_heap
 from hil_bridge.outputs import atomic_output, check_output
 from hil_bridge.plots.recording import plot_recording
 
@@ -185,12 +186,15 @@ def format_link(key: str, link: dict[str, Any]) -> str:
 
 
 def announcer(domain: Domain, prog: str = "echoloop launch") -> Any:
-    """``on_started`` callback printing what runs where (stderr)."""
+    """``on_started`` callback of a command's run: prints what runs where (stderr), then
+    freezes this process's heap (:func:`hil_bridge.lifetime.freeze_heap`; its bus monitor, and
+    with ``--threads`` its nodes, are running: no collection first)."""
 
     def announce(spec: LaunchSpec) -> None:
         names = ", ".join(n.name for n in spec.nodes)
         print(f"{prog}: running {names} in {domain} on {spec.bus} (Ctrl-C to stop)",
               file=sys.stderr, flush=True)
+        freeze_heap()
 
     return announce
 

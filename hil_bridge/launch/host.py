@@ -58,7 +58,7 @@ from hil_bridge.bus.domain import resolve, use
 from hil_bridge.bus.transport import sync_open
 from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of
 from hil_bridge.launch.spec import resolve_entry
-from hil_bridge.lifetime import die_with_parent
+from hil_bridge.lifetime import die_with_parent, freeze_heap
 
 __all__ = ["main"]
 
@@ -269,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
             _stop_nodes(made.values())
             _send(conn, ("error", error))
             return 1
+        freeze_heap(collect=True)  # nothing of this launch runs yet
         if not _send(conn, ("constructed", None)):
             _stop_nodes(made.values())
             return 1
@@ -280,6 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         if error is not None:
             _send(conn, ("error", error))
             return 1
+        freeze_heap()
         _send(conn, ("ready", None))  # if the runner is gone, _serve finds it so and stops all
     _serve(conn, made, stop_all)
     conn.close()

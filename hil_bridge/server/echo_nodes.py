@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 
 from hil_bridge.bus.faults import Faults
-from hil_bridge.lifetime import die_with_parent, reap
+from hil_bridge.lifetime import die_with_parent, freeze_heap, reap
 from hil_bridge.priority import lower_priority
 from hil_bridge.server.echo_compute import Region
 from hil_bridge.server.echo_pool import WORKER_NICE
@@ -149,6 +149,7 @@ def _node_main(spec: NodeSpec, conn: Connection, parent_pid: int) -> None:
                           pose_refresh_s=min(MAX_POLL_S, max(MIN_POLL_S, tick_s / 2)))
     node = Node(name, bus=spec.bus, clock=SimClock("lockstep"), faults=faults)
     sonars.serve(node, "thread", spec.points)
+    freeze_heap(collect=True)  # built, nothing running yet
     node.start()
     node.transport.sync(NODE_SYNC_S)
     stop = threading.Event()
@@ -171,6 +172,7 @@ def _node_main(spec: NodeSpec, conn: Connection, parent_pid: int) -> None:
         out["failure"] = faults.failure() or ""
         return out
 
+    freeze_heap()
     conn.send(("ready", os.getpid()))
     try:
         while not conn.poll(STATS_PERIOD_S):

@@ -46,7 +46,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from hil_bridge.bus.faults import Faults
-from hil_bridge.lifetime import die_with_parent, reap
+from hil_bridge.lifetime import die_with_parent, freeze_heap, reap
 from hil_bridge.priority import lower_priority
 from hil_bridge.server.echo_compute import (
     DeadlinePlanner,
@@ -165,6 +165,7 @@ def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
         store = SharedTiles(store_dir, forest.engine.names)
         forest.source = store.source(forest.build, built)
     planner = DeadlinePlanner(cost)
+    freeze_heap(collect=True)
     conn.send(("ready", os.getpid(), None, ""))
     while True:
         try:

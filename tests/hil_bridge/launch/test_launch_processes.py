@@ -66,6 +66,25 @@ def test_a_node_process_that_dies_ends_the_run_naming_it(domain: Domain, how: st
     assert summary.nodes["calm"]["pid"] != os.getpid()
 
 
+def test_a_node_process_freezes_its_heap_once_built_and_again_once_started(
+    domain: Domain,
+) -> None:
+    """hil_bridge.lifetime.freeze_heap: a full collection in a running node's process walks what
+    the run keeps, not the modules, scene and nodes it was built with."""
+    node = {"name": "heap", "entry": "tests.hil_bridge.launch.heapnodes:HeapReporter",
+            "params": {}}
+    summary = run({"allow_modules": ["tests.hil_bridge.launch.heapnodes"], "nodes": [node]},
+                  duration=0.5, handle_signals=False, domain=domain)
+    assert summary.exit_status == 0, summary.failures
+    stats = summary.nodes["heap"]
+    assert stats["frozen_when_built"] == 0  # a fresh interpreter: frozen after construction
+    assert stats["frozen_when_started"] > 10_000  # the imports, the node
+    assert not stats["walks_start_objects"]  # frozen again once started
+    assert stats["walks_run_objects"]  # what the run keeps is collected as ever
+    # the run's 1,000 survivors and little else: without the freeze, every frozen object too
+    assert 1000 <= stats["full_collection_walks"] < stats["frozen_when_started"] / 5
+
+
 def test_a_node_that_fails_to_start_is_named(domain: Domain) -> None:
     summary = run(_launch(_crasher("calm", "none"), _crasher("doomed", "raise")),
                   duration=30.0, handle_signals=False, domain=domain)
