@@ -7,14 +7,15 @@ workers (:mod:`hil_bridge.server.echo_pool`) and echo nodes (:mod:`hil_bridge.se
 outlives a parent killed with -9. :func:`reap` ends the children a parent asked to stop.
 
 **The heap.** CPython's cyclic garbage collector holds the interpreter lock while it runs, and
-a full (generation 2) collection walks every tracked object: in a node process, the ~50,000
-objects of the imported modules, the scene and the node itself, tens of milliseconds
-on this project's 2-core machine (``python -m bench processes``, *Nodes as processes*), during
-which none of the process's threads runs: a 250 Hz tick loop misses ticks, a CAN adapter's
-frames wait. Such a collection comes every so often as surviving objects accumulate. The same
-processes call :func:`freeze_heap` once their nodes are built (``collect``: nothing runs yet)
-and again once they started: what exists then moves to the collector's permanent generation
-(``gc.freeze``), so later collections walk only what the run itself allocates and keeps.
+a full (generation 2) collection walks every tracked object: in a node process, the tens of
+thousands of objects of the imported modules, the scene and the node itself, tens of
+milliseconds on this project's 2-core machine (``python -m bench processes``, *Nodes as
+processes*), during which none of the process's threads runs: a 250 Hz tick loop misses ticks,
+a CAN adapter's frames wait. Such a collection comes every so often as surviving objects
+accumulate. The same processes call :func:`freeze_heap` once their nodes are built
+(``collect``: nothing runs yet) and again once they started: what exists then moves to the
+collector's permanent generation (``gc.freeze``), so later collections walk only what the run
+itself allocates and keeps.
 """
 
 from __future__ import annotations
