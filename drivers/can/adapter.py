@@ -6,7 +6,12 @@ bus carrying the "raw" profile of ``drivers/can/glider.dbc``:
 * ``/glider/<id>/state`` → GLIDER_STATE_POS + GLIDER_STATE_QUAT + GLIDER_STATE_RATES +
   GLIDER_STATE_MOTION at ``state_rate_hz`` (the latest state, while it is younger than
   ``state_timeout_s`` of wall time; the attitude frames only for states that carry one,
-  otherwise ``attitude_missing`` is counted; MOTION completes the sample);
+  otherwise ``attitude_missing`` is counted; MOTION completes the sample). The gliders' samples
+  are spread over the period rather than sent in one burst: the period has
+  ``min(gliders, STATE_SLOTS)`` slots, and slot k sends the samples of the k-th, (k+n)-th, ...
+  glider. A burst of every glider's sample (4 frames each) queues the last glider's sample
+  behind the others on a real bus, and on the virtual bus wakes every receiving process at
+  once, every period;
 * ``/glider/<id>/neighbors`` → NEIGHBOR_POS + NEIGHBOR_MOTION pairs (positions relative to the
   state sent in the same tick, at most 15, nearest first), right after the state frames, when a
   new list has arrived and at most at ``neighbor_rate_hz``;
@@ -78,6 +83,8 @@ from hil_bridge.outputs import check_output
 __all__ = ["AutopilotAdapter", "parse_gliders"]
 
 _LINK_STATE_CODES = {"up": 0, "degraded": 1, "bus_off": 2, "down": 3, "closed": 4}
+#: most slots a state period is split into (module docstring)
+STATE_SLOTS = 10
 
 
 def parse_gliders(gliders: Any) -> dict[int, int]:
@@ -216,6 +223,11 @@ class AutopilotAdapter(Node):
             name, bus=bus, clock=SimClock("lockstep"), diagnostics_period_s=diagnostics_period_s
         )
         self._glider = {gid: _Glider(gid, node) for gid, node in self.gliders.items()}
+        gliders = tuple(self._glider.values())
+        n_slots = min(len(gliders), STATE_SLOTS)
+        #: the gliders whose state samples each slot of a state period sends
+        self._slots = tuple(gliders[k::n_slots] for k in range(n_slots))
+        self._slots_sent = 0
         self._by_node = {g.node: g for g in self._glider.values()}
         self._glock = threading.Lock()
         self._c: Counter[str] = Counter()
@@ -252,7 +264,7 @@ class AutopilotAdapter(Node):
         self._start_wall = time.monotonic()
         self.can.run(  # methods looked up at each call, as a patched one would be
             lambda frame: self._on_frame(frame),
-            [(1.0 / self.state_rate_hz, lambda now: self._send_states(now)),
+            [(1.0 / (self.state_rate_hz * len(self._slots)), lambda now: self._send_states(now)),
              (1.0 / self.heartbeat_hz, lambda now: self._heartbeat_cycle(now))],
             rx_place="handling CAN frame", tx_place="CAN transmit cycle",
         )
@@ -382,26 +394,37 @@ class AutopilotAdapter(Node):
         self._inc("lockstep_samples_sent" if ok else "states_dropped")
 
     def _send_states(self, now: float) -> None:
+        """The state samples of the slots due by ``now`` (module docstring): slot i of the run
+        is due ``i / (state_rate_hz * slots)`` s after the start; a call that comes late sends
+        every slot it missed, at most one period's, so each glider keeps ``state_rate_hz``."""
         if self._lockstep:
             return
-        nb_period = 1.0 / self.neighbor_rate_hz
-        for g in self._glider.values():
-            with self._glock:
-                st = g.state
-                if st is None or now - g.state_wall > self.state_timeout_s:
-                    continue
-                g.state_counter = (g.state_counter + 1) % 16
-                counter = g.state_counter
-                nbs = None
-                if g.nb_new and now - g.nb_sent_wall >= nb_period:
-                    nbs, g.nb_new, g.nb_sent_wall = g.neighbours, False, now
-                    g.nb_set = (g.nb_set + 1) % 16
-                nb_set = g.nb_set
-            ok = self._send_frames(g.node, [pos_frame(st), *self._attitude_frames(st, counter),
-                                            motion_frame(st, counter)])
-            self._inc("states_sent" if ok else "states_dropped")
-            if nbs is not None:
-                self._send_neighbours(g, st, nbs, nb_set)
+        n = len(self._slots)
+        due = math.floor((now - self._start_wall) * self.state_rate_hz * n) + 1
+        for i in range(max(self._slots_sent, due - n), due):
+            for g in self._slots[i % n]:
+                self._send_sample(g, now)
+        self._slots_sent = max(self._slots_sent, due)
+
+    def _send_sample(self, g: _Glider, now: float) -> None:
+        """Glider ``g``'s latest state (if fresh) as a sample, then its neighbour list if a new
+        one is due."""
+        with self._glock:
+            st = g.state
+            if st is None or now - g.state_wall > self.state_timeout_s:
+                return
+            g.state_counter = (g.state_counter + 1) % 16
+            counter = g.state_counter
+            nbs = None
+            if g.nb_new and now - g.nb_sent_wall >= 1.0 / self.neighbor_rate_hz:
+                nbs, g.nb_new, g.nb_sent_wall = g.neighbours, False, now
+                g.nb_set = (g.nb_set + 1) % 16
+            nb_set = g.nb_set
+        ok = self._send_frames(g.node, [pos_frame(st), *self._attitude_frames(st, counter),
+                                        motion_frame(st, counter)])
+        self._inc("states_sent" if ok else "states_dropped")
+        if nbs is not None:
+            self._send_neighbours(g, st, nbs, nb_set)
 
     def _send_neighbours(
         self, g: _Glider, own: GliderState, nbs: GliderNeighbors, nb_set: int

@@ -419,3 +419,35 @@ def test_spoofed_state_and_clock_do_not_freeze_the_adapter(sim: Sim, make_adapte
     for topic, subscriptions in (("/glider/3/state", 1), ("/clock", 2)):
         counters = ad.stats()["topics"][topic]
         assert counters["epochs"] >= 1 and counters["dropped"] <= 3 * subscriptions
+
+
+def test_state_samples_are_spread_over_the_period(bus_url: str, channel: str) -> None:
+    """12 gliders: 10 slots per 20 ms period (two gliders share slots 0 and 1); each call sends
+    the slots due by its time, a late one every slot it missed (at most a period's), so every
+    glider keeps 50 Hz whatever the calls' timing."""
+    ids = list(range(20, 32))
+    ad = AutopilotAdapter("autopilot", bus=bus_url, channel=channel, gliders=ids,
+                          state_rate_hz=50.0, diagnostics_period_s=0)
+    sent: list[list[int]] = []
+    ad._send_sample = lambda g, now: sent[-1].append(g.gid)  # type: ignore[method-assign]
+    try:
+        ad._start_wall = 100.0
+
+        def call(t: float) -> list[int]:
+            sent.append([])
+            ad._send_states(100.0 + t)
+            return sent[-1]
+
+        assert call(0.0005) == [20, 30]
+        assert call(0.0015) == []  # slot 1 is due at 2 ms
+        assert call(0.0025) == [21, 31]
+        assert call(0.0105) == [22, 23, 24, 25]  # late: slots 2..5 at once
+        assert call(0.5) == [21, 31, 22, 23, 24, 25, 26, 27, 28, 29, 20, 30]  # a period, no more
+        sent.clear()
+        for k in range(1, 501):  # 1 s of calls at the slot cadence, a third of them late
+            call(0.5 + k * 0.002 + (0.0015 if k % 3 == 0 else 0.0))
+        counts = np.bincount([g for call_ in sent for g in call_], minlength=32)[20:]
+        assert set(counts.tolist()) <= {49, 50, 51}
+        assert max(len(c) for c in sent) <= 4
+    finally:
+        ad.stop()
