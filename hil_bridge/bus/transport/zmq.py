@@ -50,6 +50,7 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 from urllib.parse import parse_qs, urlsplit
 
 import zmq
@@ -356,7 +357,7 @@ class ZmqTransport(Transport):
             sock = rotation.popleft()
             # a lane found empty leaves the rotation: asked, not tried (a failed non-blocking
             # receive raises, which costs more than the question)
-            if not sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+            if not cast(int, sock.getsockopt(zmq.EVENTS)) & zmq.POLLIN:
                 continue
             frame = sock.recv(zmq.NOBLOCK, copy=False)
             # frame by frame without copy: cheaper than recv_multipart's option lookups
