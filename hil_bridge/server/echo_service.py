@@ -20,15 +20,15 @@ an idle worker, earliest deadline first, and gives the result to ``on_echo(reque
 
 **Deadlines.** A request's deadline (``time.monotonic()``) is when its sonar's next ping is due:
 given by the server for heads that ping on sim time, otherwise estimated here from the median
-interval of the sonar's last pings (none for its first ones); ``deadlines=False`` (lockstep,
-fast) gives none. A ping whose echo cannot be ready by then is not queued: a newer ping of the
-same sonar replaces a waiting one, a request whose time is up is dropped before it starts, and
-the worker, once it knows the leaves in range, predicts the scene fidelity's time with the cost
-model (:data:`sim_core.sonar.cost.COST`, scaled by its measured ratio): if it does not fit, the
-echo is *degraded* to ``realtime`` with the time left as its budget (its ``error_bound`` says
-what that cost), or dropped when not even that fits. Every case is counted (:meth:`stats`).
-Without a deadline requests wait in arrival order, at most ``queue_size`` per sonar (its
-oldest dropped).
+interval of the sonar's last pings (none for its first ones), or ``budget_s`` after the ping arrived
+when that is earlier (a latency bound the consumer of the echoes sets); ``deadlines=False``
+(lockstep, fast) gives none. A ping whose echo cannot be ready by then is not queued: a newer ping
+of the same sonar replaces a waiting one, a request whose time is up is dropped before it starts,
+and the worker, once it knows the leaves in range, predicts the scene fidelity's time with the cost
+model (:data:`sim_core.sonar.cost.COST`, scaled by its measured ratio): if it does not fit, the echo
+is *degraded* to ``realtime`` with the time left as its budget (its ``error_bound`` says what that
+cost), or dropped when not even that fits. Every case is counted (:meth:`stats`). Without a deadline
+requests wait in arrival order, at most ``queue_size`` per sonar (its oldest dropped).
 
 **Ahead of the pings.** Every :data:`LOOKAHEAD_S` the scheduler asks ``lookahead()`` for the
 regions the sonars will reach (the server's prediction along each vehicle's motion) and has
@@ -97,13 +97,13 @@ class EchoService:
     """Answers pings at given sonar poses on a thread or a process pool (module docstring).
 
     ``EchoService(scene, *, worker="thread", workers=None, queue_size=4, deadlines=True,
-    on_echo, on_error, on_drop=None, points=None, on_points=None, lookahead=None,
-    domain=None, cost=COST)``: ``on_drop(request)`` for every ping dropped unanswered (full
-    queue or deadline); ``lookahead() -> regions`` the sonars will reach; ``domain`` names the
-    pool's shared memory (default: the current one); ``cost`` the cost model the deadlines
-    are planned with; ``faults`` where a scheduler thread or a worker process that dies is
-    reported (the server's; default a record of its own). ``start()`` starts the workers;
-    ``close()`` (idempotent) stops them and removes their shared memory.
+    budget_s=None, on_echo, on_error, on_drop=None, points=None, on_points=None, lookahead=None,
+    domain=None, cost=COST)``: ``on_drop(request)`` for every ping dropped unanswered (full queue or
+    deadline); ``lookahead() -> regions`` the sonars will reach; ``domain`` names the pool's shared
+    memory (default: the current one); ``cost`` the cost model the deadlines are planned with;
+    ``faults`` where a scheduler thread or a worker process that dies is reported (the server's;
+    default a record of its own). ``start()`` starts the workers; ``close()`` (idempotent) stops
+    them and removes their shared memory.
     """
 
     def __init__(
@@ -114,6 +114,7 @@ class EchoService:
         workers: int | None = None,
         queue_size: int = 4,
         deadlines: bool = True,
+        budget_s: float | None = None,
         on_echo: Callable[[EchoRequest, EchoResult], None],
         on_error: Callable[[EchoRequest, str], None],
         on_drop: Callable[[EchoRequest], None] | None = None,
@@ -130,12 +131,15 @@ class EchoService:
             raise ValueError(f"worker: expected 'thread', 'process' or 'pool', got {worker!r}")
         if workers is not None and workers < 1:
             raise ValueError(f"workers: expected >= 1 or None (one per core), got {workers}")
+        if budget_s is not None and not budget_s > 0:
+            raise ValueError(f"budget_s: expected > 0 or None, got {budget_s}")
         self.scene = scene
         self.worker = worker
         self.n_workers = 0 if worker == "thread" else (
             1 if worker == "process" else (workers or usable_cores()))
         self.queue_size = queue_size
         self.deadlines = deadlines
+        self.budget_s = budget_s
         self._on_echo, self._on_error, self._on_drop = on_echo, on_error, on_drop
         self._points, self._on_points = points, on_points
         self._lookahead = lookahead
@@ -185,6 +189,9 @@ class EchoService:
             self._c["requests"] += 1
             if self.deadlines and deadline is None:
                 deadline = self._estimate_deadline(request.sonar_id, request.received)
+            if self.deadlines and self.budget_s is not None:
+                deadline = min(math.inf if deadline is None else deadline,
+                               request.received + self.budget_s)
             same = [w for w in self._waiting if w.request.sonar_id == request.sonar_id]
             if self.deadlines:
                 for w in same:

@@ -42,21 +42,22 @@ loop, at most ``pose_wait_ticks`` tick periods) for the tick that covers it
 (``ping_stamp_waited``), or is extrapolated from the latest tick when that tick is late
 (``ping_stamp_extrapolated``); stamps more than ``pose_history_s`` after the latest tick, or
 before the history, use the newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``).
-Echoes are computed off the tick loop by :class:`hil_bridge.server.echo_service.EchoService`: on
-a thread, or ``echo_worker: pool``, ``echo_workers`` processes (default one per core) sharing
-the forest's tiles in shared memory at a lower CPU priority than the tick loop (``process``: a
-pool of one), or, with ``echo_worker: nodes`` (``auto``'s choice for several sonars on several
-cores), by echo nodes: processes that take the pings from the bus and publish the echoes
-themselves, at poses the server shares in memory (:mod:`hil_bridge.server.echo_nodes`); the
-server's process then never sees a ping. The launching script must be import-safe for any of the
-processes. In ``realtime`` mode a ping's echo is due before its sonar's next ping
-(``echo_deadlines``): one that cannot be ready by then is degraded to the ``realtime`` fidelity
-within the time left (``echoes_degraded``) or dropped (``pings_dropped_deadline``) instead of
-queuing. Without deadlines pings wait in a bounded queue per sonar (``echo_queue``; when full
-its oldest is dropped, ``pings_dropped``). The tiles each sonar will reach along its vehicle's
-motion (the next :data:`~hil_bridge.server.sonars.LOOKAHEAD_HORIZON_S` s of wall time) are built
-ahead of its pings; the first tick waits until the workers are up and the tiles of that first
-horizon are built (at most :data:`~hil_bridge.server.sonars.ECHO_READY_TIMEOUT_S`).
+Echoes are computed off the tick loop by :class:`hil_bridge.server.echo_service.EchoService`: on a
+thread, or ``echo_worker: pool``, ``echo_workers`` processes (default one per core) sharing the
+forest's tiles in shared memory at a lower CPU priority than the tick loop (``process``: a pool of
+one), or, with ``echo_worker: nodes`` (``auto``'s choice for several sonars on several cores), by
+echo nodes: processes that take the pings from the bus and publish the echoes themselves, at poses
+the server shares in memory (:mod:`hil_bridge.server.echo_nodes`); the server's process then never
+sees a ping. The launching script must be import-safe for any of the processes. In ``realtime`` mode
+a ping's echo is due before its sonar's next ping (``echo_deadlines``): one that cannot be ready by
+then is degraded to the ``realtime`` fidelity within the time left (``echoes_degraded``) or dropped
+(``pings_dropped_deadline``) instead of queuing; ``echo_budget_ms`` makes an echo due that long
+after its ping arrived when that comes first (a consumer's latency bound). Without deadlines pings
+wait in a bounded queue per sonar (``echo_queue``; when full its oldest is dropped,
+``pings_dropped``). The tiles each sonar will reach along its vehicle's motion (the next
+:data:`~hil_bridge.server.sonars.LOOKAHEAD_HORIZON_S` s of wall time) are built ahead of its pings;
+the first tick waits until the workers are up and the tiles of that first horizon are built (at most
+:data:`~hil_bridge.server.sonars.ECHO_READY_TIMEOUT_S`).
 
 **Time.** The server ticks at ``state_rate_hz`` of sim time. Clock modes: ``realtime`` (ticks
 paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (after each tick,
@@ -130,6 +131,7 @@ class ServerParams:
     echo_worker: Literal["auto", "thread", "process", "pool", "nodes"] = "auto"
     echo_workers: int | None = None
     echo_deadlines: bool = True
+    echo_budget_ms: float | None = None
     pose_history_s: float = 2.0
     pose_wait_ticks: float = 2.0
     tick_nice: int = -10
@@ -154,6 +156,9 @@ class ServerParams:
                              f"{self.pose_wait_ticks}")
         if not -20 <= self.tick_nice <= 0:
             raise ValueError(f"tick_nice: expected -20 <= nice <= 0, got {self.tick_nice}")
+        if self.echo_budget_ms is not None and not self.echo_budget_ms > 0:
+            raise ValueError(f"echo_budget_ms: expected > 0 or null (no budget), got "
+                             f"{self.echo_budget_ms}")
         if self.echo_workers is not None and self.echo_workers < 1:
             raise ValueError(f"echo_workers: expected >= 1 or null (one per core), got "
                              f"{self.echo_workers}")
@@ -177,7 +182,8 @@ class SimServer:
     ``SimServer(name, *, bus, scene, clock=None, state_rate_hz=None, embed_proxy=True,
     autopilots=(), echo_queue=4, diagnostics_period_s=1.0, stop_after_s=None,
     publish_thermals=True, forest_points=20000, echo_worker="auto", echo_workers=None,
-    echo_deadlines=True, pose_history_s=2.0, pose_wait_ticks=2.0, tick_nice=-10)``.
+    echo_deadlines=True, echo_budget_ms=None, pose_history_s=2.0, pose_wait_ticks=2.0,
+    tick_nice=-10)``.
     ``scene`` is a scene YAML path or mapping (:mod:`sim_core.scene`); ``clock`` and
     ``state_rate_hz`` override the scene's. ``stop_after_s``: stop ticking at that sim time
     (the node keeps answering pings). ``forest_points``: at most this many leaf centres around
@@ -186,7 +192,8 @@ class SimServer:
     stamp may reach; ``pose_wait_ticks``: how long (tick periods of sim time) a ping stamped
     after the newest tick waits for the tick that covers it (0: extrapolated at once; module
     docstring, "Echoes").
-    ``echo_worker``, ``echo_workers``, ``echo_deadlines``: see the module docstring.
+    ``echo_worker``, ``echo_workers``, ``echo_deadlines``, ``echo_budget_ms``: see the module
+    docstring.
     ``tick_nice``: in ``realtime`` mode the tick thread asks for this nice (-20..0; 0: as
     started), so that on short cores it preempts the other processes of the loop; where the OS
     does not allow it the thread runs on as started (:func:`hil_bridge.priority.raise_priority`).

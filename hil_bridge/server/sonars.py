@@ -203,6 +203,7 @@ class ServerSonars:
             self.scene, worker=cast(Literal["thread", "process", "pool"], worker),
             workers=p.echo_workers, queue_size=p.echo_queue,
             deadlines=p.echo_deadlines and self._clock.mode == "realtime",
+            budget_s=None if p.echo_budget_ms is None else p.echo_budget_ms / 1e3,
             on_echo=self._publish_echo, on_error=self._echo_failed,
             on_drop=lambda req: self._gate.echo_done(req.sonar_id),
             points=points, on_points=self._publish_points, lookahead=self.lookahead,

@@ -156,6 +156,29 @@ def test_a_ping_superseded_by_its_sonars_next_ping_is_dropped_and_counted() -> N
     assert (st["requests"], st["expired"], st["answered"], st["dropped"]) == (2, 1, 1, 0)
 
 
+def test_a_latency_budget_makes_an_echo_due_that_long_after_its_ping_arrived() -> None:
+    """Both pings' sonars ping again only in a minute; with a 1 s budget the ping that waited
+    longer than that is dropped as expired, the other answered."""
+    sink = _Sink()
+    svc = sink.service(load_scene(SCENE), worker="thread", deadlines=True, budget_s=1.0)
+    far = time.monotonic() + 60.0
+    stale = _requests(1, 1, deadline=far)[0]
+    svc.submit(stale)
+    time.sleep(1.1)  # its budget runs out before the service starts
+    fresh = dataclasses.replace(_requests(1, 0, deadline=far)[0], received=time.monotonic())
+    svc.submit(fresh)
+    svc.start()
+    try:
+        got = sink.take(1)
+    finally:
+        svc.close()
+    assert list(got) == [(0, 0)] and sink.dropped == [stale]
+    st = svc.stats()
+    assert (st["requests"], st["expired"], st["answered"]) == (2, 1, 1)
+    with pytest.raises(ValueError, match="budget_s"):
+        sink.service(load_scene(SCENE), budget_s=0.0)
+
+
 @pytest.mark.parametrize("worker", ["thread", "pool"])
 def test_an_echo_that_cannot_be_ready_in_time_is_degraded_or_dropped_and_counted(
     worker: str,

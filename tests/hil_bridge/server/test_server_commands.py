@@ -106,6 +106,8 @@ def test_unknown_autopilot_id_and_bad_params_fail_at_construction() -> None:
         SimServer("server", bus="mem://bad", scene=_scene("fast"), colour="red")
     with pytest.raises(ConfigError, match="echo_queue"):
         SimServer("server", bus="mem://bad", scene=_scene("fast"), echo_queue=0)
+    with pytest.raises(ConfigError, match="echo_budget_ms"):
+        SimServer("server", bus="mem://bad", scene=_scene("fast"), echo_budget_ms=0)
 
 
 def test_commanded_vehicle_leaves_its_path_and_turns_at_the_coordinated_rate() -> None:
