@@ -33,6 +33,25 @@ def _machine() -> str:
     )
 
 
+#: iterations of the speed probe's loop (about 20-40 ms of CPU on the development machine)
+PROBE_LOOPS = 200_000
+
+
+def speed_probe(repeat: int = 5) -> float:
+    """CPU milliseconds of a fixed pure-Python loop, median of ``repeat``: how fast this
+    machine runs an interpreter at the moment (lower is faster). A shared machine's speed
+    moves by tens of percent from hour to hour (another tenant on the same cores); each section
+    records the probe before and after it, so that two runs of a section can be compared."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.process_time()
+        acc = 0
+        for i in range(PROBE_LOOPS):
+            acc += i * i
+        times.append(time.process_time() - t0)
+    return 1e3 * sorted(times)[repeat // 2]
+
+
 def _splice(doc: str, name: str, body: str) -> str:
     start, end = f"<!-- bench:{name} -->", f"<!-- /bench:{name} -->"
     block = f"{start}\n{body.strip()}\n{end}"
@@ -47,6 +66,8 @@ HEADER = """# Benchmarks
 Written by `make bench` (`python -m bench`); each section can be refreshed alone with
 `python -m bench NAME`. Times are wall-clock medians on a shared, noisy machine; every ratio
 compares figures measured in the same run. These are not tests: nothing here asserts a time.
+Each section's line says how fast the machine was around it: the *speed probe*, the CPU time
+of a fixed pure-Python loop (median of 5; lower is faster), before and after the section.
 """
 
 
@@ -63,13 +84,16 @@ def main(argv: list[str] | None = None) -> int:
     for name in selected:
         module = importlib.import_module(f"bench.bench_{name}")
         print(f"[bench] {name}: running", file=sys.stderr, flush=True)
+        before = speed_probe()
         t0 = time.perf_counter()
         body = module.run(FIG_DIR)
         elapsed = time.perf_counter() - t0
+        after = speed_probe()
         stamp = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
         section = (
             f"## {module.TITLE}\n\n_Run {stamp} on {_machine()}; "
-            f"section took {elapsed:.0f} s (`python -m bench {name}`)._\n\n{body.strip()}\n"
+            f"section took {elapsed:.0f} s (`python -m bench {name}`); speed probe "
+            f"{before:.1f} ms before, {after:.1f} ms after._\n\n{body.strip()}\n"
         )
         # re-read just before writing, so sections run concurrently do not erase each other
         doc = DOC.read_text(encoding="utf-8") if DOC.exists() else HEADER
