@@ -50,6 +50,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sim_core.frozen import readonly
 from sim_core.pose import (
     body_rates_from_euler_rates,
     body_rates_from_quats,
@@ -292,8 +293,9 @@ class FlightModel:
         wf = np.ascontiguousarray(np.broadcast_to(w, shape), dtype=np.float64)
         m = glide.size
         dy = np.empty((STATE_ROWS, *shape))
-        kernels.flight_rhs(yf.reshape(STATE_ROWS, m), uf.reshape(2, m), wf.reshape(m), fp,
-                           glide, dy.reshape(STATE_ROWS, m))
+        kernels.flight_rhs(readonly(yf.reshape(STATE_ROWS, m)), readonly(uf.reshape(2, m)),
+                           readonly(wf.reshape(m)), readonly(fp), readonly(glide),
+                           dy.reshape(STATE_ROWS, m))
         return dy
 
     def fun(self, u: ArrayLike, updraft: Updraft | None = None) -> Callable[[float, F8], F8]:
@@ -340,10 +342,11 @@ class FlightModel:
             return cur, grounded
         substeps = max(substeps, math.ceil(dt / self.max_substep - 1e-9))
         fp, glide = self._table(shape)
+        fp, glide = readonly(fp), readonly(glide)
         m = glide.size
         c = cur.reshape(STATE_ROWS, m)
-        uf = np.ascontiguousarray(np.broadcast_to(np.asarray(u, dtype=np.float64),
-                                                  (2, *shape))).reshape(2, m)
+        uf = readonly(np.ascontiguousarray(np.broadcast_to(np.asarray(u, dtype=np.float64),
+                                                           (2, *shape))).reshape(2, m))
         lf, gf = live.reshape(m), grounded.reshape(m)
         k = np.empty((4, STATE_ROWS, m))
         stage = np.empty((STATE_ROWS, m))
@@ -357,18 +360,19 @@ class FlightModel:
                 w = np.ascontiguousarray(np.broadcast_to(
                     updraft(state[X : Y + 1].reshape(2, *shape)), shape),
                     dtype=np.float64).reshape(m)
-            kernels.flight_rhs(state, uf, w, fp, glide, out)
+            kernels.flight_rhs(readonly(state), uf, readonly(w), fp, glide, out)
 
         h = dt / substeps
         for _ in range(substeps):
             rhs(c, k[0])
-            kernels.flight_stage(c, h / 2, k[0], stage)
+            kernels.flight_stage(readonly(c), h / 2, readonly(k[0]), stage)
             rhs(stage, k[1])
-            kernels.flight_stage(c, h / 2, k[1], stage)
+            kernels.flight_stage(readonly(c), h / 2, readonly(k[1]), stage)
             rhs(stage, k[2])
-            kernels.flight_stage(c, h, k[2], stage)
+            kernels.flight_stage(readonly(c), h, readonly(k[2]), stage)
             rhs(stage, k[3])
-            kernels.flight_finish(c, k[0], k[1], k[2], k[3], h, fp, glide, lf, gf)
+            kernels.flight_finish(c, readonly(k[0]), readonly(k[1]), readonly(k[2]),
+                                  readonly(k[3]), h, fp, glide, lf, gf)
         return cur, grounded
 
     # -- what a state implies ----------------------------------------------------------------

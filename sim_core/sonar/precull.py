@@ -27,6 +27,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from sim_core.frozen import readonly
+
 __all__ = ["precull", "warm_up"]
 
 F64 = NDArray[np.float64]
@@ -90,8 +92,9 @@ def precull(c: F64, n: F64, a: F64, rows: NDArray[np.intp] | None, pos: F64, axi
     (survivors, dropped by the guards)."""
     use_rows = rows is not None
     found, dropped = _precull(
-        c, n, a, rows if rows is not None else np.empty(0, np.intp), use_rows, pos, axis,
-        float(r_min2), float(reach2), bool(cone), float(cos_reach), *out)
+        readonly(c), readonly(n), readonly(a),
+        readonly(rows if rows is not None else np.empty(0, np.intp)), use_rows, readonly(pos),
+        readonly(axis), float(r_min2), float(reach2), bool(cone), float(cos_reach), *out)
     return int(found), int(dropped)
 
 

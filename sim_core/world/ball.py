@@ -25,6 +25,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from sim_core.frozen import readonly
+
 __all__ = ["BLOCK", "ball_rows", "block_bounds", "warm_up"]
 
 #: consecutive leaves boxed together by :func:`block_bounds`
@@ -78,8 +80,8 @@ def ball_rows(centers: NDArray[np.float64], bounds: NDArray[np.float64],
     """Ascending rows of ``centers (M, 3)`` (m, C-contiguous float64) within ``radius_m`` of
     ``point (3,)`` (m), with ``bounds`` their :func:`block_bounds` (the module docstring says
     how it is decided)."""
-    return _rows(centers, bounds, float(point[0]), float(point[1]), float(point[2]),
-                 float(radius_m) * float(radius_m))
+    return _rows(readonly(centers), readonly(bounds), float(point[0]), float(point[1]),
+                 float(point[2]), float(radius_m) * float(radius_m))
 
 
 def warm_up() -> None:
