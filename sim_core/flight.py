@@ -293,7 +293,8 @@ class FlightModel:
         wf = np.ascontiguousarray(np.broadcast_to(w, shape), dtype=np.float64)
         m = glide.size
         dy = np.empty((STATE_ROWS, *shape))
-        kernels.flight_rhs(readonly(yf.reshape(STATE_ROWS, m)), readonly(uf.reshape(2, m)),
+        # the state as step() passes its own (a writable array), the inputs read-only
+        kernels.flight_rhs(np.array(yf.reshape(STATE_ROWS, m)), readonly(uf.reshape(2, m)),
                            readonly(wf.reshape(m)), readonly(fp), readonly(glide),
                            dy.reshape(STATE_ROWS, m))
         return dy
@@ -350,7 +351,7 @@ class FlightModel:
         lf, gf = live.reshape(m), grounded.reshape(m)
         k = np.empty((4, STATE_ROWS, m))
         stage = np.empty((STATE_ROWS, m))
-        still = np.zeros(m)
+        still = readonly(np.zeros(m))
         winds = updraft is not None and self.any_glide
 
         def rhs(state: F8, out: F8) -> None:
@@ -360,19 +361,18 @@ class FlightModel:
                 w = np.ascontiguousarray(np.broadcast_to(
                     updraft(state[X : Y + 1].reshape(2, *shape)), shape),
                     dtype=np.float64).reshape(m)
-            kernels.flight_rhs(readonly(state), uf, readonly(w), fp, glide, out)
+            kernels.flight_rhs(state, uf, readonly(w), fp, glide, out)
 
         h = dt / substeps
         for _ in range(substeps):
             rhs(c, k[0])
-            kernels.flight_stage(readonly(c), h / 2, readonly(k[0]), stage)
+            kernels.flight_stage(c, h / 2, k[0], stage)
             rhs(stage, k[1])
-            kernels.flight_stage(readonly(c), h / 2, readonly(k[1]), stage)
+            kernels.flight_stage(c, h / 2, k[1], stage)
             rhs(stage, k[2])
-            kernels.flight_stage(readonly(c), h, readonly(k[2]), stage)
+            kernels.flight_stage(c, h, k[2], stage)
             rhs(stage, k[3])
-            kernels.flight_finish(c, readonly(k[0]), readonly(k[1]), readonly(k[2]),
-                                  readonly(k[3]), h, fp, glide, lf, gf)
+            kernels.flight_finish(c, k[0], k[1], k[2], k[3], h, fp, glide, lf, gf)
         return cur, grounded
 
     # -- what a state implies ----------------------------------------------------------------
