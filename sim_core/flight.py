@@ -260,14 +260,15 @@ class FlightModel:
     def _table(self, shape: tuple[int, ...]) -> tuple[F8, B8]:
         """The parameters broadcast to the state shape ``S`` and flattened, built once per
         shape: (:data:`~sim_core.soaring.kernels.FP_ROWS`, M) rows ``FP_*`` of the compiled
-        kernels, and the glide mask (M,)."""
+        kernels, and the glide mask (M,); both read-only, as the kernels take their inputs
+        (:mod:`sim_core.frozen`)."""
         table = self._tables.get(shape)
         if table is None:
             rows = (self.bank_tau, self.bank_rate_max, self.speed_tau, self.speed_rate_max,
                     self.A, self.B, self.C, self.g, self.floor, self.ceiling)
             fp = np.stack([np.broadcast_to(r, shape).ravel() for r in rows]).astype(np.float64)
             glide = np.ascontiguousarray(np.broadcast_to(self.glide, shape).ravel())
-            table = self._tables[shape] = (fp, glide)
+            table = self._tables[shape] = (readonly(fp), readonly(glide))
         return table
 
     def _sink(self, speed: F8, bank: F8) -> F8:
@@ -295,8 +296,7 @@ class FlightModel:
         dy = np.empty((STATE_ROWS, *shape))
         # the state as step() passes its own (a writable array), the inputs read-only
         kernels.flight_rhs(np.array(yf.reshape(STATE_ROWS, m)), readonly(uf.reshape(2, m)),
-                           readonly(wf.reshape(m)), readonly(fp), readonly(glide),
-                           dy.reshape(STATE_ROWS, m))
+                           readonly(wf.reshape(m)), fp, glide, dy.reshape(STATE_ROWS, m))
         return dy
 
     def fun(self, u: ArrayLike, updraft: Updraft | None = None) -> Callable[[float, F8], F8]:
@@ -343,7 +343,6 @@ class FlightModel:
             return cur, grounded
         substeps = max(substeps, math.ceil(dt / self.max_substep - 1e-9))
         fp, glide = self._table(shape)
-        fp, glide = readonly(fp), readonly(glide)
         m = glide.size
         c = cur.reshape(STATE_ROWS, m)
         uf = readonly(np.ascontiguousarray(np.broadcast_to(np.asarray(u, dtype=np.float64),

@@ -16,7 +16,8 @@ from sim_core.world import ball
 
 def _versions() -> dict[str, int]:
     funcs = {"flight_rhs": kernels.flight_rhs, "flight_stage": kernels.flight_stage,
-             "flight_finish": kernels.flight_finish, "ball": ball._rows,
+             "flight_finish": kernels.flight_finish, "sink_many": kernels.sink_many,
+             "ball": ball._rows,
              "precull": precull._precull}
     return {name: len(f.signatures) for name, f in funcs.items()}
 
