@@ -7,17 +7,19 @@ default) and once with ``--threads``, interleaved ``REPEAT`` times. Measured per
 the command's exit), the resident memory of each process halfway through the run
 (``/proc/PID/status`` VmRSS: per node host, and the launcher), the CPU seconds of the command
 and all its processes (``RUSAGE_CHILDREN``) per sim second, and what the loop delivered: sim
-seconds, echoes, ping -> echo and state latency percentiles from the launch's monitor (which
-runs at nice +5 in the launcher, so its receive times include its wait for a core), the state
+seconds, echoes, ping -> echo and state latency percentiles from the launch's monitor (in the
+launcher: ``SCHED_FIFO`` 1, below the real-time nodes, when the launch has some, as the demo
+has; else nice +5, and its receive times include its wait for a core), the state
 latency p99 at the CAN adapter ``autopilot`` (its ``state_latency_ms``: bus publish -> its state
 callback, the consumer the states are for), and the largest gap between consecutive publishes
 of a glider's state (the monitor's ``state_gap_ms``, from the headers' publish times). A third
 mode runs the processes with the server's states at 250 Hz (``--param
 server.scene.state_rate_hz=250``; issue 19 asks for gaps ≤ 10 ms and a publish → receive p99
-≤ 3 ms there), and a fourth the same with the server's tick thread left at the nice it started
-with (``--param server.tick_nice=0``), the baseline of the tick priority; "late ticks" is the
-server's ``late_ticks`` (a tick published more than a period after its wall-clock due time) per
-tick, "tick thread" its ``tick_priority``.
+≤ 3 ms there), and a fourth the same with every node at normal scheduling (``--no-realtime``:
+the demo's server and CAN adapter otherwise run their threads ``SCHED_FIFO``, its ``realtime``
+keys; the tick thread then asks for nice -10, as before real time), the baseline of real time;
+"late ticks" is the server's ``late_ticks`` (a tick published more than a period after its
+wall-clock due time) per tick, "tick thread" its ``tick_priority``.
 
 A full garbage collection in a node's process: in a fresh interpreter, one of the demo's nodes
 is built as its node host builds it (its entry imported, constructed with the launch file's
@@ -49,8 +51,8 @@ REPEAT = 3
 MODES: dict[str, list[str]] = {
     "threads": ["--threads"], "processes": [],
     "processes, states at 250 Hz": ["--param", "server.scene.state_rate_hz=250"],
-    "processes, states at 250 Hz, tick_nice 0": [
-        "--param", "server.scene.state_rate_hz=250", "--param", "server.tick_nice=0"]}
+    "processes, states at 250 Hz, no real time": [
+        "--param", "server.scene.state_rate_hz=250", "--no-realtime"]}
 
 
 def _rss_mb(pid: int) -> float:

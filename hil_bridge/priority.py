@@ -1,5 +1,5 @@
-"""CPU priority (Linux nice, which is per thread): work that must yield to the loop, and the
-loop itself.
+"""CPU priority (Linux nice and real-time scheduling, both per thread): work that must yield to
+the loop, and the loop itself.
 
 Echo workers and echo nodes (:mod:`hil_bridge.server.echo_pool`,
 :mod:`hil_bridge.server.echo_nodes`, the whole process) and the launch's bus monitor
@@ -9,6 +9,18 @@ thread calls :func:`raise_priority` in ``realtime`` mode (``tick_nice``): a nega
 ``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` that allows it (``ulimit -e``;
 ``/etc/security/limits.conf``: ``@realtime - nice -10``), as ros2_control's real-time thread
 priority needs its limits; where it is not allowed, the thread keeps its nice and says why.
+
+**Real time.** A nice only weighs a thread's share of the cores: a woken thread still waits for
+the running one's time slice, a few milliseconds on a loaded machine, at every hop of a message
+(publisher, its ZeroMQ I/O thread, the proxy, the subscriber's I/O thread, the subscriber).
+``SCHED_FIFO`` (:func:`realtime`, priority 1..98) runs a woken thread at once, ahead of every
+normal thread: what a launch node's ``realtime`` key asks for (docs/launch.md, *Real time*), as
+ros2_control's ``thread_priority`` does. It needs ``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO`` that
+allows it (``ulimit -r``; limits.conf: ``@realtime - rtprio 98``); where it is not allowed the
+thread runs on at its normal priority and says why. Only threads whose work per wake-up is
+bounded may run so (a thread that computes would starve every normal thread of its core):
+compute threads call :func:`leave_realtime`, and processes started from a real-time thread start
+normal (:func:`normal_children`).
 """
 
 from __future__ import annotations
@@ -16,8 +28,14 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
+from collections.abc import Iterator
+from typing import Any
 
-__all__ = ["can_raise", "lower_priority", "raise_priority"]
+__all__ = ["can_raise", "can_realtime", "leave_realtime", "loop_priority", "lower_priority",
+           "normal_children", "raise_priority", "realtime", "realtime_io", "realtime_priority"]
+
+#: the highest priority :func:`realtime` takes (99 is left to the kernel's own threads)
+MAX_REALTIME = 98
 
 
 def lower_priority(nice: int, *, thread_only: bool = False) -> None:
@@ -33,6 +51,7 @@ def lower_priority(nice: int, *, thread_only: bool = False) -> None:
             tids = [0]
     for tid in tids:
         with contextlib.suppress(OSError):
+            _to_normal(tid)
             os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
 
 
@@ -64,3 +83,109 @@ def raise_priority(nice: int) -> str:
     except OSError as exc:
         return f"nice {current} (nice {nice} not permitted: {exc.strerror or exc})"
     return f"nice {nice}"
+
+
+def loop_priority(*, paced: bool, nice: int) -> str:
+    """Set the priority of the calling loop thread (the server's tick thread) and return it for
+    a summary. A thread that runs real time (its node host's ``realtime``) goes one above it, so
+    above the node's other threads, when the loop is ``paced`` (it sleeps between its
+    iterations), and leaves real time when not (unpaced, it would hold a core from every normal
+    thread); a normal paced thread asks for ``nice`` (< 0; :func:`raise_priority`)."""
+    rt = realtime_priority()
+    if rt and not paced:
+        leave_realtime()
+        return "normal (unpaced)"
+    if rt:
+        return realtime(min(rt + 1, MAX_REALTIME))
+    if paced and nice < 0:
+        return raise_priority(nice)
+    return "unchanged"
+
+
+def _check_realtime(priority: int) -> None:
+    if not 1 <= priority <= MAX_REALTIME:
+        raise ValueError(f"realtime: expected a priority 1..{MAX_REALTIME}, got {priority}")
+
+
+def realtime_priority(tid: int = 0) -> int:
+    """The ``SCHED_FIFO``/``SCHED_RR`` priority thread ``tid`` runs at (0: the calling thread);
+    0 when it runs a normal policy (or the OS cannot say)."""
+    try:
+        policy = os.sched_getscheduler(tid) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+        if policy not in (os.SCHED_FIFO, os.SCHED_RR):
+            return 0
+        return int(os.sched_getparam(tid).sched_priority)
+    except (OSError, AttributeError):
+        return 0
+
+
+def realtime(priority: int, *, inherit: bool = False) -> str:
+    """Run the calling thread under ``SCHED_FIFO`` at ``priority`` (1..98). With ``inherit``,
+    threads it starts later run so too (a node host, before starting its nodes); without, they
+    and every process it starts begin at normal priority (``SCHED_RESET_ON_FORK``). Returns
+    what the thread runs at, for a summary: ``"fifo 30"``, or ``"normal (fifo 30 not
+    permitted: ...)"`` where the OS refuses (no privilege, another OS)."""
+    _check_realtime(priority)
+    flags = 0 if inherit else getattr(os, "SCHED_RESET_ON_FORK", 0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO | flags, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        return f"normal (fifo {priority} not permitted: {why})"
+    return f"fifo {priority}"
+
+
+def can_realtime(priority: int) -> bool:
+    """Whether a thread of this process may run under ``SCHED_FIFO`` at ``priority`` (probed on
+    a thread of its own, which ends)."""
+    _check_realtime(priority)
+    got: list[str] = []
+    probe = threading.Thread(target=lambda: got.append(realtime(priority)), name="rt-probe")
+    probe.start()
+    probe.join()
+    return bool(got) and got[0].startswith("fifo")
+
+
+def _to_normal(tid: int) -> None:
+    if realtime_priority(tid):
+        os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+
+
+def leave_realtime() -> None:
+    """Return the calling thread to normal scheduling (``SCHED_OTHER``, its nice unchanged) if it
+    runs a real-time policy: compute threads of a real-time node process call it first."""
+    with contextlib.suppress(OSError, AttributeError):
+        _to_normal(0)
+
+
+@contextlib.contextmanager
+def normal_children() -> Iterator[None]:
+    """Processes the calling thread starts in this block begin at normal priority, even when
+    the thread runs real time (``SCHED_RESET_ON_FORK`` for the block)."""
+    prio = realtime_priority()
+    if not prio:
+        yield
+        return
+    policy = os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK
+    os.sched_setscheduler(0, policy | os.SCHED_RESET_ON_FORK, os.sched_param(prio))
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, os.sched_param(prio))
+
+
+def realtime_io(priority: int, ctx: Any = None) -> str:
+    """Have the I/O threads of ZeroMQ context ``ctx`` (default: the process's shared one, which
+    the bus's endpoints use), not yet holding a socket (libzmq starts them with the first), run
+    under ``SCHED_FIFO`` at ``priority``, when this process may (probed first: libzmq aborts the
+    process on a refusal). Returns what they will run at."""
+    import zmq
+
+    _check_realtime(priority)
+    if ctx is None:
+        ctx = zmq.Context.instance()
+    if not can_realtime(priority):
+        return f"normal (fifo {priority} not permitted)"
+    ctx.set(zmq.THREAD_SCHED_POLICY, os.SCHED_FIFO)
+    ctx.set(zmq.THREAD_PRIORITY, priority)
+    return f"fifo {priority}"

@@ -7,6 +7,9 @@ what lets publishers wait for their subscribers and re-send latched values (see
 
 Binding is loopback-only unless CURVE keys are given (:func:`hil_bridge.bus.security.check_bind`).
 A port ``0`` binds an ephemeral port; :attr:`Proxy.url` is then the bus URL clients use.
+``realtime`` (a launch of real-time nodes gives their highest priority) runs the forwarder and
+its I/O threads under ``SCHED_FIFO`` at that priority (:mod:`hil_bridge.priority`): every
+message's path crosses them.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from zmq.auth.thread import ThreadAuthenticator
 from hil_bridge.bus.security import CurveKeys, KeyAllowList, check_bind
 from hil_bridge.bus.transport import backend_class
 from hil_bridge.bus.transport.zmq import parse_zmq_url
+from hil_bridge.priority import realtime, realtime_io
 
 __all__ = ["Proxy", "proxy_for"]
 
@@ -49,6 +53,7 @@ class Proxy:
         *,
         curve: CurveKeys | None = None,
         hwm: int = 1000,
+        realtime: int = 0,
     ) -> None:
         if pub_endpoint is None or sub_endpoint is None:
             from hil_bridge.bus.domain import current
@@ -62,6 +67,7 @@ class Proxy:
         self._requested = (pub_endpoint, sub_endpoint)
         self.curve = curve
         self.hwm = hwm
+        self.realtime = realtime
         self.allow_list = KeyAllowList(curve.allowed) if curve is not None else None
         self.pub_endpoint = pub_endpoint
         self.sub_endpoint = sub_endpoint
@@ -73,10 +79,11 @@ class Proxy:
         self.error: BaseException | None = None
 
     @classmethod
-    def from_url(cls, url: str, *, curve: CurveKeys | None = None, hwm: int = 1000) -> Proxy:
+    def from_url(cls, url: str, *, curve: CurveKeys | None = None, hwm: int = 1000,
+                 realtime: int = 0) -> Proxy:
         """The proxy serving the ZeroMQ bus URL ``url`` (same endpoint rules as the clients)."""
         ends = parse_zmq_url(url)
-        return cls(ends.pub, ends.sub, curve=curve, hwm=hwm)
+        return cls(ends.pub, ends.sub, curve=curve, hwm=hwm, realtime=realtime)
 
     @property
     def url(self) -> str:
@@ -92,6 +99,8 @@ class Proxy:
             if self._thread is not None:
                 return self
             ctx = zmq.Context()
+            if self.realtime:
+                realtime_io(self.realtime, ctx)
             sockets: list[zmq.Socket] = []
             auth: ThreadAuthenticator | None = None
             try:
@@ -141,6 +150,8 @@ class Proxy:
             return self
 
     def _run(self, xsub: zmq.Socket, xpub: zmq.Socket, ctrl: zmq.Socket) -> None:
+        if self.realtime:
+            realtime(self.realtime)
         try:
             zmq.proxy_steerable(xsub, xpub, None, ctrl)
         except zmq.ZMQError as exc:
@@ -183,8 +194,9 @@ class Proxy:
         self.stop()
 
 
-def proxy_for(url: str, *, curve: CurveKeys | None = None, hwm: int = 1000) -> Proxy | None:
+def proxy_for(url: str, *, curve: CurveKeys | None = None, hwm: int = 1000,
+              realtime: int = 0) -> Proxy | None:
     """The (unstarted) proxy a bus URL needs, or ``None`` for in-process buses (``mem://``)."""
     if not backend_class(url).NEEDS_PROXY:
         return None
-    return Proxy.from_url(url, curve=curve, hwm=hwm)
+    return Proxy.from_url(url, curve=curve, hwm=hwm, realtime=realtime)

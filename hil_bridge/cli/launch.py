@@ -4,7 +4,8 @@ Runs the nodes of a launch file, each in a process of its own (nodes that share 
 ``container:`` share one; ``--threads``, or a ``mem://`` bus, runs them as threads of this
 process instead: see :mod:`hil_bridge.launch.runner`), until ``--duration`` seconds have passed
 or Ctrl-C/SIGTERM arrives, then stops them in reverse order. ``--only``/``--skip`` leave nodes
-out (to run one elsewhere, e.g. with ``echoloop run``).
+out (to run one elsewhere, e.g. with ``echoloop run``). ``--no-realtime`` runs every node at
+normal scheduling, whatever the file's ``realtime`` keys (docs/launch.md, *Real time*).
 ``--json`` prints the run summary (messages per topic, drops, stalls, latency percentiles, every
 node's ``stats()``, link states, failures) as one JSON document on stdout; otherwise a short
 human summary is printed. What failed (a node, an ``--expect`` that did not hold, a hardware
@@ -22,7 +23,7 @@ from typing import Any
 
 from hil_bridge.bus.domain import Domain
 from hil_bridge.cli._args import add_domain_argument, domain_for_run, seconds
-from hil_bridge.launch.runner import LaunchSpec, RunSummary, parse_param_overrides, run
+from hil_bridge.launch.runner import LaunchSpec, RunSummary, load, parse_param_overrides, run
 from hil_bridge.lifetime import freeze_heap
 from hil_bridge.outputs import atomic_output, check_output
 from hil_bridge.plots.recording import plot_recording
@@ -60,6 +61,8 @@ def _parser() -> argparse.ArgumentParser:
     add_domain_argument(p, auto=True)
     p.add_argument("--threads", action="store_true",
                    help="run every node as a thread of this process (as a mem:// bus must)")
+    p.add_argument("--no-realtime", action="store_true",
+                   help="run every node at normal scheduling, whatever the file's realtime keys")
     p.add_argument("--only", action="append", default=[], metavar="NODE",
                    help="run only this node of the file; repeatable")
     p.add_argument("--skip", action="append", default=[], metavar="NODE",
@@ -219,10 +222,15 @@ def main(argv: list[str] | None = None) -> int:
                 plot_recording(args.record, tmp)
 
         after_run["plot"] = plot
+    what: str | LaunchSpec = args.file
+    overrides = parse_param_overrides(args.param)
+    if args.no_realtime:
+        what = load(args.file, params_overrides=overrides,
+                    allow_modules=args.allow_module).without_realtime()
     with domain_for_run(args, "echoloop launch") as domain:
         summary = run(
-            args.file,
-            params_overrides=parse_param_overrides(args.param),
+            what,
+            params_overrides=overrides,
             duration=args.duration,
             record=args.record,
             live=True if args.live else None,

@@ -6,8 +6,9 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
 ``FD``, the only argument). Over it, as pickled tuples:
 
 1. the runner sends ``("nodes", {"domain": str, "bus": str, "allow_modules": [...],
-   "sync": bool, "nodes": [{"name", "entry", "params"}, ...]})``; the host imports the nodes'
-   modules and answers ``("prepared", None)`` (hosts of one launch import at the same time);
+   "sync": bool, "realtime": int, "nodes": [{"name", "entry", "params"}, ...]})``; the host
+   imports the nodes' modules and answers ``("prepared", None)`` (hosts of one launch import at
+   the same time);
 2. on ``("construct", None)`` the host activates the domain and constructs the nodes in order,
    answering ``("constructed", None)``; on ``("start", None)`` it starts them in order, answering
    ``("ready", None)``. The runner constructs every container's nodes in the launch file's
@@ -18,7 +19,11 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
    before it starts its nodes, the host syncs every bus endpoint of the process
    (:func:`~hil_bridge.bus.transport.sync_open`, up to ``SYNC_TIMEOUT_S``): a node starts only
    once its endpoint knows the subscriptions the proxy held (the recorder's, those of the nodes
-   constructed earlier), so none of those misses the first messages it publishes;
+   constructed earlier), so none of those misses the first messages it publishes. With a
+   ``realtime`` priority (the launch file's, > 0) the bus's I/O thread and every thread the
+   nodes start run under ``SCHED_FIFO`` at it (the nodes are built at normal priority, and the
+   host's own thread returns to it once they started), and each node's stats say so
+   (``scheduling``);
 3. then it answers requests until told to stop: ``("stats", name)`` -> ``("stats", dict)``,
    ``("failure", name)`` and ``("final_failure", name)`` (the end of the run) -> ``("failure",
    str | None)``, ``("stop", name)`` -> ``("stopped", (stats, failure))``; it exits once every
@@ -59,6 +64,7 @@ from hil_bridge.bus.transport import sync_open
 from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of
 from hil_bridge.launch.spec import resolve_entry
 from hil_bridge.lifetime import die_with_parent, freeze_heap
+from hil_bridge.priority import leave_realtime, realtime, realtime_io
 
 __all__ = ["main"]
 
@@ -155,6 +161,19 @@ def _start(made: dict[str, Any], sync: str | None) -> str | None:
     return None
 
 
+def _start_realtime(priority: int) -> str:
+    """Have the threads the nodes start run under ``SCHED_FIFO`` at ``priority`` (the launch
+    file's ``realtime``), with the bus's I/O thread (:func:`hil_bridge.priority.realtime_io`,
+    before construction); one line says what they got."""
+    got = realtime(priority, inherit=True)
+    if got.startswith("fifo"):
+        log.info("realtime: the nodes' threads run SCHED_FIFO at priority %d", priority)
+    else:
+        log.warning("realtime %d: %s; the nodes run at normal priority (docs/launch.md, "
+                    "Real time)", priority, got)
+    return got
+
+
 def _stop_nodes(nodes: Iterable[Any]) -> None:
     """Stop ``nodes`` in reverse order; one that raises does not keep the others running."""
     for obj in reversed(list(nodes)):
@@ -181,7 +200,7 @@ def _next(conn: Connection) -> tuple[str, Any] | None:
 
 
 def _serve(conn: Connection, made: dict[str, Any], stop_all: StopFlag,
-           first: tuple[str, Any] | None = None) -> None:
+           first: tuple[str, Any] | None = None, scheduling: str | None = None) -> None:
     """Answer the runner's requests (``first``, then what comes) until every node stopped or
     the runner is gone (the channel closed, or a reply failed); nodes left are stopped in
     reverse order, whatever ends the loop."""
@@ -199,32 +218,38 @@ def _serve(conn: Connection, made: dict[str, Any], stop_all: StopFlag,
                     kind, name = conn.recv()
                 except (EOFError, OSError):
                     break
-            if not _answer(conn, running, kind, name):
+            if not _answer(conn, running, kind, name, scheduling):
                 break
     finally:
         _stop_nodes(running.values())
 
 
-def _answer(conn: Connection, running: dict[str, Any], kind: str, name: str) -> bool:
-    """Answer one request; False when the runner cannot receive the answer (it is gone)."""
+def _answer(conn: Connection, running: dict[str, Any], kind: str, name: str,
+            scheduling: str | None = None) -> bool:
+    """Answer one request; False when the runner cannot receive the answer (it is gone). A
+    node's stats carry its threads' ``scheduling`` when the launch asked for real time."""
     obj = running.get(name)
     if obj is None:
         reply: tuple[str, Any] = ("error", f"no running node {name!r} in this host")
     else:
         try:
             if kind == "stats":
-                reply = ("stats", obj.stats())
+                reply = ("stats", _with(obj.stats(), scheduling))
             elif kind in ("failure", "final_failure"):
                 reply = ("failure", failure_of(obj, final=kind == "final_failure"))
             elif kind == "stop":
                 del running[name]
                 obj.stop()
-                reply = ("stopped", (obj.stats(), failure_of(obj)))
+                reply = ("stopped", (_with(obj.stats(), scheduling), failure_of(obj)))
             else:
                 reply = ("error", f"unknown request {kind!r}")
         except Exception as exc:  # the runner names the node and the call
             reply = ("error", f"{kind}() raised {type(exc).__name__}: {exc}")
     return _send(conn, reply)
+
+
+def _with(stats: dict[str, Any], scheduling: str | None) -> dict[str, Any]:
+    return stats if scheduling is None else {**stats, "scheduling": scheduling}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -260,6 +285,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     if _next(conn) != ("construct", None) or stop_all.is_set():
         return 1
+    rt = int(request.get("realtime", 0))
+    if rt:
+        realtime_io(rt)  # before the first socket starts its I/O thread
     with use(resolve(request["domain"])):
         made, error = _construct(request["nodes"], classes, request["bus"])
         sync = request["bus"] if request["sync"] else None
@@ -277,13 +305,15 @@ def main(argv: list[str] | None = None) -> int:
         if request_ != ("start", None):  # the launch stops before it started these nodes
             _serve(conn, made, stop_all, first=request_)
             return 0
+        scheduling = _start_realtime(rt) if rt else None
         error = _start(made, sync)
+        leave_realtime()  # the threads the nodes started keep it; this one only answers
         if error is not None:
             _send(conn, ("error", error))
             return 1
         freeze_heap()
         _send(conn, ("ready", None))  # if the runner is gone, _serve finds it so and stops all
-    _serve(conn, made, stop_all)
+    _serve(conn, made, stop_all, scheduling=scheduling)
     conn.close()
     return 0
 

@@ -34,7 +34,10 @@ class BusMonitor:
     nodes come first: it receives every message of the run, every state and echo included, and
     at the nodes' priority it took the cores from the server's tick loop when they were short.
     What it measures on receipt (``state_latency_ms``) then includes its own wait for a core;
-    ``state_gap_ms`` comes from the publishers' clocks.
+    ``state_gap_ms`` comes from the publishers' clocks. In a launch of real-time nodes
+    (``realtime`` > 0, :mod:`hil_bridge.priority`) it runs instead under ``SCHED_FIFO`` at that
+    priority (the launch gives it 1, the lowest: after every real-time node, before every normal
+    thread), so that it measures the bus, not its wait behind the real-time nodes.
     """
 
     CPU_SHARE = 0.5
@@ -42,9 +45,10 @@ class BusMonitor:
     FLOOD_CPU_SHARE = 0.05
     FLOOD_BAD_PER_S = 1000
 
-    def __init__(self, name: str, *, bus: str) -> None:
+    def __init__(self, name: str, *, bus: str, realtime: int = 0) -> None:
         self.name = name
         self.bus = bus
+        self.realtime = realtime
         self._transport: Any = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -63,7 +67,10 @@ class BusMonitor:
 
     def start(self) -> None:
         from hil_bridge.bus.transport import open_transport
+        from hil_bridge.priority import realtime_io
 
+        if self.realtime:  # its I/O thread, if this opens the process's first endpoint
+            realtime_io(self.realtime)
         self._transport = open_transport(self.bus)
         self._transport.subscribe(b"")
         self._thread = threading.Thread(target=self.faults.guarded("receive loop", self._loop),
@@ -87,9 +94,12 @@ class BusMonitor:
     def _loop(self) -> None:
         from hil_bridge.bus.codec import decode_payload, decode_topic_header
         from hil_bridge.errors import CodecError, HilError
-        from hil_bridge.priority import lower_priority
+        from hil_bridge.priority import lower_priority, realtime
 
-        lower_priority(self.NICE, thread_only=True)
+        if self.realtime:
+            realtime(self.realtime)
+        else:
+            lower_priority(self.NICE, thread_only=True)
 
         window_wall, window_cpu, window_bad, n = time.monotonic(), time.thread_time(), 0, 0
         while not self._stop.is_set():

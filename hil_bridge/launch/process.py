@@ -52,7 +52,8 @@ def _signal_name(code: int) -> str:
 
 
 class ContainerProcess:
-    """One host process running the nodes ``nodes`` (``[{"name", "entry", "params"}]``)."""
+    """One host process running the nodes ``nodes`` (``[{"name", "entry", "params"}]``, and
+    ``"realtime"``: the host runs at the highest)."""
 
     def __init__(self, name: str, nodes: Sequence[dict[str, Any]], *, bus: str, domain: int,
                  allow_modules: Sequence[str] = (), log_dir: Path | None = None,
@@ -101,6 +102,7 @@ class ContainerProcess:
         self._pump.start()
         self._conn.send(("nodes", {"domain": str(self.domain), "bus": self.bus,
                                    "allow_modules": self.allow_modules, "sync": self.sync,
+                                   "realtime": max(n.get("realtime", 0) for n in self.nodes),
                                    "nodes": self.nodes}))
 
     def construct(self) -> None:

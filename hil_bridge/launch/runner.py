@@ -393,7 +393,7 @@ def _spawn(
         cls = resolve_entry(node.entry, where=f"nodes[{i}].entry",
                             allow_modules=spec.allow_modules)
         containers.setdefault(node.container or node.name, []).append(
-            {"name": node.name, "entry": node.entry,
+            {"name": node.name, "entry": node.entry, "realtime": node.realtime,
              "params": node_params(node, cls, overwrite=overwrite)})
     if domain.number is None:
         raise ConfigError(f"{domain} has no number: its nodes cannot be processes")
@@ -511,13 +511,14 @@ def run(
     t0 = time.monotonic()
     held = contextlib.ExitStack()
     held.enter_context(dom.claim())
-    proxy = proxy_for(bus_url) if launch_proxy(spec) else None
+    rt = spec.realtime if in_processes else 0  # the proxy and monitor of real-time nodes
+    proxy = proxy_for(bus_url, realtime=rt) if launch_proxy(spec) else None
     try:
         with use(dom):
             if proxy is not None:
                 proxy.start()
             if monitor:
-                bus_monitor = BusMonitor("launch_monitor", bus=bus_url)
+                bus_monitor = BusMonitor("launch_monitor", bus=bus_url, realtime=min(rt, 1))
                 bus_monitor.start()
                 extras.append(bus_monitor)
             if record_path is not None:

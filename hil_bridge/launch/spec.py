@@ -13,6 +13,7 @@ A launch file is plain data (no substitutions, conditions or event handlers)::
       - name: sonar_head
         entry: drivers.serial.adapter:SonarHeadAdapter
         params: {port: /dev/ttyUSB0}
+        realtime: 20             # optional SCHED_FIFO priority of its threads (docs/launch.md)
 
 It is validated once, at load, into :class:`LaunchSpec` (unknown keys raise a
 :class:`~sim_core.config.ConfigError` naming the key; every ``entry`` must import and name a
@@ -38,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from hil_bridge.files.config import load_yaml, parse_override
+from hil_bridge.priority import MAX_REALTIME
 from sim_core.config import ConfigError, apply_overrides, from_dict
 
 __all__ = [
@@ -70,18 +72,24 @@ def check_duration(seconds: float | str, *, where: str = "--duration") -> float:
 @dataclass(frozen=True, slots=True)
 class NodeSpec:
     """One node of a launch file: a unique ``name``, ``entry`` ``"pkg.module:Class"``, params,
-    and the ``container`` whose process it shares (default: a process of its own)."""
+    the ``container`` whose process it shares (default: a process of its own), and the
+    ``realtime`` priority its threads run at (``SCHED_FIFO`` 1..98; 0: normal scheduling; a
+    container runs at the highest of its nodes')."""
 
     name: str
     entry: str
     params: dict[str, Any] = field(default_factory=dict)
     container: str = ""
+    realtime: int = 0
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "a").isalnum():
             raise ValueError(f"name: expected [A-Za-z0-9_]+, got {self.name!r}")
         if self.container and not self.container.replace("_", "a").isalnum():
             raise ValueError(f"container: expected [A-Za-z0-9_]+, got {self.container!r}")
+        if isinstance(self.realtime, bool) or not 0 <= self.realtime <= MAX_REALTIME:
+            raise ValueError(f"realtime: expected a SCHED_FIFO priority 1..{MAX_REALTIME} "
+                             f"(0: normal scheduling), got {self.realtime!r}")
         module, sep, attr = self.entry.partition(":")
         if not sep or not module or not attr:
             raise ValueError(f"entry: expected 'package.module:Class', got {self.entry!r}")
@@ -112,6 +120,16 @@ class LaunchSpec:
             seen.add(node.name)
         if self.duration is not None:
             check_duration(self.duration, where="duration")
+
+    @property
+    def realtime(self) -> int:
+        """The highest ``realtime`` priority of the nodes (0: none asks for real time)."""
+        return max(node.realtime for node in self.nodes)
+
+    def without_realtime(self) -> LaunchSpec:
+        """This launch with every node at normal scheduling (``echoloop launch --no-realtime``)."""
+        return dataclasses.replace(
+            self, nodes=tuple(dataclasses.replace(n, realtime=0) for n in self.nodes))
 
     def node(self, name: str) -> NodeSpec:
         for node in self.nodes:

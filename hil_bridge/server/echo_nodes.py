@@ -62,7 +62,7 @@ import numpy as np
 
 from hil_bridge.bus.faults import Faults
 from hil_bridge.lifetime import die_with_parent, freeze_heap, reap
-from hil_bridge.priority import lower_priority
+from hil_bridge.priority import lower_priority, normal_children
 from hil_bridge.server.echo_compute import Region
 from hil_bridge.server.echo_pool import WORKER_NICE
 from hil_bridge.server.pose_history import PoseHistory
@@ -230,7 +230,8 @@ class EchoNodes:
             ours, theirs = ctx.Pipe(duplex=True)
             proc = ctx.Process(target=_node_main, args=(spec, theirs, os.getpid()),
                                name=NODE_NAME, daemon=True)
-            proc.start()
+            with normal_children():  # a real-time server's echo nodes compute: never real time
+                proc.start()
             theirs.close()
             p = _Proc(proc, ours, mine)
             self._procs.append(p)

@@ -47,7 +47,7 @@ from typing import Any
 
 from hil_bridge.bus.faults import Faults
 from hil_bridge.lifetime import die_with_parent, freeze_heap, reap
-from hil_bridge.priority import lower_priority
+from hil_bridge.priority import lower_priority, normal_children
 from hil_bridge.server.echo_compute import (
     DeadlinePlanner,
     EchoJob,
@@ -260,7 +260,8 @@ class ProcessPool:
                   theirs, WORKER_NICE, self.cost, os.getpid()),
             name=WORKER_NAME, daemon=True,
         )
-        proc.start()
+        with normal_children():  # a real-time server's workers compute: never real time
+            proc.start()
         theirs.close()
         slot = _Slot(proc, mine)
         self._selector.register(mine, selectors.EVENT_READ, slot)

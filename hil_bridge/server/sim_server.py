@@ -68,7 +68,9 @@ swarm glider's answer to a control step is needed before the period it governs i
 neighbour lists are published before the states of the same step. Stamps are integer sim
 nanoseconds and never decrease. In ``realtime`` mode the tick thread runs at ``tick_nice``
 (-10) where the OS allows it (``tick_priority`` in stats), ahead of the other processes of the
-loop when the cores are short.
+loop when the cores are short; in a real-time node host (the launch file's ``realtime``,
+:mod:`hil_bridge.priority`) it runs ``SCHED_FIFO`` one above the server's other threads (and
+leaves real time in ``fast`` and ``lockstep``, which do not sleep between ticks).
 """
 
 from __future__ import annotations
@@ -99,7 +101,7 @@ from hil_bridge.bus.messages import (
 )
 from hil_bridge.bus.stats import percentiles
 from hil_bridge.files.scene import load_scene
-from hil_bridge.priority import can_raise, raise_priority
+from hil_bridge.priority import can_raise, loop_priority
 from hil_bridge.recording.logs import load_trajectory
 from hil_bridge.server.commands import AutopilotInputs
 from hil_bridge.server.echo_nodes import EchoNodes
@@ -536,11 +538,10 @@ class SimServer:
         last: tuple[FleetStates, bool] | None = None  # the last published tick
         if fleet.swarm is not None:
             self._publish_thermals(0)
-        if mode == "realtime" and self.params.tick_nice < 0:
-            self._tick_priority = raise_priority(self.params.tick_nice)
-            if "not permitted" in self._tick_priority:
-                log.info("%s: tick thread at %s; see docs/server.md, Tick priority", self.name,
-                         self._tick_priority)
+        self._tick_priority = loop_priority(paced=mode == "realtime", nice=self.params.tick_nice)
+        if "not permitted" in self._tick_priority:
+            log.info("%s: tick thread at %s; see docs/server.md, Tick priority", self.name,
+                     self._tick_priority)
         cpu0 = time.thread_time()
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns

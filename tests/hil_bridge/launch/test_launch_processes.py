@@ -6,6 +6,7 @@ nothing behind."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import socket
@@ -20,6 +21,7 @@ import pytest
 
 from hil_bridge.bus.domain import Domain, claim_first_free, use
 from hil_bridge.launch.runner import EXIT_FAILED, run
+from hil_bridge.priority import can_realtime
 from hil_bridge.server.shared_tiles import stores_of
 from sim_core.config import ConfigError
 from tests.hil_bridge.server._killed import alive
@@ -211,3 +213,47 @@ def test_a_launcher_killed_with_sigkill_leaves_nothing_behind(domain: Domain,
             break
         time.sleep(0.2)
     assert not any(left.values()), left
+
+
+def test_a_realtime_node_runs_its_threads_fifo_built_at_normal_its_children_normal(
+    domain: Domain,
+) -> None:
+    """A node's ``realtime`` key: the threads its process starts (its own, the bus's I/O
+    thread) run SCHED_FIFO at it, its constructor and the host's own thread do not, processes
+    it starts inherit it unless started within normal_children; the others run normal."""
+    sched = "tests.hil_bridge.launch.schednodes:SchedReporter"
+    summary = run({"allow_modules": ["tests.hil_bridge.launch.schednodes"], "nodes": [
+        {"name": "rt", "entry": sched, "realtime": 7},
+        {"name": "plain", "entry": sched}]}, duration=0.5, handle_signals=False, domain=domain)
+    assert summary.exit_status == 0, summary.failures
+    rt, plain = summary.nodes["rt"], summary.nodes["plain"]
+    assert "scheduling" not in plain
+    assert {k: plain[k] for k in ("built_at", "started_at", "asked_at", "thread", "child",
+                                  "child_normal")} == dict.fromkeys(
+        ("built_at", "started_at", "asked_at", "thread", "child", "child_normal"), 0)
+    assert plain["io"] == [0]
+    if not can_realtime(7):  # no CAP_SYS_NICE / RLIMIT_RTPRIO here: normal, and why
+        assert rt["scheduling"].startswith("normal (fifo 7 not permitted")
+        assert (rt["thread"], rt["io"]) == (0, [0])
+        return
+    assert rt["scheduling"] == "fifo 7"
+    assert (rt["built_at"], rt["started_at"], rt["asked_at"]) == (0, 7, 0)
+    assert (rt["thread"], rt["thread_after"], rt["io"]) == (7, 7, [7])
+    assert (rt["child"], rt["child_normal"]) == (7, 0)
+
+
+def test_no_realtime_runs_a_realtime_file_at_normal_priority(domain: Domain,
+                                                             tmp_path: Path) -> None:
+    launch = tmp_path / "rt.yaml"
+    launch.write_text(
+        "allow_modules: [tests.hil_bridge.launch.schednodes]\n"
+        "nodes:\n  - {name: rt, entry: 'tests.hil_bridge.launch.schednodes:SchedReporter',"
+        " realtime: 7}\n")
+    proc = subprocess.run(
+        [sys.executable, "-m", "hil_bridge.cli", "launch", str(launch), "--duration", "0.5",
+         "--domain", str(domain.number), "--no-realtime", "--json"],
+        cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    stats = json.loads(proc.stdout)["nodes"]["rt"]
+    assert "scheduling" not in stats
+    assert (stats["started_at"], stats["thread"], stats["io"]) == (0, 0, [0])
