@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -242,18 +243,40 @@ def test_a_realtime_node_runs_its_threads_fifo_built_at_normal_its_children_norm
     assert (rt["child"], rt["child_normal"]) == (7, 0)
 
 
-def test_no_realtime_runs_a_realtime_file_at_normal_priority(domain: Domain,
-                                                             tmp_path: Path) -> None:
+def _launch_rt(tmp_path: Path, domain: Domain, *extra: str,
+               prefix: tuple[str, ...] = ()) -> tuple[dict[str, Any], str]:
+    """``echoloop launch`` of one SchedReporter asking for realtime 7: its stats, its stderr."""
     launch = tmp_path / "rt.yaml"
     launch.write_text(
         "allow_modules: [tests.hil_bridge.launch.schednodes]\n"
         "nodes:\n  - {name: rt, entry: 'tests.hil_bridge.launch.schednodes:SchedReporter',"
         " realtime: 7}\n")
     proc = subprocess.run(
-        [sys.executable, "-m", "hil_bridge.cli", "launch", str(launch), "--duration", "0.5",
-         "--domain", str(domain.number), "--no-realtime", "--json"],
+        [*prefix, sys.executable, "-m", "hil_bridge.cli", "launch", str(launch), "--duration",
+         "0.5", "--domain", str(domain.number), "--json", *extra],
         cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    stats = json.loads(proc.stdout)["nodes"]["rt"]
+    return json.loads(proc.stdout)["nodes"]["rt"], proc.stderr
+
+
+def test_no_realtime_runs_a_realtime_file_at_normal_priority(domain: Domain,
+                                                             tmp_path: Path) -> None:
+    stats, _ = _launch_rt(tmp_path, domain, "--no-realtime")
     assert "scheduling" not in stats
     assert (stats["started_at"], stats["thread"], stats["io"]) == (0, 0, [0])
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("setpriv"),
+                    reason="dropping CAP_SYS_NICE for a child needs root and setpriv")
+def test_a_refused_realtime_runs_the_node_normal_and_says_why(domain: Domain,
+                                                              tmp_path: Path) -> None:
+    """Without CAP_SYS_NICE (and with the default RLIMIT_RTPRIO of 0) the OS refuses
+    SCHED_FIFO: the run goes on at normal priority, one log line and the stats say why."""
+    stats, err = _launch_rt(tmp_path, domain, prefix=(
+        "setpriv", "--bounding-set", "-sys_nice", "--inh-caps", "-sys_nice"))
+    assert stats["scheduling"] == "normal (fifo 7 not permitted: Operation not permitted)"
+    assert (stats["started_at"], stats["thread"], stats["io"]) == (0, 0, [0])
+    [line] = [ln for ln in err.splitlines() if "realtime 7" in ln]
+    assert line.startswith("[rt] WARNING ")
+    assert line.endswith("realtime 7: normal (fifo 7 not permitted: Operation not permitted); "
+                         "the nodes run at normal priority (docs/launch.md, Real time)")
