@@ -17,10 +17,11 @@ the running one's time slice, a few milliseconds on a loaded machine, at every h
 normal thread: what a launch node's ``realtime`` key asks for (docs/launch.md, *Real time*), as
 ros2_control's ``thread_priority`` does. It needs ``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO`` that
 allows it (``ulimit -r``; limits.conf: ``@realtime - rtprio 98``); where it is not allowed the
-thread runs on at its normal priority and says why. Only threads whose work per wake-up is
-bounded may run so (a thread that computes would starve every normal thread of its core):
-compute threads call :func:`leave_realtime`, and processes started from a real-time thread start
-normal (:func:`normal_children`).
+thread runs on at its normal priority and says why. A real-time node process runs every thread
+real time: they share its interpreter lock, and a normal thread holding it would hold the
+real-time ones behind every other process of the machine. Work that would hold a core for long
+(echo workers and echo nodes) runs in processes of its own, started at normal priority
+(:func:`normal_children`); a loop that never sleeps leaves real time (:func:`loop_priority`).
 """
 
 from __future__ import annotations
@@ -153,7 +154,7 @@ def _to_normal(tid: int) -> None:
 
 def leave_realtime() -> None:
     """Return the calling thread to normal scheduling (``SCHED_OTHER``, its nice unchanged) if it
-    runs a real-time policy: compute threads of a real-time node process call it first."""
+    runs a real-time policy (a node host's own thread once its nodes started)."""
     with contextlib.suppress(OSError, AttributeError):
         _to_normal(0)
 
@@ -166,7 +167,7 @@ def normal_children() -> Iterator[None]:
     if not prio:
         yield
         return
-    policy = os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK
+    policy = os.sched_getscheduler(0)  # the reset flag included, as it was
     os.sched_setscheduler(0, policy | os.SCHED_RESET_ON_FORK, os.sched_param(prio))
     try:
         yield

@@ -124,6 +124,14 @@ def _thread_nice(name: str) -> int | None:
     return None
 
 
+def _ticked(srv: SimServer) -> None:
+    """Wait (at most 5 s) for the server's tick thread to run a few ticks."""
+    for _ in range(500):
+        if srv.stats()["ticks"] > 2:
+            return
+        threading.Event().wait(0.01)
+
+
 @pytest.mark.parametrize(("mode", "asked"), [("realtime", -3), ("realtime", 0), ("fast", -3)])
 def test_the_server_raises_its_tick_thread_in_realtime_only(mode: str, asked: int) -> None:
     scene = {"swarm": {"overrides": {"numAgents": 2}, "seed": 1}, "state_rate_hz": 50.0,
@@ -132,10 +140,7 @@ def test_the_server_raises_its_tick_thread_in_realtime_only(mode: str, asked: in
     before = _nice(threading.get_native_id())
     srv.start()
     try:
-        for _ in range(500):
-            if srv.stats()["ticks"] > 2:
-                break
-            threading.Event().wait(0.01)
+        _ticked(srv)
         got = srv.stats()["tick_priority"]
         nice = _thread_nice("prio-tick")
     finally:
@@ -292,10 +297,7 @@ def test_a_realtime_server_runs_its_tick_thread_above_its_own(
 
     _in_thread(start)
     try:
-        for _ in range(500):
-            if srv.stats()["ticks"] > 2:
-                break
-            threading.Event().wait(0.01)
+        _ticked(srv)
         got = srv.stats()["tick_priority"]
         tid = next(t.native_id for t in threading.enumerate() if t.name == "rtprio-tick")
         assert tid is not None
