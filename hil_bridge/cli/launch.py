@@ -23,7 +23,7 @@ from typing import Any
 
 from hil_bridge.bus.domain import Domain
 from hil_bridge.cli._args import add_domain_argument, domain_for_run, seconds
-from hil_bridge.launch.runner import LaunchSpec, RunSummary, load, parse_param_overrides, run
+from hil_bridge.launch.runner import LaunchSpec, RunSummary, parse_param_overrides, run
 from hil_bridge.lifetime import freeze_heap
 from hil_bridge.outputs import atomic_output, check_output
 from hil_bridge.plots.recording import plot_recording
@@ -222,15 +222,10 @@ def main(argv: list[str] | None = None) -> int:
                 plot_recording(args.record, tmp)
 
         after_run["plot"] = plot
-    what: str | LaunchSpec = args.file
-    overrides = parse_param_overrides(args.param)
-    if args.no_realtime:
-        what = load(args.file, params_overrides=overrides,
-                    allow_modules=args.allow_module).without_realtime()
     with domain_for_run(args, "echoloop launch") as domain:
         summary = run(
-            what,
-            params_overrides=overrides,
+            args.file,
+            params_overrides=parse_param_overrides(args.param),
             duration=args.duration,
             record=args.record,
             live=True if args.live else None,
@@ -246,6 +241,7 @@ def main(argv: list[str] | None = None) -> int:
             only=args.only,
             skip=args.skip,
             log_dir=args.log_dir,
+            realtime=not args.no_realtime,
         )
     if args.json:
         print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))

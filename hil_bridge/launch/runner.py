@@ -444,15 +444,17 @@ def run(
     skip: Sequence[str] = (),
     log_dir: str | Path | None = None,
     monitor: bool = True,
+    realtime: bool = True,
 ) -> RunSummary:
     """Start every node of a launch file in order, watch them, stop them in reverse order.
 
     ``processes`` (default: whenever the bus crosses processes, i.e. it is not ``mem://``, and
     the domain is numbered) runs each container, by default each node, in a process of its own
     (:mod:`hil_bridge.launch.process`); otherwise every node is a thread of this process.
-    ``only``/``skip`` name the nodes to run or leave out; ``log_dir`` receives one log file per
-    process. ``monitor`` False runs no bus monitor (``echoloop run``: a node alone must not
-    decode every message of the bus in its own process).
+    ``only``/``skip`` name the nodes to run or leave out; ``realtime`` False runs them at normal
+    scheduling, whatever their ``realtime`` keys; ``log_dir`` receives one log file per process.
+    ``monitor`` False runs no bus monitor (``echoloop run``: a node alone must not decode every
+    message of the bus in its own process).
 
     The run ends ``duration`` seconds after every node started (argument, else the file's;
     ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
@@ -476,8 +478,8 @@ def run(
     """
     spec = path if isinstance(path, LaunchSpec) else load(
         path, params_overrides=params_overrides, allow_modules=allow_modules)
-    if only or skip:
-        spec = select_nodes(spec, only=only, skip=skip)
+    spec = select_nodes(spec, only=only, skip=skip)  # all of them unless told
+    spec = spec if realtime else spec.without_realtime()
     dom = resolve(domain)
     bus_url = bus if bus is not None else spec.bus or dom.bus_url
     spec = dataclasses.replace(spec, bus=bus_url)
@@ -575,17 +577,9 @@ def run(
         held.close()
     nodes = {name: node_stats[name] for name, _ in made}
     summary = RunSummary(
-        wall_s=time.monotonic() - t0,
-        stopped_by=flag.reason,
-        nodes=nodes,
-        monitor=monitor_stats,
-        record=record_path,
-        extras=extra_stats,
-        domain=str(dom),
-        bus=bus_url,
-        links=collect_links(nodes),
-        mode="processes" if in_processes else "threads",
-    )
+        wall_s=time.monotonic() - t0, stopped_by=flag.reason, nodes=nodes, monitor=monitor_stats,
+        record=record_path, extras=extra_stats, domain=str(dom), bus=bus_url,
+        links=collect_links(nodes), mode="processes" if in_processes else "threads")
     steps_failed: list[tuple[str, str]] = []
     for step, action in (after_run or {}).items():
         try:
