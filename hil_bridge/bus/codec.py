@@ -63,6 +63,12 @@ _ARRAY_DTYPES: dict[str, np.dtype[Any]] = {
 }
 _FIELDS: dict[type[Message], tuple[str, ...]] = {}
 _PLANS: dict[type[Message], tuple[tuple[str, bool, frozenset[type] | None, str], ...]] = {}
+#: per class without array fields: its field names in wire order and each one's usual type
+#: (float for a float field), or None; a payload that matches both is checked at once
+_EXACT: dict[type[Message], tuple[tuple[str, ...], tuple[type, ...]] | None] = {}
+#: topic frames seen, and their topics (validated); at most _TOPICS_MAX
+_TOPICS: dict[bytes, str] = {}
+_TOPICS_MAX = 4096
 _SCALARS: dict[Any, tuple[type, ...]] = {
     int: (int,),
     float: (float, int),
@@ -92,7 +98,19 @@ def topic_frame(topic: str) -> bytes:
 
 
 def topic_from_frame(frame: bytes) -> str:
-    """Inverse of :func:`topic_frame`; ``CodecError`` if the frame is not a topic frame."""
+    """Inverse of :func:`topic_frame`; ``CodecError`` if the frame is not a topic frame. A
+    topic validated once is looked up after that (the first :data:`_TOPICS_MAX` topics)."""
+    if type(frame) is not bytes:  # a buffer that may change or not hash
+        frame = bytes(frame)
+    topic = _TOPICS.get(frame)
+    if topic is None:
+        topic = _parse_topic_frame(frame)
+        if len(_TOPICS) < _TOPICS_MAX:
+            _TOPICS[frame] = topic
+    return topic
+
+
+def _parse_topic_frame(frame: bytes) -> str:
     if not frame.endswith(b"\0"):
         raise CodecError(f"topic frame {bytes(frame[:64])!r} does not end with a NUL byte")
     try:
@@ -152,6 +170,10 @@ def _plan(cls: type[Message]) -> tuple[tuple[str, bool, frozenset[type] | None, 
             rows.append((name, name in cls.ARRAYS, None if types is None else frozenset(types),
                          "" if types is None else types[0].__name__))
         plan = _PLANS[cls] = tuple(rows)
+        exact = all(not is_array and allowed is not None for _, is_array, allowed, _ in rows)
+        _EXACT[cls] = ((tuple(r[0] for r in rows),
+                        tuple(_SCALARS.get(hints[r[0]], (dict,))[0] for r in rows))
+                       if exact else None)
     return plan
 
 
@@ -289,8 +311,27 @@ def decode_payload(type_name: str, version: int, frame: bytes) -> Message:
         raise CodecError(f"{type_name} payload is not valid msgpack: {exc}") from None
     if not isinstance(body, dict):
         raise CodecError(f"{type_name} payload must be a msgpack map, got {type(body).__name__}")
+    plan = _plan(cls)
+    exact = _EXACT[cls]
+    if (exact is not None and tuple(body) == exact[0]
+            and tuple(map(type, body.values())) == exact[1]):
+        kwargs: dict[str, Any] = body  # every field, each of its usual type, in wire order
+    else:
+        kwargs = _checked(type_name, plan, body)
+    try:
+        return cls(**kwargs)
+    except Exception as exc:  # any constructor check failing means the frame is bad
+        raise CodecError(f"{type_name} payload does not fit the message: {exc}") from None
+
+
+def _checked(
+    type_name: str, plan: tuple[tuple[str, bool, frozenset[type] | None, str], ...],
+    body: dict[str, Any],
+) -> dict[str, Any]:
+    """The constructor's arguments from ``body``, field by field: arrays rebuilt, scalars of
+    an allowed type, keys of no field left out; ``CodecError`` naming a bad field."""
     kwargs: dict[str, Any] = {}
-    for name, is_array, allowed, expected in _plan(cls):
+    for name, is_array, allowed, expected in plan:
         if name in body:
             value = body[name]
             if is_array:
@@ -301,10 +342,7 @@ def decode_payload(type_name: str, version: int, frame: bytes) -> Message:
                     f"got {type(value).__name__} {value!r}"
                 )
             kwargs[name] = value
-    try:
-        return cls(**kwargs)
-    except Exception as exc:  # any constructor check failing means the frame is bad
-        raise CodecError(f"{type_name} payload does not fit the message: {exc}") from None
+    return kwargs
 
 
 def decode_topic_header(frames: Sequence[bytes]) -> tuple[str, Header]:

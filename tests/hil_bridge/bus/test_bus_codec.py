@@ -294,3 +294,44 @@ def test_corrupt_frames_only_ever_raise_codec_error(
         codec.decode(frames)
     except CodecError:
         pass
+
+
+def _state_body() -> dict[str, object]:
+    state = GliderState(stamp_ns=4, x=1.0, y=2.0, z=3.0, heading=0.1, bank=0.2, airspeed=9.0,
+                        vz=-0.5, qw=1.0, qx=0.0, qy=0.0, qz=0.0)
+    return msgpack.unpackb(codec.encode_payload(state))
+
+
+@pytest.mark.parametrize(
+    ("change", "expected"),
+    [
+        (lambda b: dict(reversed(b.items())), None),  # another encoder's key order
+        (lambda b: b | {"x": 1}, None),  # an int for a float
+        (lambda b: b | {"added_later": 5}, None),
+        (lambda b: b | {"x": True}, "expected float"),
+        (lambda b: b | {"alive": 1}, "expected bool"),
+        (lambda b: b | {"glider_id": 2.0}, "expected int"),
+        (lambda b: {k: v for k, v in b.items() if k != "stamp_ns"}, "does not fit"),
+    ],
+    ids=["order", "int-for-float", "unknown-key", "bool-for-float", "int-for-bool",
+         "float-for-int", "missing"],
+)
+def test_a_payload_off_the_usual_form_is_checked_field_by_field(change, expected) -> None:  # type: ignore[no-untyped-def]
+    """The usual payload (every field, in wire order, each of its usual type) is taken at once;
+    any other is checked field by field, as before."""
+    body = change(_state_body())
+    payload = msgpack.packb(body, use_bin_type=True)
+    if expected is None:
+        msg = codec.decode_payload("echoloop/GliderState", 1, payload)
+        assert msg.x == body["x"] and msg.stamp_ns == 4
+    else:
+        with pytest.raises(CodecError, match=expected):
+            codec.decode_payload("echoloop/GliderState", 1, payload)
+
+
+def test_topic_frames_of_any_buffer_type_decode_alike() -> None:
+    frame = codec.topic_frame("/glider/7/state")
+    for buffer in (frame, bytearray(frame), memoryview(frame)):
+        assert codec.topic_from_frame(buffer) == "/glider/7/state"  # type: ignore[arg-type]
+    with pytest.raises(CodecError, match="bad topic frame"):
+        codec.topic_from_frame(bytearray(b"/glider//7\0"))  # type: ignore[arg-type]
