@@ -32,12 +32,18 @@ each glider the first time one of its topics is seen.
   Python, gave higher state and command latencies in ``python -m bench ros2``).
 - **Shutdown.** The executor stops before the context is shut down; no ROS log files are
   written (``--disable-external-lib-logs``, no ``/rosout``).
+- **Where a state's time goes.** ``stats()`` gives, per state, ``state_bus_ms`` (echoloop
+  publish → received here, the bus's part) and ``state_out_ms`` (echoloop publish → its
+  ``Odometry`` handed to DDS, the bus's part plus the bridge's), percentiles of the last
+  :data:`LATENCY_SAMPLES`; what a ROS 2 subscriber sees beyond that is DDS's. Meaningful when
+  the publisher runs on this host (its monotonic clock stamps ``pub_ns``).
 """
 
 from __future__ import annotations
 
 import functools
 import logging
+from collections import deque
 import os
 import threading
 import time
@@ -57,6 +63,8 @@ DISCOVERY = {"localhost": "LOCALHOST", "subnet": "SUBNET", "off": "OFF",
              "system_default": "SYSTEM_DEFAULT"}
 #: most bus messages forwarded as one batch
 BATCH = 256
+#: states whose latencies ``stats()`` summarises (the latest)
+LATENCY_SAMPLES = 20_000
 #: the Fast DDS profile of ``discovery: localhost`` over UDP (loopback only, no shared memory)
 PROFILE = Path(__file__).with_name("fastdds_localhost.xml")
 _COUNTERS = ("bus_received", "bus_decode_errors", "published", "lazy_skipped",
@@ -127,6 +135,8 @@ class Ros2Bridge:
         self._cmd_ids: set[tuple[str, str]] = set()
         self._cmd_pubs: dict[str, Any] = {}
         self._last_state: dict[str, tuple[int, int]] = {}
+        self._state_bus_ms: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self._state_out_ms: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self._qos_warned: set[tuple[str, str]] = set()
         self._ctx: Any = None
         self._node: Any = None
@@ -211,9 +221,14 @@ class Ros2Bridge:
         return self.faults.failure(final=final)
 
     def stats(self) -> dict[str, Any]:
+        from hil_bridge.bus.stats import percentiles
+
         with self._lock:
             out: dict[str, Any] = dict(self._c)
             out["ros_topics"] = sorted(self._by_ros_topic)
+            bus_ms, out_ms = list(self._state_bus_ms), list(self._state_out_ms)
+        out["state_bus_ms"] = percentiles(bus_ms)
+        out["state_out_ms"] = percentiles(out_ms)
         out["ros_domain_id"] = self.domain_id
         out["discovery"] = self.discovery_used
         return out
@@ -330,6 +345,7 @@ class Ros2Bridge:
         """Receive, then take whatever else is already waiting (at most :data:`BATCH`) and
         forward it as one batch: the states' frame algebra runs once per batch."""
         from hil_bridge.bus.codec import decode
+        from hil_bridge.bus.messages import GliderState
         from hil_bridge.errors import CodecError, HilError
 
         while not self._stop.is_set():
@@ -337,43 +353,51 @@ class Ros2Bridge:
                 frames = transport.recv(timeout=0.1)
                 if frames is None:
                     continue
-                waiting = [frames]
+                waiting = [(frames, time.monotonic_ns())]
                 while len(waiting) < BATCH:
                     more = transport.recv(timeout=0)
                     if more is None:
                         break
-                    waiting.append(more)
+                    waiting.append((more, time.monotonic_ns()))
             except HilError:
                 return
             batch = []
-            for item in waiting:
+            bus_ms = []
+            for item, received_ns in waiting:
                 try:
                     envelope = decode(item)
                 except CodecError:
                     with self._lock:
                         self._c["bus_decode_errors"] += 1
                     continue
-                batch.append((envelope.topic, envelope.msg))
+                batch.append((envelope.topic, envelope.msg, envelope.header.pub_ns))
+                if type(envelope.msg) is GliderState:
+                    bus_ms.append((received_ns - envelope.header.pub_ns) / 1e6)
             with self._lock:
                 self._c["bus_received"] += len(batch)
+                self._state_bus_ms.extend(bus_ms)
             self._forward(batch)
 
-    def _forward(self, batch: list[tuple[str, Any]]) -> None:
-        """Publish each bus message of ``batch`` (topic, message) on every ROS 2 topic it maps
-        to, in order."""
+    def _forward(self, batch: list[tuple[str, Any, int]]) -> None:
+        """Publish each bus message of ``batch`` (topic, message, its ``pub_ns``) on every ROS 2
+        topic it maps to, in order."""
         from hil_bridge.bus.messages import GliderState
 
-        states = [msg for _, msg in batch if isinstance(msg, GliderState)]
+        states = [msg for _, msg, _ in batch if isinstance(msg, GliderState)]
         if states:
             self._converter.prepare(states)
-        for topic, msg in batch:
-            if isinstance(msg, GliderState):
+        for topic, msg, pub_ns in batch:
+            is_state = isinstance(msg, GliderState)
+            if is_state:
                 self._last_state[topic.rsplit("/", 1)[0]] = (msg.stamp_ns, msg.step)
             routes = self._routes.get(topic)
             if routes is None:
                 routes = self._route(topic)
             for out, ident in routes:
-                self._publish(out, ident, msg)
+                if self._publish(out, ident, msg) and is_state and (
+                        out.entry.ros_type == "nav_msgs/msg/Odometry"):
+                    with self._lock:
+                        self._state_out_ms.append((time.monotonic_ns() - pub_ns) / 1e6)
 
     def _route(self, topic: str) -> list[tuple[_Out, str]]:
         """The first time ``topic`` is seen: its ROS 2 publishers, and the command
@@ -390,19 +414,21 @@ class Ros2Bridge:
             self._routes[topic] = routes
             return routes
 
-    def _publish(self, out: _Out, ident: str, msg: Any) -> None:
+    def _publish(self, out: _Out, ident: str, msg: Any) -> bool:
+        """Convert and publish ``msg`` on ``out`` unless its rate limit, laziness or type say
+        not to; True if it was published."""
         entry = out.entry
         if out.keeps_last:
             out.last = (ident, msg)
         if entry.max_rate_hz is not None:
             now = time.monotonic()
             if now < out.next_ok:
-                return
+                return False
             out.next_ok = now + 1.0 / entry.max_rate_hz
         if entry.lazy and out.subscribers == 0:
             with self._lock:
                 self._c["lazy_skipped"] += 1
-            return
+            return False
         try:
             ros_msg = self._converter.convert(entry.ros_type, ident, msg, out.topic)
         except TypeError:
@@ -410,10 +436,11 @@ class Ros2Bridge:
         if ros_msg is None:
             with self._lock:
                 self._c["not_convertible"] += 1
-            return
+            return False
         out.pub.publish(ros_msg)
         with self._lock:
             self._c["published"] += 1
+        return True
 
     def _on_matched(self, topic: str, info: Any) -> None:
         """Keep the count of matched subscriptions; a lazy transient-local topic gives a new

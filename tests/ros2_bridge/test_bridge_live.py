@@ -161,6 +161,11 @@ def test_a_plain_rclpy_node_sees_the_simulation_and_flies_a_glider(
         [f for f in flown if t0 <= f[0] <= t1][-20:], len(sent),
         {k: v for k, v in server.items() if "cmd" in k})
 
+    # the bridge's own account of a state's time: the bus's part, then its part on top
+    bus_ms, out_ms = bridge["state_bus_ms"], bridge["state_out_ms"]
+    assert bus_ms["n"] >= out_ms["n"] > 100  # every state received, each Odometry written
+    assert 0 < bus_ms["p50"] <= out_ms["p50"]
+
     # the mismatched subscriber: a warning naming the topic and the policy, and a count
     assert bridge["qos_incompatible"] >= 1
     assert re.search(r"ROS 2 subscription of /glider_0/odom asks for an incompatible QoS "
