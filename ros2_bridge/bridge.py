@@ -43,10 +43,10 @@ from __future__ import annotations
 
 import functools
 import logging
-from collections import deque
 import os
 import threading
 import time
+from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
