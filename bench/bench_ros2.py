@@ -8,7 +8,10 @@ Odometry and Image messages, and a plain rclpy process (``bench/ros2_peer.py rec
 subscribes to all 16 topics. Latency is echoloop publish (``time.monotonic_ns()`` just before
 ``Publisher.publish`` here) to the rclpy callback (the same host clock there), per state,
 joined by glider and stamp. The first seconds (discovery) are left out. The bridge's CPU is
-``utime + stime`` of its process over the window.
+``utime + stime`` of its process over the window. Where the time goes, from the bridge's own
+summary (its last 20,000 states): *the bus* is echoloop publish → received by the bridge
+(``state_bus_ms``), *the bus + the bridge* → its Odometry handed to DDS (``state_out_ms``); the
+rest of the latency is DDS's, which the first row measures alone.
 
 **Baseline, same run.** DDS alone: rclpy to rclpy (``ros2_peer.py dds-send``: 8 Odometry per
 tick at 250 Hz, to ``dds-receive``), with the sender's monotonic time in the header. And the
@@ -96,16 +99,20 @@ def _wait_for(proc: subprocess.Popen[str], text: str, timeout: float = 60.0) -> 
     raise RuntimeError(f"no {text!r} from {proc.args}")
 
 
-def _stop(*procs: subprocess.Popen[str]) -> None:
+def _stop(*procs: subprocess.Popen[str]) -> list[str]:
+    """Stop ``procs`` (SIGTERM, then SIGKILL after 60 s); their standard outputs."""
     for p in procs:
         if p.poll() is None:
             p.send_signal(signal.SIGTERM)
+    outs = []
     for p in procs:
         try:
-            p.communicate(timeout=60)
+            out, _ = p.communicate(timeout=60)
         except subprocess.TimeoutExpired:
             p.kill()
-            p.communicate()
+            out, _ = p.communicate()
+        outs.append(out or "")
+    return outs
 
 
 def _pct(ms: np.ndarray, q: float) -> float:
@@ -138,7 +145,7 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path, *, gliders: 
 
     out = tmp / "recv.npy"
     bus = _cli(env, "bus", "--domain", str(dom.number))
-    bridge = _cli(env, "ros2", "bridge", "--domain", str(dom.number))
+    bridge = _cli(env, "ros2", "bridge", "--domain", str(dom.number), "--json")
     peer = _peer(env, "receive", str(out), "--duration", str(WARM_S + run_s + 3), "--gliders",
                  str(gliders), "--sonars", str(sonars))
     node = Node("bench_sim", bus=dom.bus_url, diagnostics_period_s=0)
@@ -187,7 +194,8 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path, *, gliders: 
         _stop_when_done(peer)
     finally:
         node.stop()
-        _stop(bridge, bus)
+        summaries = _stop(bridge, bus)
+    stages = json.loads(summaries[0])["nodes"]["ros2_bridge"]
     rows = np.load(out)
     states = rows[rows[:, 0] >= 0]
     echoes = rows[rows[:, 0] < 0]
@@ -200,6 +208,7 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path, *, gliders: 
     return {"lat": np.array(lat), "expected": expected, "echoes": len(in_window),
             "echoes_expected": int(sonars * ECHO_HZ * run_s),
             "cpu_share": (cpu1 - cpu0) / run_s,
+            "bus_ms": stages["state_bus_ms"], "out_ms": stages["state_out_ms"],
             "others": {k: (cpu1_others[k] - cpu0_others[k]) / run_s for k in cpu1_others}}
 
 
@@ -336,23 +345,28 @@ def run(out_dir: Path) -> str:
     d = cmd["delays"]
     apply_ms = cmd["server"]["cmd_apply_ms"]
     applied_p99 = (_pct(d, 99) + float(apply_ms["p99"])) / period_ms
+    def stages(r: dict[str, Any]) -> list[str]:
+        return [f"{r['bus_ms']['p50']:.3f} / {r['bus_ms']['p99']:.3f}",
+                f"{r['out_ms']['p50']:.3f} / {r['out_ms']['p99']:.3f}"]
+
     rows = [
         [f"DDS alone (rclpy → rclpy, {GLIDERS} × {STATE_HZ} Hz)", f"{base.size}",
-         f"{_pct(base, 50):.3f}", f"{_pct(base, 99):.3f}", "–", "–"],
+         f"{_pct(base, 50):.3f}", f"{_pct(base, 99):.3f}", "–", "–", "–", "–"],
         [f"echoloop → bridge → rclpy ({GLIDERS} × {STATE_HZ} Hz + echoes)", f"{lat.size}",
-         f"{_pct(lat, 50):.3f}", f"{_pct(lat, 99):.3f}", f"{100 * delivered:.2f} %",
-         f"{100 * load['cpu_share']:.1f} %"],
+         f"{_pct(lat, 50):.3f}", f"{_pct(lat, 99):.3f}", *stages(load),
+         f"{100 * delivered:.2f} %", f"{100 * load['cpu_share']:.1f} %"],
         [f"echoloop → bridge → rclpy (1 × {STATE_HZ} Hz, no echoes, {SINGLE_S:.0f} s)",
          f"{single['lat'].size}", f"{_pct(single['lat'], 50):.3f}",
-         f"{_pct(single['lat'], 99):.3f}",
+         f"{_pct(single['lat'], 99):.3f}", *stages(single),
          f"{100 * single['lat'].size / single['expected']:.2f} %",
          f"{100 * single['cpu_share']:.1f} %"],
     ]
     return (
         f"{__doc__.split(chr(10) + chr(10), 1)[1].strip()}\n\n"
         f"### States to rclpy ({RUN_S:.0f} s window)\n\n"
-        + table(["path", "messages", "latency p50 ms", "p99 ms", "delivered",
-                 "bridge CPU (one core)"], rows)
+        + table(["path", "messages", "latency p50 ms", "p99 ms",
+                 "of which the bus: p50 / p99 ms", "the bus + the bridge: p50 / p99 ms",
+                 "delivered", "bridge CPU (one core)"], rows)
         + f"\n\nBridge p50 / DDS-alone p50 (same run): **{ratio_p50:.2f}**. Echoes received in "
         f"the window: {load['echoes']} of {load['echoes_expected']} published. CPU of the other "
         "parties on the machine's 2 cores in the window: "
