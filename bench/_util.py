@@ -88,3 +88,55 @@ def git_tree(commit: str, dest: Path, paths: Sequence[str] = ("sim_core",)) -> b
     with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
         tf.extractall(dest, filter="data")
     return True
+
+
+#: a thread above every node (SCHED_FIFO 95 where allowed) sleeping 1 ms at a time until its
+#: standard input closes; prints its wake-up lateness (how far past each due time it ran)
+_STALL_PROBE = """
+import json, os, sys, threading, time
+import numpy as np
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(95))
+    policy = "fifo 95"
+except OSError:
+    policy = "normal"
+late, stop = [], threading.Event()
+def watch():
+    sys.stdin.read()
+    stop.set()
+threading.Thread(target=watch, daemon=True).start()
+due = time.monotonic_ns()
+while not stop.is_set():
+    due += 1_000_000
+    time.sleep(max(0.0, (due - time.monotonic_ns()) / 1e9))
+    now = time.monotonic_ns()
+    late.append(now - due)
+    due = max(due, now - 1_000_000)
+us = np.array(late, dtype=np.float64) / 1e3
+print(json.dumps({"policy": policy, "n": int(us.size), "p50_us": float(np.percentile(us, 50)),
+                  "p99_us": float(np.percentile(us, 99)), "max_ms": float(us.max() / 1e3),
+                  "over_1ms": int((us > 1e3).sum()), "over_3ms": int((us > 3e3).sum())}))
+"""
+
+
+class StallProbe:
+    """The platform's own scheduling stalls while a benchmark runs: a process of its own whose
+    one thread (``SCHED_FIFO`` 95 where allowed, above every node, so that nothing of ours
+    delays it) sleeps 1 ms at a time and records how late it wakes. A stall it sees stops
+    every process (a virtual machine's CPU not running, an interrupt storm), so it floors what
+    any node can show in the same window. ``with StallProbe() as probe: ...``, then
+    ``probe.result``: policy, n, p50_us, p99_us, max_ms, over_1ms, over_3ms."""
+
+    def __init__(self) -> None:
+        self.result: dict[str, Any] = {}
+        self._proc: subprocess.Popen[str] | None = None
+
+    def __enter__(self) -> StallProbe:
+        self._proc = subprocess.Popen([sys.executable, "-c", _STALL_PROBE], cwd=ROOT,
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        assert self._proc is not None
+        out, _ = self._proc.communicate(input="", timeout=60)
+        self.result = dict(json.loads(out.strip().splitlines()[-1]))
