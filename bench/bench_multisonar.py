@@ -22,6 +22,9 @@ starts the pinger apart from the launch, with no launcher of its own, as a hardw
 and the row after it gives the echoes a latency budget (``echo_budget_ms`` = ``BUDGET_MS``: an echo
 is also due that long after its ping arrived, degraded or dropped when it cannot be ready by then;
 docs/server.md). *At fidelity* = (``echoes_published`` - ``echoes_degraded``) / ``pings_received``.
+The last column is the stall probe beside each run (``bench._util.StallProbe``: a thread at
+``SCHED_FIFO`` 95 waking every 1 ms): wake-ups more than 3 ms late, and the latest, stalls of the
+platform that held every process of that run.
 Issue 19's goal on 2 cores: ≥ 99 % answered at the scene's fidelity, p99 ≤ 25 ms, late ticks ≤ 1 %.
 """
 
@@ -31,7 +34,7 @@ import resource
 from pathlib import Path
 from typing import Any
 
-from bench._util import table
+from bench._util import StallProbe, table
 from hil_bridge.bus.domain import claim_first_free
 from hil_bridge.files.config import load_yaml
 from hil_bridge.launch.runner import run as launch_run
@@ -126,13 +129,14 @@ def row(r: dict[str, Any]) -> list[Any]:
         s["echoes_degraded"], s["echoes_late"], s["echo_errors"],
         s["echo_tiles_prefetched"],
         f"{r['cpu_server_s']:.1f} + {r['cpu_workers_s']:.1f}",
+        f"{r['probe']['over_3ms']} / {r['probe']['max_ms']:.1f}",
     ]
 
 
 HEADER = ["echo workers", "pings", "answered %", "at fidelity %", "ping → echo p50 / p99 ms",
           "echo compute p50 ms", "ticks", "late ticks %", "dropped (queue + deadline)",
           "degraded", "late echoes", "errors", "tiles built ahead",
-          "CPU s (launcher + node processes)"]
+          "CPU s (launcher + node processes)", "platform stalls > 3 ms / latest ms (probe)"]
 
 
 
@@ -381,9 +385,16 @@ def _gather_s() -> float:
     return COST.gather_s
 
 
+def _probed(worker: str, **kwargs: Any) -> dict[str, Any]:
+    """:func:`measure` with the stall probe beside it (``probe``: its result)."""
+    with StallProbe() as probe:
+        r = measure(worker, **kwargs)
+    return r | {"probe": probe.result}
+
+
 def run(out_dir: Path) -> str:
-    rows = [measure("thread"), measure("pool"), measure("auto"),
-            measure("auto", pinger_apart=True), measure("auto", budget_ms=BUDGET_MS)]
+    rows = [_probed("thread"), _probed("pool"), _probed("auto"),
+            _probed("auto", pinger_apart=True), _probed("auto", budget_ms=BUDGET_MS)]
     one, pool, auto = (r["server"] for r in rows[:3])
 
     def late(s: dict[str, Any]) -> float:

@@ -11,7 +11,9 @@ joined by glider and stamp. The first seconds (discovery) are left out. The brid
 ``utime + stime`` of its process over the window. Where the time goes, from the bridge's own
 summary (its last 20,000 states): *the bus* is echoloop publish → received by the bridge
 (``state_bus_ms``), *the bus + the bridge* → its Odometry handed to DDS (``state_out_ms``); the
-rest of the latency is DDS's, which the first row measures alone.
+rest of the latency is DDS's, which the first row measures alone. The last column is the stall
+probe beside each row (``bench._util.StallProbe``: a thread at ``SCHED_FIFO`` 95 waking every
+1 ms): wake-ups more than 3 ms late, and the latest, stalls of the platform itself.
 
 **Baseline, same run.** DDS alone: rclpy to rclpy (``ros2_peer.py dds-send``: 8 Odometry per
 tick at 250 Hz, to ``dds-receive``), with the sender's monotonic time in the header. And the
@@ -42,7 +44,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from bench._util import table
+from bench._util import StallProbe, table
 from hil_bridge.bus.domain import Domain, claim_first_free
 
 TITLE = "ROS 2 bridge: 8 gliders at 250 Hz and 8 sonars' echoes to rclpy, commands back"
@@ -333,9 +335,12 @@ def run(out_dir: Path) -> str:
         assert dom.number is not None
         tmp = Path(tmp_name)
         env = _env(dom, ros_domain)
-        base = _baseline(env, tmp)
-        load = _states_and_echoes(dom, env, tmp)
-        single = _states_and_echoes(dom, env, tmp, gliders=1, sonars=0, run_s=SINGLE_S)
+        with StallProbe() as base_probe:
+            base = _baseline(env, tmp)
+        with StallProbe() as load_probe:
+            load = _states_and_echoes(dom, env, tmp)
+        with StallProbe() as single_probe:
+            single = _states_and_echoes(dom, env, tmp, gliders=1, sonars=0, run_s=SINGLE_S)
         cmd = _commands(dom, env, tmp)
     costs = _costs()
     lat, period_ms = load["lat"], 1000.0 / STATE_HZ
@@ -345,28 +350,33 @@ def run(out_dir: Path) -> str:
     d = cmd["delays"]
     apply_ms = cmd["server"]["cmd_apply_ms"]
     applied_p99 = (_pct(d, 99) + float(apply_ms["p99"])) / period_ms
+    def stalls(probe: StallProbe) -> str:
+        return f"{probe.result['over_3ms']} / {probe.result['max_ms']:.1f}"
+
     def stages(r: dict[str, Any]) -> list[str]:
         return [f"{r['bus_ms']['p50']:.3f} / {r['bus_ms']['p99']:.3f}",
                 f"{r['out_ms']['p50']:.3f} / {r['out_ms']['p99']:.3f}"]
 
     rows = [
         [f"DDS alone (rclpy → rclpy, {GLIDERS} × {STATE_HZ} Hz)", f"{base.size}",
-         f"{_pct(base, 50):.3f}", f"{_pct(base, 99):.3f}", "–", "–", "–", "–"],
+         f"{_pct(base, 50):.3f}", f"{_pct(base, 99):.3f}", "–", "–", "–", "–",
+         stalls(base_probe)],
         [f"echoloop → bridge → rclpy ({GLIDERS} × {STATE_HZ} Hz + echoes)", f"{lat.size}",
          f"{_pct(lat, 50):.3f}", f"{_pct(lat, 99):.3f}", *stages(load),
-         f"{100 * delivered:.2f} %", f"{100 * load['cpu_share']:.1f} %"],
+         f"{100 * delivered:.2f} %", f"{100 * load['cpu_share']:.1f} %", stalls(load_probe)],
         [f"echoloop → bridge → rclpy (1 × {STATE_HZ} Hz, no echoes, {SINGLE_S:.0f} s)",
          f"{single['lat'].size}", f"{_pct(single['lat'], 50):.3f}",
          f"{_pct(single['lat'], 99):.3f}", *stages(single),
          f"{100 * single['lat'].size / single['expected']:.2f} %",
-         f"{100 * single['cpu_share']:.1f} %"],
+         f"{100 * single['cpu_share']:.1f} %", stalls(single_probe)],
     ]
     return (
         f"{__doc__.split(chr(10) + chr(10), 1)[1].strip()}\n\n"
         f"### States to rclpy ({RUN_S:.0f} s window)\n\n"
         + table(["path", "messages", "latency p50 ms", "p99 ms",
                  "of which the bus: p50 / p99 ms", "the bus + the bridge: p50 / p99 ms",
-                 "delivered", "bridge CPU (one core)"], rows)
+                 "delivered", "bridge CPU (one core)",
+                 "platform stalls > 3 ms / latest ms (probe)"], rows)
         + f"\n\nBridge p50 / DDS-alone p50 (same run): **{ratio_p50:.2f}**. Echoes received in "
         f"the window: {load['echoes']} of {load['echoes_expected']} published. CPU of the other "
         "parties on the machine's 2 cores in the window: "
