@@ -22,7 +22,8 @@ keys; the tick thread then asks for nice -10, as before real time), the baseline
 wall-clock due time) per tick, "tick thread" its ``tick_priority``. Beside every run, a stall
 probe (``bench._util.StallProbe``: one thread at ``SCHED_FIFO`` 95, above every node, waking
 every 1 ms) records how late the platform itself lets a thread run: a stall it sees held every
-process of the run, so no gap or latency of that run can be shorter.
+process of the run, so no gap or latency of that run can be shorter; and once alone, before the
+runs, with nothing of ours running.
 
 A full garbage collection in a node's process: in a fresh interpreter, one of the demo's nodes
 is built as its node host builds it (its entry imported, constructed with the launch file's
@@ -161,6 +162,8 @@ def _gc_rows() -> list[list[str]]:
 
 def run(out_dir: Path) -> str:
     gc_rows = _gc_rows()
+    with StallProbe() as idle:
+        time.sleep(RUN_S)
     results: dict[str, list[dict[str, Any]]] = {m: [] for m in MODES}
     with claim_first_free() as (dom, _):
         assert dom.number is not None
@@ -180,7 +183,10 @@ def run(out_dir: Path) -> str:
                      runs[0]["tick_priority"], ", ".join(str(r["exit"]) for r in runs)])
     thr, prc = results["threads"], results["processes"]
     ratio = median([r["cpu_per_sim_s"] for r in prc]) / median([r["cpu_per_sim_s"] for r in thr])
-    probe_rows = []
+    i = idle.result
+    probe_rows = [[f"nothing of ours running ({RUN_S:.0f} s, before the runs)", i["policy"],
+                   f"{i['p50_us']:.0f}", f"{i['p99_us']:.0f}", f"{i['over_1ms']}",
+                   f"{i['over_3ms']}", f"{i['max_ms']:.1f}"]]
     for mode, runs in results.items():
         pr = [r["probe"] for r in runs]
         probe_rows.append([mode, pr[0]["policy"], f"{median([p['p50_us'] for p in pr]):.0f}",
