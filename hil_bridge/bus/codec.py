@@ -169,11 +169,12 @@ def _plan(cls: type[Message]) -> tuple[tuple[str, bool, frozenset[type] | None, 
                 types = (dict,)
             rows.append((name, name in cls.ARRAYS, None if types is None else frozenset(types),
                          "" if types is None else types[0].__name__))
-        plan = _PLANS[cls] = tuple(rows)
         exact = all(not is_array and allowed is not None for _, is_array, allowed, _ in rows)
+        # before the plan: a thread that finds the plan finds this too
         _EXACT[cls] = ((tuple(r[0] for r in rows),
                         tuple(_SCALARS.get(hints[r[0]], (dict,))[0] for r in rows))
                        if exact else None)
+        plan = _PLANS[cls] = tuple(rows)
     return plan
 
 
