@@ -386,6 +386,7 @@ class Ros2Bridge:
         states = [msg for _, msg, _ in batch if isinstance(msg, GliderState)]
         if states:
             self._converter.prepare(states)
+        out_ms = []
         for topic, msg, pub_ns in batch:
             is_state = isinstance(msg, GliderState)
             if is_state:
@@ -396,8 +397,10 @@ class Ros2Bridge:
             for out, ident in routes:
                 if self._publish(out, ident, msg) and is_state and (
                         out.entry.ros_type == "nav_msgs/msg/Odometry"):
-                    with self._lock:
-                        self._state_out_ms.append((time.monotonic_ns() - pub_ns) / 1e6)
+                    out_ms.append((time.monotonic_ns() - pub_ns) / 1e6)
+        if out_ms:
+            with self._lock:
+                self._state_out_ms.extend(out_ms)
 
     def _route(self, topic: str) -> list[tuple[_Out, str]]:
         """The first time ``topic`` is seen: its ROS 2 publishers, and the command
