@@ -23,6 +23,7 @@ body-frame velocities and the ``Odometry`` numbers of all of them in one pass of
 from __future__ import annotations
 
 import math
+import operator
 from typing import Any
 
 import numpy as np
@@ -46,7 +47,7 @@ from hil_bridge.bus.messages import (
     ThermalMarkers,
     state_quaternions,
 )
-from hil_bridge.recording.export.common import glider_velocities, sonar_pose
+from hil_bridge.recording.export.common import glider_velocities, sonar_pose, velocities_enu
 from ros2_bridge import cdr
 from ros2_bridge.cdr import MAX_TIME_NS
 from sim_core.pose import quat_between, quat_conjugate, quat_rotate
@@ -112,14 +113,23 @@ def _pose(position: Any, q: Any) -> Pose:
     return pose
 
 
+#: the fields of a state the ``Odometry`` numbers come from, in the columns of one array
+_KINEMATIC_FIELDS = operator.attrgetter("x", "y", "z", "qw", "qx", "qy", "qz", "heading",
+                                        "airspeed", "vz", "roll_rate", "pitch_rate", "yaw_rate")
+
+
 def _kinematics(states: list[GliderState]) -> dict[int, tuple[GliderState, Any, Any]]:
-    """Per state (by ``id``): the state, its attitude (4,) and its ``Odometry`` row."""
-    q = state_quaternions(states)
-    body_v = quat_rotate(quat_conjugate(q), glider_velocities(states))
-    rates = np.array([[st.roll_rate, st.pitch_rate, st.yaw_rate] for st in states],
-                     dtype=np.float64).reshape(-1, 3)
-    rows = cdr.odometry_rows([[st.x, st.y, st.z] for st in states], q, body_v,
-                             np.where(np.isfinite(rates), rates, 0.0))
+    """Per state (by ``id``): the state, its attitude (4,) and its ``Odometry`` row.
+
+    The states' numbers go into one (K, 13) array at once: on the bridge's batches of one to
+    nine states the frame algebra's cost is numpy's per call, not per state."""
+    a = np.array([_KINEMATIC_FIELDS(st) for st in states], dtype=np.float64).reshape(-1, 13)
+    q = a[:, 3:7]
+    if not np.isfinite(q).all():  # a publisher that gave no attitude: the flight model's
+        q = state_quaternions(states)
+    body_v = quat_rotate(quat_conjugate(q), velocities_enu(a[:, 7], a[:, 8], a[:, 9]))
+    rates = a[:, 10:13]
+    rows = cdr.odometry_rows(a[:, 0:3], q, body_v, np.where(np.isfinite(rates), rates, 0.0))
     return {id(st): (st, q[k], rows[k]) for k, st in enumerate(states)}
 
 

@@ -82,7 +82,7 @@ def cross(a: ArrayLike, b: ArrayLike) -> FloatArray:
     fa, fb = _f(a), _f(b)
     a0, a1, a2 = fa[..., 0], fa[..., 1], fa[..., 2]
     b0, b1, b2 = fb[..., 0], fb[..., 1], fb[..., 2]
-    out = np.empty(np.broadcast_shapes(fa.shape, fb.shape))
+    out = np.empty(fa.shape if fa.shape == fb.shape else np.broadcast_shapes(fa.shape, fb.shape))
     out[..., 0] = a1 * b2 - a2 * b1
     out[..., 1] = a2 * b0 - a0 * b2
     out[..., 2] = a0 * b1 - a1 * b0

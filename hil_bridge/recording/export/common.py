@@ -29,7 +29,7 @@ from hil_bridge.recording.bag import BagMessage, read_bag
 from sim_core.pose import quat_from_euler
 
 __all__ = ["STATE_TOPIC", "Decoded", "ExportCounts", "SonarPose", "batches", "decoded",
-           "glider_velocities", "mount_id", "sonar_pose"]
+           "glider_velocities", "mount_id", "sonar_pose", "velocities_enu"]
 
 STATE_TOPIC = re.compile(r"^/glider/(\d+)/state$")
 FloatArray = NDArray[np.float64]
@@ -89,11 +89,20 @@ def mount_id(frame_id: str) -> int | None:
 
 
 def glider_velocities(states: list[Any]) -> FloatArray:
-    """World ENU velocities (K, 3) m/s of K ``GliderState``: airspeed along the heading, plus
-    ``vz``."""
+    """World ENU velocities (K, 3) m/s of K ``GliderState`` (:func:`velocities_enu`)."""
     a = np.array([[st.heading, st.airspeed, st.vz] for st in states],
                  dtype=np.float64).reshape(-1, 3)
-    return np.stack([a[:, 1] * np.cos(a[:, 0]), a[:, 1] * np.sin(a[:, 0]), a[:, 2]], axis=1)
+    return velocities_enu(a[:, 0], a[:, 1], a[:, 2])
+
+
+def velocities_enu(heading: FloatArray, airspeed: FloatArray, vz: FloatArray) -> FloatArray:
+    """World ENU velocities (K, 3) m/s: ``airspeed`` (K,) m/s along ``heading`` (K,) rad
+    (from +x towards +y), plus ``vz`` (K,) m/s."""
+    v = np.empty((heading.shape[0], 3))
+    np.multiply(airspeed, np.cos(heading), out=v[:, 0])
+    np.multiply(airspeed, np.sin(heading), out=v[:, 1])
+    v[:, 2] = vz
+    return v
 
 
 def batches(items: Iterator[Decoded], size: int = 4096) -> Iterator[list[Decoded]]:
