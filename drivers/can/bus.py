@@ -5,9 +5,8 @@
 launch's nodes; the domain's group and port, kept on loopback by
 :class:`~drivers.can.loopback.LoopbackMulticastBus`),
 ``socketcan`` (``can0``/``vcan0``), ``pcan`` (``PCAN_USBBUS1``), ... with no code change;
-``faults`` wraps the bus in :class:`drivers.faults.can_bus.FaultInjectingBus`. python-can's
-``udp_multicast`` hands a sender its own frames back; the link tags what it sends with a token
-of its own (the frame's ``channel``) and drops those on receive, as a ``virtual`` bus does.
+``faults`` wraps the bus in :class:`drivers.faults.can_bus.FaultInjectingBus`. On every one of
+them a link never receives the frames it sent (the loopback bus drops them in the kernel).
 
 :class:`CanLink` contracts (one receive thread and one send thread may use it at once):
 
@@ -37,7 +36,6 @@ from __future__ import annotations
 
 import errno
 import logging
-import os
 import threading
 import time
 from collections import Counter
@@ -188,9 +186,6 @@ class CanLink:
         self._rx_fail = 0
         self._tx_fail = 0
         self._closed = False
-        #: the ``channel`` this link's frames carry on a bus that echoes them back to it
-        self._own_tag = (f"echoloop-{os.getpid()}-{id(self):x}"
-                         if config.interface == "udp_multicast" else None)
         self._ever_open = False
         self._final_state: LinkState = "down"
         self.last_error = ""
@@ -329,8 +324,6 @@ class CanLink:
         """Send ``msg``; True if the bus took it (see contract 1–2). Never raises a bus error."""
         if self._closed:
             return False
-        if self._own_tag is not None:
-            msg.channel = self._own_tag
         bus = self._ensure_open()
         if bus is None:
             self._inc("tx_dropped_down")
@@ -437,7 +430,7 @@ class CanLink:
                 )
             return None
         self._rx_fail = 0
-        if msg is None or (self._own_tag is not None and msg.channel == self._own_tag):
+        if msg is None:
             return None
         self._log(msg)
         if msg.is_error_frame:
