@@ -4,8 +4,8 @@ python-can's :class:`~can.interfaces.udp_multicast.UdpMulticastBus` joins its gr
 default route's interface and sends with a hop limit of 1, so its frames (and the IGMP reports
 of the join) reach the local network. A launch's nodes only need to meet on their own host, so
 :class:`LoopbackMulticastBus` keeps everything on ``lo``: the group is joined on 127.0.0.1,
-frames leave through 127.0.0.1 with a time-to-live of 0, and the socket is bound to the group
-(it receives nothing else). It speaks python-can's udp_multicast wire format (msgpack'd
+frames leave through 127.0.0.1 with a time-to-live of 0, and the receiving socket is bound to
+the group (it receives nothing else). It speaks python-can's udp_multicast wire format (msgpack'd
 messages), so tools of python-can read it.
 
 :meth:`hil_bridge.bus.domain.Domain.can_multicast` gives each domain its own group and port.
