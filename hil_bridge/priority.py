@@ -29,11 +29,12 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from typing import Any
 
-__all__ = ["can_raise", "can_realtime", "leave_realtime", "loop_priority", "lower_priority",
-           "normal_children", "raise_priority", "realtime", "realtime_io", "realtime_priority"]
+__all__ = ["RunThreads", "can_raise", "can_realtime", "leave_realtime", "loop_priority",
+           "lower_priority", "normal_children", "raise_priority", "realtime", "realtime_io",
+           "realtime_priority", "realtime_threads"]
 
 #: the highest priority :func:`realtime` takes (99 is left to the kernel's own threads)
 MAX_REALTIME = 98
@@ -134,6 +135,53 @@ def realtime(priority: int, *, inherit: bool = False) -> str:
         why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
         return f"normal (fifo {priority} not permitted: {why})"
     return f"fifo {priority}"
+
+
+def realtime_threads(priority: int, threads: Iterable[threading.Thread] | None = None) -> int:
+    """Run ``threads`` (default: every Python thread of this process) that are below
+    ``priority`` under ``SCHED_FIFO`` at ``priority``, with ``SCHED_RESET_ON_FORK`` (what they
+    start later begins at normal priority); threads at or above it keep theirs. A process whose
+    nodes run real time calls it once they started: a thread of its own left at normal priority
+    (a node host's answering thread and watchdog, a launcher's log pumps) takes the interpreter
+    lock now and then, and when another process preempts it while it holds the lock, the
+    real-time threads wait behind that process (a server's tick thread once waited 13 ms so,
+    on its first tick). Returns how many threads it raised; none where the OS refuses."""
+    _check_realtime(priority)
+    policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
+    raised = 0
+    for thread in threading.enumerate() if threads is None else threads:
+        tid = thread.native_id
+        if tid is None or not thread.is_alive() or realtime_priority(tid) >= priority:
+            continue
+        try:
+            os.sched_setscheduler(tid, policy, os.sched_param(priority))
+        except ProcessLookupError:  # it ended meanwhile
+            continue
+        except (OSError, AttributeError):
+            break
+        raised += 1
+    return raised
+
+
+class RunThreads:
+    """The threads a run starts from its construction on, and the calling thread (a launcher's
+    main thread, whose process may hold other callers' threads: a test's): :meth:`raise_to`
+    runs them real time (:func:`realtime_threads`), :meth:`restore` returns the calling thread
+    to normal scheduling if :meth:`raise_to` took it out of it (the others end with the run)."""
+
+    def __init__(self) -> None:
+        self._before = set(threading.enumerate()) - {threading.current_thread()}
+        self._raised = False
+
+    def raise_to(self, priority: int) -> None:
+        was = realtime_priority()
+        realtime_threads(priority, [t for t in threading.enumerate() if t not in self._before])
+        self._raised = self._raised or (not was and realtime_priority() > 0)
+
+    def restore(self) -> None:
+        if self._raised:
+            leave_realtime()
+            self._raised = False
 
 
 def can_realtime(priority: int) -> bool:

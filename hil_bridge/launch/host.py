@@ -21,8 +21,9 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
    once its endpoint knows the subscriptions the proxy held (the recorder's, those of the nodes
    constructed earlier), so none of those misses the first messages it publishes. With a
    ``realtime`` priority (the launch file's, > 0) the bus's I/O thread and every thread the
-   nodes start run under ``SCHED_FIFO`` at it (the nodes are built at normal priority, and the
-   host's own thread returns to it once they started), and each node's stats say so
+   nodes start run under ``SCHED_FIFO`` at it (the nodes are built at normal priority); once
+   they started, so do the host's own threads (this one, which answers, and its watchdog:
+   :func:`~hil_bridge.priority.realtime_threads`), and each node's stats say so
    (``scheduling``);
 3. then it answers requests until told to stop: ``("stats", name)`` -> ``("stats", dict)``,
    ``("failure", name)`` and ``("final_failure", name)`` (the end of the run) -> ``("failure",
@@ -64,7 +65,7 @@ from hil_bridge.bus.transport import sync_open
 from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of
 from hil_bridge.launch.spec import resolve_entry
 from hil_bridge.lifetime import die_with_parent, freeze_heap
-from hil_bridge.priority import leave_realtime, realtime, realtime_io
+from hil_bridge.priority import realtime, realtime_io, realtime_threads
 
 __all__ = ["main"]
 
@@ -307,7 +308,9 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         scheduling = _start_realtime(rt) if rt else None
         error = _start(made, sync)
-        leave_realtime()  # the threads the nodes started keep it; this one only answers
+        if scheduling is not None and scheduling.startswith("fifo"):
+            realtime(rt)  # it stays real time, but what it starts from now on begins normal
+            realtime_threads(rt)  # the watchdog too: no thread here takes the lock at normal
         if error is not None:
             _send(conn, ("error", error))
             return 1

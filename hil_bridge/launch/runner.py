@@ -80,6 +80,7 @@ from hil_bridge.launch.spec import (
     resolve_entry,
     select_nodes,
 )
+from hil_bridge.priority import RunThreads
 from sim_core.config import ConfigError
 
 __all__ = [
@@ -509,6 +510,7 @@ def run(
 
     made: list[tuple[str, Any]] = []
     extras: list[Any] = []
+    own = RunThreads()
     watch = _Watch()
     t0 = time.monotonic()
     held = contextlib.ExitStack()
@@ -547,6 +549,8 @@ def run(
                 view = LiveView("live", bus=bus_url)
                 view.start()
                 extras.append(view)
+            if started and rt:  # the monitor's process: none of the launch's threads at normal
+                own.raise_to(min(rt, 1))  # priority takes the lock while the run lasts
         watch.items = [*made, *((extra.name, extra) for extra in extras)]
         if not started:
             flag.set("failure")
@@ -572,6 +576,7 @@ def run(
                 extra_stats[extra.name] = stats
         if proxy is not None:
             proxy.stop()
+        own.restore()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         held.close()

@@ -17,6 +17,7 @@ import zmq
 from hil_bridge.launch.monitor import BusMonitor
 from hil_bridge.launch.spec import load
 from hil_bridge.priority import (
+    RunThreads,
     can_raise,
     can_realtime,
     leave_realtime,
@@ -27,6 +28,7 @@ from hil_bridge.priority import (
     realtime,
     realtime_io,
     realtime_priority,
+    realtime_threads,
 )
 from hil_bridge.server.echo_pool import WORKER_NICE
 from hil_bridge.server.sim_server import SimServer
@@ -219,6 +221,76 @@ def test_leaving_and_lowering_return_a_thread_to_normal_scheduling() -> None:
 
     assert _in_thread(leave) == (3, 0)
     assert _in_thread(lower) == (0, 2)
+
+
+class _Parked:
+    """A thread waiting until the block ends, at real-time priority ``rt`` (0: normal)."""
+
+    def __init__(self, rt: int = 0) -> None:
+        self._stop, ready = threading.Event(), threading.Event()
+
+        def body() -> None:
+            if rt:
+                realtime(rt)
+            ready.set()
+            self._stop.wait()
+
+        self.thread = threading.Thread(target=body, daemon=True)
+        self.thread.start()
+        ready.wait()
+
+    def priority(self) -> int:
+        return realtime_priority(self.thread.native_id or 0)
+
+    def __enter__(self) -> _Parked:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self._stop.set()
+        self.thread.join()
+
+
+@needs_rt
+def test_realtime_threads_raises_the_threads_below_it_and_no_other() -> None:
+    with _Parked() as low, _Parked(2) as lower, _Parked(6) as higher, _Parked() as other:
+        assert realtime_threads(4, [low.thread, lower.thread, higher.thread]) == 2
+        assert [p.priority() for p in (low, lower, higher, other)] == [4, 4, 6, 0]
+        # what a raised thread starts begins normal (SCHED_RESET_ON_FORK)
+        assert os.sched_getscheduler(low.thread.native_id or 0) & os.SCHED_RESET_ON_FORK
+    assert realtime_priority() == 0
+
+
+def test_realtime_threads_stops_where_the_os_refuses(monkeypatch: pytest.MonkeyPatch) -> None:
+    def refuse(*_args: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with _Parked() as low:
+        assert realtime_threads(4, [low.thread]) == 0
+        assert low.priority() == 0
+
+
+@needs_rt
+def test_a_run_raises_its_own_threads_and_gives_its_caller_back() -> None:
+    def body() -> tuple[int, int, int, int, int]:
+        with _Parked() as before:
+            own = RunThreads()
+            with _Parked() as during:
+                own.raise_to(3)
+                raised = realtime_priority(), during.priority(), before.priority()
+                own.restore()
+                return (*raised, realtime_priority(), during.priority())
+
+    assert _in_thread(body) == (3, 3, 0, 0, 3)
+
+    def already_realtime() -> int:
+        realtime(5)
+        own = RunThreads()
+        own.raise_to(3)
+        own.restore()  # it did not raise this thread: it leaves it as it was
+        return realtime_priority()
+
+    assert _in_thread(already_realtime) == 5
 
 
 @needs_rt

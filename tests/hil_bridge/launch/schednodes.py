@@ -32,8 +32,9 @@ def _child_priority() -> int:
 class SchedReporter:
     """``SchedReporter(name, *, bus)``: its stats give the real-time priority (0: normal) of the
     thread that built it, of the one that started it, of a thread it started, of the thread
-    asking for its stats, of its process's bus I/O threads, and of processes its thread starts
-    as they are and within :func:`hil_bridge.priority.normal_children`."""
+    asking for its stats, of every Python thread of its process then (the distinct priorities),
+    of its process's bus I/O threads, and of processes its thread starts as they are and within
+    :func:`hil_bridge.priority.normal_children`."""
 
     def __init__(self, name: str, *, bus: str) -> None:
         self.name = name
@@ -62,4 +63,6 @@ class SchedReporter:
 
     def stats(self) -> dict[str, Any]:
         return {"built_at": self.built_at, "started_at": self.started_at,
-                "asked_at": realtime_priority(), "io": _io_priorities(), **self._seen}
+                "asked_at": realtime_priority(), "io": _io_priorities(),
+                "threads": sorted({realtime_priority(t.native_id or 0)
+                                   for t in threading.enumerate()}), **self._seen}

@@ -13,6 +13,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,7 +23,7 @@ import pytest
 
 from hil_bridge.bus.domain import Domain, claim_first_free, use
 from hil_bridge.launch.runner import EXIT_FAILED, run
-from hil_bridge.priority import can_realtime
+from hil_bridge.priority import can_realtime, realtime_priority
 from hil_bridge.server.shared_tiles import stores_of
 from sim_core.config import ConfigError
 from tests.hil_bridge.server._killed import alive
@@ -220,25 +221,40 @@ def test_a_realtime_node_runs_its_threads_fifo_built_at_normal_its_children_norm
     domain: Domain,
 ) -> None:
     """A node's ``realtime`` key: the threads its process starts (its own, the bus's I/O
-    thread) run SCHED_FIFO at it, its constructor and the host's own thread do not, processes
-    it starts inherit it unless started within normal_children; the others run normal."""
+    thread) run SCHED_FIFO at it, its constructor does not, processes it starts inherit it
+    unless started within normal_children; once it started, every Python thread of its process
+    runs at it (none holds the interpreter lock at normal priority); the others run normal. The
+    launcher's threads run real time while the run lasts, its caller's thread only then, and a
+    thread of its caller's not at all."""
     sched = "tests.hil_bridge.launch.schednodes:SchedReporter"
+    seen: list[int] = []
+    caller_stop = threading.Event()
+    caller = threading.Thread(target=caller_stop.wait, daemon=True)  # the caller's own thread
+    caller.start()
+
+    def during(_spec: object) -> None:
+        seen.extend([realtime_priority(), realtime_priority(caller.native_id or 0)])
+
     summary = run({"allow_modules": ["tests.hil_bridge.launch.schednodes"], "nodes": [
         {"name": "rt", "entry": sched, "realtime": 7},
-        {"name": "plain", "entry": sched}]}, duration=0.5, handle_signals=False, domain=domain)
+        {"name": "plain", "entry": sched}]}, duration=0.5, handle_signals=False, domain=domain,
+        on_started=during)
+    caller_stop.set()
+    assert realtime_priority() == 0  # the caller's thread is itself again
     assert summary.exit_status == 0, summary.failures
     rt, plain = summary.nodes["rt"], summary.nodes["plain"]
     assert "scheduling" not in plain
     assert {k: plain[k] for k in ("built_at", "started_at", "asked_at", "thread", "child",
                                   "child_normal")} == dict.fromkeys(
         ("built_at", "started_at", "asked_at", "thread", "child", "child_normal"), 0)
-    assert plain["io"] == [0]
+    assert (plain["io"], plain["threads"]) == ([0], [0])
     if not can_realtime(7):  # no CAP_SYS_NICE / RLIMIT_RTPRIO here: normal, and why
         assert rt["scheduling"].startswith("normal (fifo 7 not permitted")
-        assert (rt["thread"], rt["io"]) == (0, [0])
+        assert (rt["thread"], rt["io"], rt["threads"], seen) == (0, [0], [0], [0, 0])
         return
     assert rt["scheduling"] == "fifo 7"
-    assert (rt["built_at"], rt["started_at"], rt["asked_at"]) == (0, 7, 0)
+    assert seen == [1, 0]  # the launcher's thread at the monitor's priority; the caller's not
+    assert (rt["built_at"], rt["started_at"], rt["asked_at"], rt["threads"]) == (0, 7, 7, [7])
     assert (rt["thread"], rt["thread_after"], rt["io"]) == (7, 7, [7])
     assert (rt["child"], rt["child_normal"]) == (7, 0)
 
