@@ -144,8 +144,8 @@ def realtime_threads(priority: int, threads: Iterable[threading.Thread] | None =
     nodes run real time calls it once they started: a thread of its own left at normal priority
     (a node host's answering thread and watchdog, a launcher's log pumps) takes the interpreter
     lock now and then, and when another process preempts it while it holds the lock, the
-    real-time threads wait behind that process (a server's tick thread once waited 13 ms so,
-    on its first tick). Returns how many threads it raised; none where the OS refuses."""
+    real-time threads wait behind that process. Returns how many threads it raised; none where
+    the OS refuses."""
     _check_realtime(priority)
     policy = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
     raised = 0
