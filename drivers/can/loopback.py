@@ -60,9 +60,12 @@ class _LoopbackSocket(GeneralPurposeUdpMulticastBus):
     def _create_socket(self, address_family: socket.AddressFamily) -> socket.socket:
         if address_family != socket.AF_INET:
             raise OSError(f"{self.group}: the loopback CAN bus takes an IPv4 group")
-        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        opened: list[socket.socket] = []
         try:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            opened.append(sock)
+            tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            opened.append(tx)
             tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
             tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
             tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, _LOOPBACK)
@@ -75,9 +78,9 @@ class _LoopbackSocket(GeneralPurposeUdpMulticastBus):
             sock.bind((self.group, self.port))
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP,
                             socket.inet_aton(self.group) + _LOOPBACK)
-        except OSError as exc:
-            sock.close()
-            tx.close()
+        except OSError as exc:  # neither socket outlives a bus that did not open
+            for opened_socket in opened:
+                opened_socket.close()
             raise CanInitializationError(
                 f"cannot open the loopback CAN bus {self.group}:{self.port}: {exc}") from exc
         self._tx = tx
