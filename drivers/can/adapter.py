@@ -43,7 +43,7 @@ recovery, re-open); no exception leaves the adapter's CAN threads
 (:class:`drivers.can.endpoint.CanEndpoint`): anything unexpected is counted as ``loop_errors``
 and reported to the node's ``faults`` (a failure of the node, naming the loop: the launch run
 exits non-zero). Counters are in :meth:`stats` and published on ``/diagnostics`` (by the node,
-every ``diagnostics_period_s``).
+every ``diagnostics_period_s``, without the latency percentiles: :meth:`counters`).
 """
 
 from __future__ import annotations
@@ -275,12 +275,12 @@ class AutopilotAdapter(Node):
         self.can.stop()
         super().stop()
 
-    def stats(self) -> dict[str, Any]:
+    def counters(self) -> dict[str, Any]:
         """Node counters plus ``can_*`` (link), adapter counters, saturation, per-glider
         ``cmd_state:<id>`` / ``ap_alive:<id>`` / ``ap_mode:<id>`` (numbers, so they reach
-        ``/diagnostics``) and ``state_latency_ms`` (bus publish -> state callback percentiles
-        over the last 10,000 states, :func:`hil_bridge.bus.stats.percentiles`; also
-        ``state_latency_ms_by_glider``; meaningful when the publisher runs on this host)."""
+        ``/diagnostics``): :meth:`stats` without its latency percentiles. ``/diagnostics`` is
+        taken from these every period on the executor that runs the state callbacks, where the
+        percentiles of 10,000 samples held them for 3-12 ms of CPU a time (at 250 Hz states)."""
         out = super().stats()
         with self._glock:
             out.update(self._c)
@@ -292,6 +292,13 @@ class AutopilotAdapter(Node):
         if "can_state" in out:  # a number for /diagnostics, the name as can_link
             out["can_link"] = str(out["can_state"])
             out["can_state"] = _LINK_STATE_CODES.get(out["can_link"], -1)
+        return out
+
+    def stats(self) -> dict[str, Any]:
+        """:meth:`counters` and ``state_latency_ms`` (bus publish -> state callback percentiles
+        over the last 10,000 states, :func:`hil_bridge.bus.stats.percentiles`; also
+        ``state_latency_ms_by_glider``; meaningful when the publisher runs on this host)."""
+        out = self.counters()
         with self._glock:
             samples = list(self._state_ms)
         by_glider: dict[int, list[float]] = {gid: [] for gid in self.gliders}

@@ -285,8 +285,15 @@ class Node:
         totals["transport"] = self.transport.stats()
         return totals
 
+    def counters(self) -> dict[str, Any]:
+        """What the periodic ``/diagnostics`` is made of (the numbers, and the counters of
+        ``"topics"``): :meth:`stats` here. A node whose ``stats()`` also summarises thousands of
+        samples (percentiles) gives its counters alone here: the diagnostics are taken on the
+        node's executor, and milliseconds of summaries there hold every callback behind them."""
+        return self.stats()
+
     def _diagnostics(self) -> Diagnostics:
-        stats = self.stats()
+        stats = self.counters()
         counters: dict[str, int | float] = {
             k: v for k, v in stats.items() if isinstance(v, (int, float))
         }

@@ -190,6 +190,9 @@ def test_diagnostics_and_stats_report_the_link(sim: Sim, make_adapter: Any,
                                   for d in seen))
     diag = next(d for d in reversed(seen) if d.node == "autopilot")
     assert diag.counters["can_state"] == 0 and diag.counters["can_tx_frames"] > 0
+    # the latency percentiles are in stats() alone, not in what /diagnostics is made of
+    assert "state_latency_ms" not in ad.counters() and "states_in" in ad.counters()
+    assert "state_latency_ms" in ad.stats()
     # the first command can beat the mock's first heartbeat, and that heartbeat its switch to
     # AUTO: wait for a heartbeat that says AUTO
     assert wait_until(lambda: ad.stats().get("ap_mode:3") == 1)

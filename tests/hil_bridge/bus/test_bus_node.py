@@ -6,6 +6,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zmq
@@ -306,6 +307,34 @@ def test_diagnostics_are_published_and_stop_is_idempotent(bus_url: str) -> None:
         assert node.transport.closed
         sample = next(d for d in diags.items if isinstance(d, Diagnostics) and d.node == "busy")
         assert {"sent", "received", "dropped", "decode_errors"} <= set(sample.counters)
+
+
+def test_diagnostics_are_made_of_counters_not_stats(bus_url: str) -> None:
+    """A node whose ``stats()`` summarises samples gives ``/diagnostics`` its ``counters()``:
+    the summaries never run on the executor that the node's callbacks run on."""
+
+    class Summarising(Node):
+        stats_calls = 0
+
+        def counters(self) -> dict[str, Any]:
+            return super().stats() | {"cheap": 7}
+
+        def stats(self) -> dict[str, Any]:
+            Summarising.stats_calls += 1
+            return self.counters() | {"latency_ms": {"p99": 1.0}}
+
+    diags = Collector()
+    with Node("watch", bus=bus_url) as w:
+        w.start()
+        w.create_subscription(Diagnostics, "/diagnostics", diags)
+        with Summarising("summing", bus=bus_url, diagnostics_period_s=0.01) as node:
+            node.start()
+            assert poll_until(lambda: sum(
+                isinstance(d, Diagnostics) and d.node == "summing" for d in diags.items) >= 3)
+            assert Summarising.stats_calls == 0
+            assert node.stats()["latency_ms"] == {"p99": 1.0}
+    sample = next(d for d in diags.items if isinstance(d, Diagnostics) and d.node == "summing")
+    assert sample.counters["cheap"] == 7 and "sent" in sample.counters
 
 
 def test_bad_arguments_are_rejected(bus_url: str) -> None:
