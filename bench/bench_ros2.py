@@ -18,7 +18,12 @@ probe beside each row (``bench._util.StallProbe``: a thread at ``SCHED_FIFO`` 95
 **Baseline, same run.** DDS alone: rclpy to rclpy (``ros2_peer.py dds-send``: 8 Odometry per
 tick at 250 Hz, to ``dds-receive``), with the sender's monotonic time in the header. And the
 same echoloop path carrying one glider's states alone (no echoes): the path's floor when the
-bridge has a single message a tick to write.
+bridge has a single message a tick to write. And the floor of any bridge written in Python on
+this machine: ``bench/ros2_floor.py`` in the bridge's place, under the same load, with the
+bridge's bus subscriptions, receive threads, Fast DDS participant and QoS, forwarding each
+message with its stamp read from the bus header alone (fixed Odometry numbers, no payload
+decoded, no frame algebra): what is left of the latency and the CPU is the bus, rclpy, DDS and
+the machine's two cores shared by four busy processes.
 
 **Commands.** ``echoloop launch`` runs the server (8 swarm gliders, states at 250 Hz, realtime)
 and the bridge. ``ros2_peer.py command`` flies glider 3 at 20 Hz, each command with a bank
@@ -51,6 +56,7 @@ TITLE = "ROS 2 bridge: 8 gliders at 250 Hz and 8 sonars' echoes to rclpy, comman
 
 ROOT = Path(__file__).resolve().parent.parent
 PEER = Path(__file__).with_name("ros2_peer.py")
+FLOOR = Path(__file__).with_name("ros2_floor.py")
 GLIDERS, SONARS = 8, 8
 STATE_HZ, ECHO_HZ = 250, 20
 ECHO_SHAPE = (2, 12_000)
@@ -140,14 +146,22 @@ def _stop_when_done(*procs: subprocess.Popen[str]) -> None:
 
 
 def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path, *, gliders: int = GLIDERS,
-                       sonars: int = SONARS, run_s: float = RUN_S) -> dict[str, Any]:
+                       sonars: int = SONARS, run_s: float = RUN_S,
+                       floor: bool = False) -> dict[str, Any]:
+    """One row: ``gliders`` states at :data:`STATE_HZ` and ``sonars`` echoes at :data:`ECHO_HZ`
+    through the bridge (``floor``: through ``bench/ros2_floor.py`` instead) to the rclpy peer."""
     from hil_bridge.bus.messages import Clock, GliderState, SonarEcho
     from hil_bridge.bus.node import Node
     from sim_core.pose import quat_from_euler
 
     out = tmp / "recv.npy"
     bus = _cli(env, "bus", "--domain", str(dom.number))
-    bridge = _cli(env, "ros2", "bridge", "--domain", str(dom.number), "--json")
+    if floor:
+        bridge = subprocess.Popen(
+            [sys.executable, str(FLOOR), "--duration", str(WARM_S + run_s + 2)], cwd=ROOT,
+            env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    else:
+        bridge = _cli(env, "ros2", "bridge", "--domain", str(dom.number), "--json")
     peer = _peer(env, "receive", str(out), "--duration", str(WARM_S + run_s + 3), "--gliders",
                  str(gliders), "--sonars", str(sonars))
     node = Node("bench_sim", bus=dom.bus_url, diagnostics_period_s=0)
@@ -197,7 +211,8 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path, *, gliders: 
     finally:
         node.stop()
         summaries = _stop(bridge, bus)
-    stages = json.loads(summaries[0])["nodes"]["ros2_bridge"]
+    stages = ({"state_bus_ms": None, "state_out_ms": None} if floor
+              else json.loads(summaries[0])["nodes"]["ros2_bridge"])
     rows = np.load(out)
     states = rows[rows[:, 0] >= 0]
     echoes = rows[rows[:, 0] < 0]
@@ -339,6 +354,8 @@ def run(out_dir: Path) -> str:
             base = _baseline(env, tmp)
         with StallProbe() as load_probe:
             load = _states_and_echoes(dom, env, tmp)
+        with StallProbe() as floor_probe:
+            floor = _states_and_echoes(dom, env, tmp, floor=True)
         with StallProbe() as single_probe:
             single = _states_and_echoes(dom, env, tmp, gliders=1, sonars=0, run_s=SINGLE_S)
         cmd = _commands(dom, env, tmp)
@@ -364,6 +381,11 @@ def run(out_dir: Path) -> str:
         [f"echoloop → bridge → rclpy ({GLIDERS} × {STATE_HZ} Hz + echoes)", f"{lat.size}",
          f"{_pct(lat, 50):.3f}", f"{_pct(lat, 99):.3f}", *stages(load),
          f"{100 * delivered:.2f} %", f"{100 * load['cpu_share']:.1f} %", stalls(load_probe)],
+        [f"floor: echoloop → a forwarder that does not convert → rclpy ({GLIDERS} × "
+         f"{STATE_HZ} Hz + echoes)", f"{floor['lat'].size}", f"{_pct(floor['lat'], 50):.3f}",
+         f"{_pct(floor['lat'], 99):.3f}", "–", "–",
+         f"{100 * floor['lat'].size / floor['expected']:.2f} %",
+         f"{100 * floor['cpu_share']:.1f} % (forwarder)", stalls(floor_probe)],
         [f"echoloop → bridge → rclpy (1 × {STATE_HZ} Hz, no echoes, {SINGLE_S:.0f} s)",
          f"{single['lat'].size}", f"{_pct(single['lat'], 50):.3f}",
          f"{_pct(single['lat'], 99):.3f}", *stages(single),
