@@ -158,7 +158,8 @@ def _states_and_echoes(dom: Domain, env: dict[str, str], tmp: Path, *, gliders: 
     bus = _cli(env, "bus", "--domain", str(dom.number))
     if floor:
         bridge = subprocess.Popen(
-            [sys.executable, str(FLOOR), "--duration", str(WARM_S + run_s + 2)], cwd=ROOT,
+            [sys.executable, str(FLOOR), "--duration", str(WARM_S + run_s + 2),
+             "--echo-shape", *map(str, ECHO_SHAPE)], cwd=ROOT,
             env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     else:
         bridge = _cli(env, "ros2", "bridge", "--domain", str(dom.number), "--json")

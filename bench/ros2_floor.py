@@ -1,14 +1,14 @@
 """The floor of a Python bridge, for ``bench/bench_ros2.py``: the bus in, rclpy out, no conversion.
 
-    python bench/ros2_floor.py --duration S   (ECHOLOOP_DOMAIN and ROS_DOMAIN_ID from the
-                                               environment)
+    python bench/ros2_floor.py --duration S --echo-shape 2 12000
+        (ECHOLOOP_DOMAIN and ROS_DOMAIN_ID from the environment)
 
 It takes the bridge's path with the conversion left out: the same bus subscriptions on two
 receive threads (``/clock`` and ``/glider/`` on one, ``/sonar/`` on the other), the same
 Fast DDS participant (UDP on the loopback interface, ``ros2_bridge.bridge.PROFILE``), the same
 QoS (reliable, volatile, the default mapping's depths). Of a bus message it reads the topic and
 the header, never the payload: each state becomes an ``Odometry`` on ``/glider_<id>/odom`` with
-the state's stamp and fixed numbers, each echo an ``Image`` of the benchmark's echo size on
+the state's stamp and fixed numbers, each echo an ``Image`` of ``--echo-shape`` samples on
 ``/sonar_<id>/echo``, each ``/clock`` a ``Clock``, all serialised as the bridge serialises them
 (:mod:`ros2_bridge.cdr`). What the bridge does beyond this (decoding the payload, the frame
 algebra, its bookkeeping) is what this floor leaves out: a Python bridge cannot be faster than
@@ -32,8 +32,6 @@ from hil_bridge.bus.transport import open_transport
 from ros2_bridge import cdr
 from ros2_bridge.bridge import PROFILE
 
-#: the benchmark's echo: channels x samples, float32
-ECHO_SHAPE = (2, 12_000)
 #: an Odometry's numbers: at the origin, level, at rest
 ROW = np.zeros((1, cdr.ODOMETRY_DOUBLES))
 ROW[0, 6] = 1.0
@@ -42,6 +40,8 @@ ROW[0, 6] = 1.0
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--duration", type=float, required=True)
+    p.add_argument("--echo-shape", type=int, nargs=2, required=True,
+                   metavar=("CHANNELS", "SAMPLES"))
     args = p.parse_args()
     os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(PROFILE)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
@@ -69,7 +69,7 @@ def main() -> None:
                 kind, ros_topic, QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE))
         return pub
 
-    samples = np.zeros(ECHO_SHAPE, dtype=np.float32)
+    samples = np.zeros(args.echo_shape, dtype=np.float32)
     stop = threading.Event()
 
     def forward(prefixes: tuple[bytes, ...]) -> None:
