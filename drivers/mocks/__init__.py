@@ -1,7 +1,7 @@
 """Device mocks: the sonar head (serial, spec §2) and the glider autopilot (CAN, spec §3).
 
 Sonar head: ``sonar_head`` (``MockSonarHead``, the device's protocol state machine),
-``sonar_head_config`` (its parameters), ``echo_range`` (its first-return range estimate); the
+``sonar_head_config`` (its parameters); the
 serial port it acts on and the pacing of each direction are :mod:`drivers.serial.device_port`.
 Autopilot: ``autopilot`` (``MockAutopilot``, its controllers and heartbeats),
 ``profile_receiver`` (``ProfileReceiver``: what it knows of each glider, from the bridge's

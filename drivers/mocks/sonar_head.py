@@ -32,7 +32,8 @@ that ends its receive or transmit thread is reported to its ``faults`` (``failur
 
 This module holds the device's protocol state machine; its parameters are
 :class:`~drivers.mocks.sonar_head_config.SonarHeadConfig`, its port and UART pacing are in
-:mod:`drivers.serial.device_port`, its range estimate in :mod:`drivers.mocks.echo_range`.
+:mod:`drivers.serial.device_port`; its range estimate is echoloop's one echo → range rule
+(:mod:`sim_core.sensors.echo_range`).
 """
 
 from __future__ import annotations
@@ -45,7 +46,6 @@ from typing import Any
 
 import numpy as np
 
-from drivers.mocks.echo_range import first_return_range
 from drivers.mocks.sonar_head_config import BEAMWIDTH_RANGE_DEG, SonarHeadConfig
 from drivers.serial.device_port import DevicePort, SerialDevicePort, UartPacer
 from drivers.serial.framing import FrameDecoder, MsgType, frame_bytes
@@ -67,6 +67,7 @@ from hil_bridge.bus.domain import current as current_domain
 from hil_bridge.bus.faults import Faults
 from sim_core.config import from_dict
 from sim_core.rng import make_rng
+from sim_core.sensors.echo_range import RangeRule, echo_ranges
 
 __all__ = ["MockSonarHead"]
 
@@ -122,6 +123,11 @@ class MockSonarHead:
         self._expired: collections.deque[int] = collections.deque(maxlen=256)
         self._latencies: collections.deque[float] = collections.deque(maxlen=_LATENCY_WINDOW)
         self.ranges: collections.deque[float | None] = collections.deque(maxlen=_LATENCY_WINDOW)
+        absolute = self.cfg.threshold
+        self._rule = RangeRule(
+            threshold_db=-400.0 if absolute is None else 20.0 * math.log10(absolute),
+            relative_db=20.0 * math.log10(self.cfg.threshold_rel),
+            sound_speed=self.cfg.sound_speed, min_range_m=0.0)
         self._seq = 0
         self._ping_seq = 0
         self._t0 = time.monotonic()
@@ -231,6 +237,11 @@ class MockSonarHead:
         out["last_range_m"] = last_range
         out["port"] = self.path
         return out
+
+    def _range(self, samples: np.ndarray, fs: float) -> float | None:
+        """The range of the echo's first return over every ear (m), or None."""
+        ranges = echo_ranges(samples, fs, self._rule).range_m
+        return None if np.isnan(ranges).all() else float(np.nanmin(ranges))
 
     def latencies_s(self) -> np.ndarray:
         """Ping -> last-chunk latencies (s) of the most recent echoes (up to 4096)."""
@@ -454,9 +465,7 @@ class MockSonarHead:
                 self._latencies.append(now - sent[0])
                 if sent[1] != echo.encoding:
                     self._counts["encoding_mismatch"] += 1
-            self.ranges.append(first_return_range(
-                echo.samples, echo.fs_hz, sound_speed=self.cfg.sound_speed,
-                threshold=self.cfg.threshold, threshold_rel=self.cfg.threshold_rel))
+            self.ranges.append(self._range(echo.samples, echo.fs_hz))
             self.last_echo = echo
             self._echo_done.notify_all()
         self._tx_wake.set()  # a lockstep head may fire its next ping now

@@ -19,8 +19,9 @@ class SonarHeadConfig:
 
     ``beamwidth``: full one-way -3 dB beamwidth in degrees, or ``"random"`` (uniform in
     [30, 65] per ping). ``encoding``: ``int16`` | ``iq16`` | ``float32`` (or 0/1/2), requested
-    in every PING. ``threshold``: absolute first-return threshold in echo units; ``None`` uses
-    ``threshold_rel`` x the echo's peak magnitude.
+    in every PING. ``threshold``: absolute first-return threshold in echo units (None: none);
+    ``threshold_rel``: the level relative to the echo's peak below which no return counts
+    (the rule: :mod:`sim_core.sensors.echo_range`).
     """
 
     rate_hz: float = 10.0

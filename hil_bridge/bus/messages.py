@@ -16,12 +16,15 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from hil_bridge.errors import CodecError
+
+if TYPE_CHECKING:
+    from sim_core.sensors import SensorTruth
 
 __all__ = [
     "REGISTRY",
@@ -39,6 +42,7 @@ __all__ = [
     "SonarPing",
     "SurfaceCmd",
     "ThermalMarkers",
+    "fdm_truth",
     "message_class",
     "register",
     "state_quaternion",
@@ -245,7 +249,9 @@ class FdmState(Message):
     beside its ``GliderState``: position ``x, y, z`` m and velocity ``vx, vy, vz`` m/s (world
     ENU), attitude ``qw, qx, qy, qz`` (world-from-body, ENU from FLU), body rates ``p, q, r``
     rad/s and specific force ``fx, fy, fz`` m/s² (body FLU: +9.81 on z at rest), true
-    ``airspeed`` m/s; ``step`` as the state's."""
+    ``airspeed`` m/s; ``step`` as the state's; the flight model's own geodetic position
+    ``lat``, ``lon`` deg and ``alt`` m above the WGS-84 ellipsoid (NaN: not given, a recording
+    older than these fields). :func:`fdm_truth` turns states into what sensors are read from."""
 
     TYPE: ClassVar[str] = "echoloop/FdmState"
     VERSION: ClassVar[int] = 1
@@ -270,6 +276,22 @@ class FdmState(Message):
     fy: float
     fz: float
     airspeed: float
+    lat: float = math.nan
+    lon: float = math.nan
+    alt: float = math.nan
+
+
+def fdm_truth(states: Sequence[FdmState]) -> SensorTruth:
+    """The truth of K 6-DoF states as :class:`sim_core.sensors.SensorTruth` (rows in order),
+    what :class:`sim_core.sensors.SensorSuite` reads sensors from."""
+    from sim_core.sensors import SensorTruth
+
+    a = np.array([[s.lat, s.lon, s.alt, s.vx, s.vy, s.vz, s.qw, s.qx, s.qy, s.qz, s.p, s.q,
+                   s.r, s.fx, s.fy, s.fz, s.airspeed] for s in states],
+                 dtype=np.float64).reshape(-1, 17)
+    return SensorTruth(lat_deg=a[:, 0], lon_deg=a[:, 1], height_m=a[:, 2], velocity=a[:, 3:6],
+                       quat=a[:, 6:10], rates=a[:, 10:13], specific_force=a[:, 13:16],
+                       airspeed=a[:, 16])
 
 
 @register

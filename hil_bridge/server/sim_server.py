@@ -455,12 +455,13 @@ class SimServer:
         if fdm is not None:
             rows6 = zip(self.fleet.sixdof_ids, fdm.position.tolist(), fdm.velocity.tolist(),
                         fdm.quat.tolist(), fdm.rates.tolist(), fdm.specific_force.tolist(),
-                        fdm.airspeed.tolist(), strict=True)
-            for gid, p, v, q, w, f, tas in rows6:
+                        fdm.airspeed.tolist(), fdm.geodetic.tolist(), strict=True)
+            for gid, p, v, q, w, f, tas, g in rows6:
                 pubs[f"/glider/{gid}/fdm"].publish(FdmState(
                     stamp_ns=t_ns, glider_id=gid, step=self.fleet.tick, x=p[0], y=p[1], z=p[2],
                     vx=v[0], vy=v[1], vz=v[2], qw=q[0], qx=q[1], qy=q[2], qz=q[3], p=w[0],
-                    q=w[1], r=w[2], fx=f[0], fy=f[1], fz=f[2], airspeed=tas,
+                    q=w[1], r=w[2], fx=f[0], fy=f[1], fz=f[2], airspeed=tas, lat=g[0], lon=g[1],
+                    alt=g[2],
                 ))
         with self._lock:
             self._c["clock_published"] += 1

@@ -86,7 +86,8 @@ class SixDofOutputs:
     m, m/s world ENU; ``quat`` (N, 4) world-from-body ENU-from-FLU; ``roll``, ``pitch``, ``yaw``
     (N,) its Z-Y-X Euler angles; ``rates`` (N, 3) body rates rad/s FLU; ``specific_force``
     (N, 3) m/s² FLU (what an accelerometer reads: +g up at rest); ``airspeed`` (N,) true
-    airspeed m/s; ``alive`` (N,) False once a state is not finite."""
+    airspeed m/s; ``geodetic`` (N, 3) JSBSim's own position: latitude, longitude deg and height
+    m above the WGS-84 ellipsoid; ``alive`` (N,) False once a state is not finite."""
 
     position: F8
     velocity: F8
@@ -97,6 +98,7 @@ class SixDofOutputs:
     rates: F8
     specific_force: F8
     airspeed: F8
+    geodetic: F8
     alive: NDArray[np.bool_]
 
 
@@ -226,10 +228,14 @@ class SixDofGliders:
                           fdm["atmosphere/rho-slugs_ft3"] * _SLUG / _FT**3]
                          for fdm in self._fdm]).reshape(-1, 3)
 
-    def _positions(self) -> F8:
-        """Every vehicle's ENU position (N, 3) m."""
-        geo = np.array([[fdm["position/lat-geod-rad"], fdm["position/long-gc-rad"],
-                         fdm["position/h-sl-meters"]] for fdm in self._fdm]).reshape(-1, 3)
+    def _geodetic(self) -> F8:
+        """Every vehicle's latitude, longitude (rad) and height (m) (N, 3)."""
+        return np.array([[fdm["position/lat-geod-rad"], fdm["position/long-gc-rad"],
+                          fdm["position/h-sl-meters"]] for fdm in self._fdm]).reshape(-1, 3)
+
+    def _positions(self, geo: F8 | None = None) -> F8:
+        """Every vehicle's ENU position (N, 3) m (from ``geo``, :meth:`_geodetic`, if given)."""
+        geo = self._geodetic() if geo is None else geo
         d = _ecef(geo[:, 0], geo[:, 1], geo[:, 2]) - self._origin_ecef
         return np.asarray(np.einsum("nij,nj->ni", self._origin_axes, d), dtype=np.float64)
 
@@ -251,7 +257,8 @@ class SixDofGliders:
             f_frd[k] = (fdm["forces/fbx-total-lbs"] / mass, fdm["forces/fby-total-lbs"] / mass,
                         fdm["forces/fbz-total-lbs"] / mass)
             vt[k] = fdm["velocities/vt-fps"]
-        pos = self._positions()
+        geo = self._geodetic()
+        pos = self._positions(geo)
         quat = quat_enu_flu_from_ned_frd(quat_from_euler(euler[:, 0], euler[:, 1], euler[:, 2]))
         roll, pitch, yaw = euler_from_quat(quat)
         vel = enu_from_ned(v_ned) * _FT
@@ -260,4 +267,5 @@ class SixDofGliders:
             position=pos, velocity=vel, quat=quat, roll=roll, pitch=pitch, yaw=yaw,
             rates=flu_from_frd(pqr), specific_force=flu_from_frd(f_frd) * _FT,
             airspeed=vt * _FT, alive=self._alive.copy(),
+            geodetic=np.column_stack([np.degrees(geo[:, 0]), np.degrees(geo[:, 1]), geo[:, 2]]),
         )

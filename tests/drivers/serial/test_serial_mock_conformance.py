@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from drivers import cli
-from drivers.mocks.echo_range import first_return_range
 from drivers.mocks.sonar_head import MockSonarHead
 from drivers.mocks.sonar_head_config import BEAMWIDTH_RANGE_DEG
 from drivers.serial.framing import Frame, FrameDecoder, MsgType
@@ -90,7 +89,7 @@ def run_session(kind: str, encoding: str, echo: np.ndarray, n: int = 3, **mock_p
 @pytest.mark.parametrize("encoding", ["int16", "iq16", "float32"])
 @pytest.mark.parametrize("kind", ["pty", "sonarsim"])
 def test_echoes_arrive_complete_in_the_requested_encoding(kind: str, encoding: str) -> None:
-    echo = tone_burst_echo() if encoding == "iq16" else impulse_echo()
+    echo = tone_burst_echo()
     stats, host, answer = run_session(kind, encoding, echo)
     assert stats["echoes_complete"] >= 3
     assert stats.get("encoding_mismatch", 0) == 0
@@ -101,13 +100,10 @@ def test_echoes_arrive_complete_in_the_requested_encoding(kind: str, encoding: s
     assert isinstance(lat, float) and lat > 0
     rng = stats["last_range_m"]
     assert isinstance(rng, float)
-    if encoding == "iq16":
-        # |iq| is the burst envelope / 2: it crosses 10 % of its peak sqrt(2 ln 10) sigma early;
-        # allow 1.5 baseband samples (20 kHz -> 8.5 mm each)
-        t_cross = IMPULSE_AT / FS - 2e-4 * math.sqrt(2 * math.log(10))
-        assert abs(rng - 340 * t_cross / 2) < 1.5 * 340 / 20000 / 2
-    else:
-        assert rng == pytest.approx(340 * IMPULSE_AT / FS / 2)
+    # the burst's envelope peaks at IMPULSE_AT: to a tenth of a sample at 400 kHz, to a
+    # tenth of a baseband sample (20 kHz: 8.5 mm each) through IQ, int16 rounding included
+    step = 340 / (20000 if encoding == "iq16" else FS) / 2
+    assert abs(rng - 340 * IMPULSE_AT / FS / 2) < 0.1 * step
     assert host.decoder.dropped == 0 and host.counts["configs_in"] >= 1
     if encoding == "iq16":
         assert host.f_center_hz == 70000 and host.decimation == 20
@@ -130,13 +126,24 @@ def test_random_beamwidth_is_seeded_and_in_range() -> None:
     assert a == b and a != c
 
 
-def test_first_return_range_closed_form() -> None:
-    x = np.zeros((2, 1000))
-    x[1, 400] = 0.5
-    x[0, 500] = 1.0
-    assert first_return_range(x, 400000.0) == pytest.approx(340 * 400 / 400000 / 2)
-    assert first_return_range(x, 400000.0, threshold=0.8) == pytest.approx(340 * 500 / 4e5 / 2)
-    assert first_return_range(np.zeros(10), 1.0) is None
+def test_the_mock_ranges_the_first_return_of_any_ear() -> None:
+    """The head's range is echoloop's one rule (sim_core.sensors.echo_range) over its ears:
+    bursts peaking at samples 400 (ear 1, half as loud) and 500 (ear 0) are returns at
+    340 * n / fs / 2 m."""
+    t = np.arange(1000) / FS
+    x = np.stack([np.exp(-0.5 * ((t - at / FS) / 2e-5) ** 2) * a * np.cos(2 * np.pi * 70e3 * t)
+                  for at, a in ((500, 1.0), (400, 0.5))])
+    head = MockSonarHead("m", pty=True, link=None)
+    try:
+        assert head._range(x, FS) == pytest.approx(340 * 400 / FS / 2, abs=1e-5)
+        loud = MockSonarHead("m2", pty=True, threshold=0.8)
+        try:
+            assert loud._range(x, FS) == pytest.approx(340 * 500 / FS / 2, abs=1e-5)
+        finally:
+            loud.stop()
+        assert head._range(np.zeros(10), 1.0) is None
+    finally:
+        head.stop()
 
 
 @pytest.mark.parametrize(("params", "match"), [
