@@ -321,10 +321,14 @@ def pose_extrapolate(
     return p, q / np.linalg.norm(q, axis=-1, keepdims=True), _f(v1) + a * tau
 
 
+_NE_SWAP = [1, 0, 2]
+_DOWN_UP = np.array([1.0, 1.0, -1.0])
+_RD_LU = np.array([1.0, -1.0, -1.0])
+
+
 def enu_from_ned(v: ArrayLike) -> FloatArray:
     """NED vectors ``(..., 3)`` (north, east, down) in ENU axes (east, north, up)."""
-    va = _f(v)
-    return np.stack([va[..., 1], va[..., 0], -va[..., 2]], axis=-1)
+    return _f(v)[..., _NE_SWAP] * _DOWN_UP
 
 
 def flu_from_frd(v: ArrayLike) -> FloatArray:
@@ -332,8 +336,7 @@ def flu_from_frd(v: ArrayLike) -> FloatArray:
 
     Also converts body rates: ``(p, q, r)`` about FRD axes give the rates about FLU axes.
     """
-    va = _f(v)
-    return np.stack([va[..., 0], -va[..., 1], -va[..., 2]], axis=-1)
+    return _f(v) * _RD_LU
 
 
 def quat_enu_flu_from_ned_frd(q_ned_frd: ArrayLike) -> FloatArray:

@@ -13,7 +13,10 @@ python-can virtual channels    ``{name}.d{N}`` (e.g. ``glider.d0``)
 CAN across processes           python-can ``udp_multicast`` group ``239.255.74.{N}``, port
                                ``{7402 + 10 N}``, hop limit 0 (never leaves the host)
 ArduPilot SITL (JSON physics)  SITL instance ``N`` (``-I N``): UDP ``{9002 + 10 N}``, and
-                               SITL's own MAVLink TCP ``{5760 + 10 N}`` up
+                               SITL's own MAVLink TCP ``{5760 + 10 N}`` up (its SERIAL1
+                               ``{5762 + 10 N}`` takes echoloop's range finders)
+PX4 SITL (MAVLink HIL)         PX4 instance ``N`` (``px4 -i N``): the simulator's TCP
+                               ``{4560 + N}``
 =============================  ==========================================================
 
 so domain 0 keeps the defaults of ``docs/spec/protocols.md`` (7400/7401) and Foxglove's 8765,
@@ -197,6 +200,19 @@ class Domain:
         """The ArduPilot SITL instance (``-I``) this domain's SITL node serves by default: the
         domain number (None for a private domain: an ephemeral port)."""
         return self.number
+
+    @property
+    def px4_sitl_port(self) -> int | None:
+        """The TCP port PX4 SITL instance N (``px4 -i N``) connects to its simulator on, which
+        this domain's PX4 HIL node listens on: 4560 + N (None for a private domain: an
+        ephemeral port)."""
+        return None if self.number is None else 4560 + self.number
+
+    @property
+    def ardupilot_serial1_port(self) -> int | None:
+        """ArduPilot SITL instance N's SERIAL1 (TCP 5762 + 10 N, MAVLink 2), where this
+        domain's MAVLink range finder connects (None for a private domain)."""
+        return None if self.number is None else 5762 + DOMAIN_STRIDE * self.number
 
     @property
     def ports(self) -> tuple[int, ...]:

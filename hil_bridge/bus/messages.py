@@ -286,12 +286,9 @@ def fdm_truth(states: Sequence[FdmState]) -> SensorTruth:
     what :class:`sim_core.sensors.SensorSuite` reads sensors from."""
     from sim_core.sensors import SensorTruth
 
-    a = np.array([[s.lat, s.lon, s.alt, s.vx, s.vy, s.vz, s.qw, s.qx, s.qy, s.qz, s.p, s.q,
-                   s.r, s.fx, s.fy, s.fz, s.airspeed] for s in states],
-                 dtype=np.float64).reshape(-1, 17)
-    return SensorTruth(lat_deg=a[:, 0], lon_deg=a[:, 1], height_m=a[:, 2], velocity=a[:, 3:6],
-                       quat=a[:, 6:10], rates=a[:, 10:13], specific_force=a[:, 13:16],
-                       airspeed=a[:, 16])
+    return SensorTruth(np.array([[s.lat, s.lon, s.alt, s.vx, s.vy, s.vz, s.qw, s.qx, s.qy,
+                                  s.qz, s.p, s.q, s.r, s.fx, s.fy, s.fz, s.airspeed]
+                                 for s in states], dtype=np.float64).reshape(-1, 17))
 
 
 @register
@@ -371,14 +368,17 @@ class SonarEcho(Message):
     ``samples`` float32, shape (n,) or (channels, n), at ``fs`` Hz. ``error_bound`` is the
     synthesiser's bound (NaN when it gives none). Where the sonar was when it pinged:
     ``position`` (3,) m world ENU, ``orientation`` (4,) world-from-sonar ``[w, x, y, z]``,
-    ``boresight`` (3,) the beam axis, a world unit vector, at sim time ``emit_ns``. NaN arrays
-    and ``emit_ns`` 0: not given (a publisher older than these fields).
+    ``boresight`` (3,) the beam axis, a world unit vector, at sim time ``emit_ns``;
+    ``boresight_body`` (3,) the beam axis in its vehicle's body axes (FLU: the mount's rotation
+    of the ping's az/el), what a range finder on the vehicle reports its orientation by. NaN
+    arrays and ``emit_ns`` 0: not given (a publisher older than these fields).
     """
 
     TYPE: ClassVar[str] = "echoloop/SonarEcho"
     VERSION: ClassVar[int] = 1
     ARRAYS: ClassVar[Mapping[str, str]] = {
         "samples": "<f4", "position": "<f8", "orientation": "<f8", "boresight": "<f8",
+        "boresight_body": "<f8",
     }
 
     stamp_ns: int
@@ -397,6 +397,9 @@ class SonarEcho(Message):
     )
     boresight: npt.NDArray[Any] = dataclasses.field(default_factory=lambda: np.full(3, np.nan))
     emit_ns: int = 0
+    boresight_body: npt.NDArray[Any] = dataclasses.field(
+        default_factory=lambda: np.full(3, np.nan)
+    )
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)
@@ -405,7 +408,8 @@ class SonarEcho(Message):
                 f"SonarEcho.samples must have shape (n,) or (channels, n), "
                 f"got {self.samples.shape}"
             )
-        for name, n in (("position", 3), ("orientation", 4), ("boresight", 3)):
+        for name, n in (("position", 3), ("orientation", 4), ("boresight", 3),
+                        ("boresight_body", 3)):
             if getattr(self, name).shape != (n,):
                 raise ValueError(
                     f"SonarEcho.{name} must have shape ({n},), got {getattr(self, name).shape}"

@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "mock": ("drivers.cli", "run a device mock: sonar-head | autopilot"),
     "ros2": ("ros2_bridge.cli", "bridge|mapping: the live ROS 2 bridge (extra 'ros2')"),
     "ardupilot": ("drivers.ardupilot.cli", "sitl|polar: ArduPilot SITL in the loop (JSON)"),
+    "mavlink": ("drivers.mavlink.cli", "px4|rangefinder: PX4 HIL, echo ranges into any autopilot"),
 }
 
 

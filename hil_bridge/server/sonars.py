@@ -38,7 +38,7 @@ from hil_bridge.server.lockstep import LockstepGate
 from hil_bridge.server.pose_history import PoseHistory, VehiclePose
 from hil_bridge.server.pose_ring import PoseRing
 from sim_core.config import ConfigError
-from sim_core.pose import cross, pose_compose, quat_from_euler, quat_rotate
+from sim_core.pose import cross, direction_from_az_el, pose_compose, quat_from_euler, quat_rotate
 from sim_core.scene import ClockSpec, Scene
 
 __all__ = ["ECHO_COUNTERS", "ECHO_READY_TIMEOUT_S", "LOOKAHEAD_HORIZON_S", "LOOKAHEAD_STEPS",
@@ -310,6 +310,8 @@ class ServerSonars:
             sonar_id=req.sonar_id, dropped=out.dropped, error_bound=out.error_bound,
             compute_ns=out.compute_ns, position=req.pose.position,
             orientation=req.pose.orientation, boresight=out.boresight, emit_ns=req.pose.t_ns,
+            boresight_body=quat_rotate(self._mounts[req.sonar_id][2], direction_from_az_el(
+                float(req.ping.az), float(req.ping.el))),
         )
         self._pubs[f"/sonar/{req.sonar_id}/echo"].publish(msg)
         self._gate.echo_done(req.sonar_id)

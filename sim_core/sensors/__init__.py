@@ -14,7 +14,12 @@ here; none computes physics of its own. May import numpy, scipy, :mod:`sim_core.
 :mod:`sim_core.rng` and ``pygeomag``.
 """
 
-from sim_core.sensors.atmosphere import dynamic_pressure, isa, pressure_altitude
+from sim_core.sensors.atmosphere import (
+    dynamic_pressure,
+    equivalent_airspeed,
+    isa,
+    pressure_altitude,
+)
 from sim_core.sensors.echo_range import EchoRanges, RangeRule, echo_ranges
 from sim_core.sensors.gps import GpsFix, GpsReceiver, GpsSpec
 from sim_core.sensors.magnetic import WMM_VALID, field_enu
@@ -42,6 +47,7 @@ __all__ = [
     "SensorTruth",
     "dynamic_pressure",
     "echo_ranges",
+    "equivalent_airspeed",
     "field_enu",
     "isa",
     "pressure_altitude",

@@ -98,13 +98,14 @@ class GpsReceiver:
         self._next_ns: int | None = None
         self._last_fix_ns: int | None = None
 
-    def record(self, t_ns: int, geodetic: F8, velocity: F8) -> None:
-        """The truth at ``t_ns``: ``geodetic`` (N, 3) [lat deg, lon deg, height m], velocity
-        (N, 3) m/s ENU. Times must not go back (a repeated time replaces nothing)."""
+    def record(self, t_ns: int, truth: F8) -> None:
+        """The truth at ``t_ns``: (N, 6+) rows of [lat deg, lon deg, height m, velocity m/s
+        ENU, ...] (a truth table's first columns). Times must not go back (a repeated time
+        replaces nothing)."""
         if self._hist and t_ns <= self._hist[-1][0]:
             return
-        self._hist.append((int(t_ns), np.array(geodetic, dtype=np.float64),
-                           np.array(velocity, dtype=np.float64)))
+        rows = np.array(truth[:, :6], dtype=np.float64)
+        self._hist.append((int(t_ns), rows[:, :3], rows[:, 3:6]))
         if self._next_ns is None:
             period = self.spec.period_ns
             self._next_ns = -(-int(t_ns) // period) * period

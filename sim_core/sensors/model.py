@@ -24,8 +24,10 @@ reading          model                                        unit, frame   nois
 GNSS             :mod:`sim_core.sensors.gps`                  deg, m, ENU   see there
 ===============  ===========================================  ============  ==================
 
-White noise is given as a density: the standard deviation of one sample is the density times
-√(1 / dt), dt the time since the previous sample (``rate_hz`` for the first). Biases start at 0
+One sample of every vehicle is one compiled pass (:func:`sim_core.sensors.kernels.sample_into`,
+the one implementation). White noise is given as a density: the standard deviation of one
+sample is the density times √(1 / dt), dt the time since the previous sample (``rate_hz`` for
+the first). Biases start at 0
 (a calibrated IMU) and wander as random walks. Latency: none for the IMU, barometer, pitot and
 magnetometer (a sample describes the instant it is taken); the GNSS fix is late by its
 ``latency_s``. The field is evaluated where the vehicle is whenever it has moved
@@ -39,18 +41,16 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from sim_core.pose import quat_conjugate, quat_rotate
 from sim_core.rng import SeedLike, derive_rng
-from sim_core.sensors.atmosphere import dynamic_pressure, isa, pressure_altitude
 from sim_core.sensors.gps import GpsFix, GpsReceiver, GpsSpec
+from sim_core.sensors.kernels import TRUTH_COLUMNS, sample_into
 from sim_core.sensors.magnetic import WMM_VALID, field_enu
 
 __all__ = ["ImuSpec", "MagSpec", "SensorReadings", "SensorSpec", "SensorSuite", "SensorTruth"]
 
 F8 = NDArray[np.float64]
-_T0_C = 273.15
 #: how often (sim time) the field's place is looked at
 _FIELD_CHECK_NS = 100_000_000
 
@@ -119,33 +119,97 @@ class SensorSpec:
 
 @dataclass(frozen=True, slots=True)
 class SensorTruth:
-    """The truth of N vehicles at one instant: geodetic ``lat_deg``, ``lon_deg`` (N,) and
-    ``height_m`` (N,) m (WGS-84, taken as above mean sea level), ``velocity`` (N, 3) m/s
-    world ENU, ``quat`` (N, 4) world-from-body ENU-from-FLU, ``rates`` (N, 3) rad/s body
-    FLU, ``specific_force`` (N, 3) m/s² body FLU, ``airspeed`` (N,) true airspeed m/s."""
+    """The truth of N vehicles at one instant, one row each of ``table`` (N, 17)
+    (:data:`~sim_core.sensors.kernels.TRUTH_COLUMNS`); its views: ``geodetic`` (N, 3)
+    latitude, longitude deg and height m (WGS-84, taken as above mean sea level),
+    ``velocity`` (N, 3) m/s world ENU, ``quat`` (N, 4) world-from-body ENU-from-FLU,
+    ``rates`` (N, 3) rad/s body FLU, ``specific_force`` (N, 3) m/s² body FLU, ``airspeed``
+    (N,) true airspeed m/s. :meth:`of` builds one from those arrays."""
 
-    lat_deg: F8
-    lon_deg: F8
-    height_m: F8
-    velocity: F8
-    quat: F8
-    rates: F8
-    specific_force: F8
-    airspeed: F8
+    table: F8
+
+    def __post_init__(self) -> None:
+        t = np.ascontiguousarray(self.table, dtype=np.float64)
+        if t.ndim != 2 or t.shape[1] != len(TRUTH_COLUMNS):
+            raise ValueError(f"table: expected shape (N, {len(TRUTH_COLUMNS)}), got {t.shape}")
+        object.__setattr__(self, "table", t)
+
+    @classmethod
+    def of(cls, geodetic: ArrayLike, velocity: ArrayLike, quat: ArrayLike, rates: ArrayLike,
+           specific_force: ArrayLike, airspeed: ArrayLike) -> SensorTruth:
+        parts = [np.asarray(a, dtype=np.float64) for a in (geodetic, velocity, quat, rates,
+                                                           specific_force)]
+        n = parts[0].reshape(-1, 3).shape[0]
+        return cls(np.concatenate([*(a.reshape(n, -1) for a in parts),
+                                   np.asarray(airspeed, dtype=np.float64).reshape(n, 1)], 1))
+
+    @property
+    def geodetic(self) -> F8:
+        return self.table[:, 0:3]
+
+    @property
+    def velocity(self) -> F8:
+        return self.table[:, 3:6]
+
+    @property
+    def quat(self) -> F8:
+        return self.table[:, 6:10]
+
+    @property
+    def rates(self) -> F8:
+        return self.table[:, 10:13]
+
+    @property
+    def specific_force(self) -> F8:
+        return self.table[:, 13:16]
+
+    @property
+    def airspeed(self) -> F8:
+        return self.table[:, 16]
 
 
 @dataclass(frozen=True, slots=True)
 class SensorReadings:
-    """One sample of N vehicles' sensors (module docstring for units and frames)."""
+    """One sample of N vehicles' sensors at sim time ``t_ns``, one row each of ``table``
+    (N, 14) (:data:`~sim_core.sensors.kernels.READING_COLUMNS`); its views (module docstring
+    for units and frames): ``accel``, ``gyro``, ``mag`` (N, 3), ``abs_pressure``,
+    ``diff_pressure``, ``pressure_alt``, ``temperature`` (N,), and the ISA ``density``
+    kg/m³ where each vehicle is (the truth, for edges that report an indicated airspeed)."""
 
     t_ns: int
-    accel: F8
-    gyro: F8
-    mag: F8
-    abs_pressure: F8
-    diff_pressure: F8
-    pressure_alt: F8
-    temperature: F8
+    table: F8
+
+    @property
+    def accel(self) -> F8:
+        return self.table[:, 0:3]
+
+    @property
+    def gyro(self) -> F8:
+        return self.table[:, 3:6]
+
+    @property
+    def mag(self) -> F8:
+        return self.table[:, 6:9]
+
+    @property
+    def abs_pressure(self) -> F8:
+        return self.table[:, 9]
+
+    @property
+    def diff_pressure(self) -> F8:
+        return self.table[:, 10]
+
+    @property
+    def pressure_alt(self) -> F8:
+        return self.table[:, 11]
+
+    @property
+    def temperature(self) -> F8:
+        return self.table[:, 12]
+
+    @property
+    def density(self) -> F8:
+        return self.table[:, 13]
 
 
 class SensorSuite:
@@ -164,6 +228,7 @@ class SensorSuite:
         imu = spec.imu
         self._white = np.array([imu.accel_noise_density] * 3 + [imu.gyro_noise_density] * 3
                                + [spec.mag.noise_density] * 3)
+        self._no_noise = np.zeros((0, 17))
         self._walk = np.array([imu.accel_random_walk] * 3 + [imu.gyro_random_walk] * 3)
         self._last_ns: int | None = None
         self._field = np.zeros((self.n, 3))
@@ -172,31 +237,23 @@ class SensorSuite:
 
     def sample(self, t_ns: int, truth: SensorTruth) -> SensorReadings:
         """The readings at ``t_ns`` (sim time, rising) of ``truth``; the GNSS receivers
-        record it too (:attr:`gps`: ``gps.due(t_ns)``, ``gps.fix(t_ns)``)."""
+        record it too (:attr:`gps`: ``gps.due(t_ns)``, ``gps.fix(t_ns)``). ``ValueError``
+        when a vehicle is outside the ISA's layers (-5 km to 20 km)."""
         spec = self.spec
-        geo = np.stack([truth.lat_deg, truth.lon_deg, truth.height_m], axis=-1).reshape(
-            self.n, 3)
-        self.gps.record(t_ns, geo, truth.velocity)
-        b_body = quat_rotate(quat_conjugate(truth.quat), self._field_enu(geo))
-        p, t_k, rho = isa(geo[:, 2])
-        q = dynamic_pressure(rho, truth.airspeed)
-        accel = np.array(truth.specific_force, dtype=np.float64).reshape(self.n, 3)
-        gyro = np.array(truth.rates, dtype=np.float64).reshape(self.n, 3)
-        if self._rng is not None:
-            dt = 1.0 / spec.rate_hz if self._last_ns is None else max(
-                (t_ns - self._last_ns) / 1e9, 1e-6)
-            z = self._rng.standard_normal((self.n, 17))
-            self._bias += z[:, 11:17] * (self._walk * math.sqrt(dt))
-            white = z[:, :9] * (self._white / math.sqrt(dt))
-            accel = accel + self._bias[:, :3] + white[:, :3]
-            gyro = gyro + self._bias[:, 3:] + white[:, 3:6]
-            b_body = b_body + white[:, 6:9]
-            p = p + spec.baro_noise_pa * z[:, 9]
-            q = q + spec.pitot_noise_pa * z[:, 10]
+        table = truth.table
+        self.gps.record(t_ns, table)
+        field_enu = self._field_enu(table[:, 0:3])
+        dt = 1.0 / spec.rate_hz if self._last_ns is None else max(
+            (t_ns - self._last_ns) / 1e9, 1e-6)
+        noise = self._no_noise if self._rng is None else self._rng.standard_normal((self.n, 17))
+        out = np.empty((self.n, 14))
+        if not sample_into(table, field_enu, noise, self._bias, self._white, self._walk,
+                           spec.baro_noise_pa, spec.pitot_noise_pa, dt, out):
+            bad = table[~((table[:, 2] >= -5000.0) & (table[:, 2] <= 20000.0)), 2][0]
+            raise ValueError(f"height {bad} m is outside the ISA's layers modelled here "
+                             "(-5000 m to 20000 m)")
         self._last_ns = int(t_ns)
-        return SensorReadings(t_ns=int(t_ns), accel=accel, gyro=gyro, mag=b_body,
-                              abs_pressure=p, diff_pressure=q, pressure_alt=pressure_altitude(p),
-                              temperature=t_k - _T0_C)
+        return SensorReadings(t_ns=int(t_ns), table=out)
 
     def gps_fix(self, t_ns: int) -> GpsFix | None:
         """The GNSS fix reported at ``t_ns`` when one is due, else None."""

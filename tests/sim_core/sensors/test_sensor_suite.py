@@ -27,8 +27,8 @@ def truth(t_s: float = 0.0, n: int = 2) -> SensorTruth:
     q = quat_from_euler(np.linspace(-0.4, 0.3, n), np.linspace(0.05, 0.1, n), np.zeros(n))
     lat0 = np.linspace(47.0, 47.01, n)
     lon = 8.0 + 20.0 * t_s / (6.371e6 * math.cos(math.radians(47.0))) * 180 / math.pi
-    return SensorTruth(
-        lat_deg=lat0, lon_deg=np.full(n, lon), height_m=np.full(n, 400.0 - 0.7 * t_s),
+    return SensorTruth.of(
+        geodetic=np.column_stack([lat0, np.full(n, lon), np.full(n, 400.0 - 0.7 * t_s)]),
         velocity=np.tile([20.0, 0.0, -0.7], (n, 1)), quat=q,
         rates=np.tile([0.01, -0.02, 0.03], (n, 1)),
         specific_force=quat_rotate(quat_conjugate(q), np.array([0.0, 0.0, 9.80665])),
@@ -41,11 +41,11 @@ def test_without_noise_the_readings_are_the_truth() -> None:
     r = suite.sample(0, tr)
     assert np.array_equal(r.accel, tr.specific_force)
     assert np.array_equal(r.gyro, tr.rates)
-    p, t, rho = isa(tr.height_m)
+    p, t, rho = isa(tr.geodetic[:, 2])
     np.testing.assert_allclose(r.abs_pressure, p, rtol=1e-15)
     np.testing.assert_allclose(r.temperature, t - 273.15, rtol=1e-15)
     np.testing.assert_allclose(r.diff_pressure, dynamic_pressure(rho, 20.0), rtol=1e-15)
-    b = field_enu(tr.lat_deg, tr.lon_deg, tr.height_m, 2026.0)
+    b = field_enu(tr.geodetic[:, 0], tr.geodetic[:, 1], tr.geodetic[:, 2], 2026.0)
     np.testing.assert_allclose(r.mag, quat_rotate(quat_conjugate(tr.quat), b), atol=1e-15)
     # the body field has the field's size whatever the attitude
     np.testing.assert_allclose(np.linalg.norm(r.mag, axis=1), np.linalg.norm(b, axis=1),
@@ -111,18 +111,17 @@ def test_gps_fixes_come_at_their_rate_late_by_their_latency() -> None:
     for f in fixes[2:]:
         late = truth((f.t_ns - 100_000_000) / 1e9)
         assert f.measured_ns == f.t_ns - 100_000_000
-        np.testing.assert_allclose(f.lon_deg, late.lon_deg, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(f.alt_m, late.height_m, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(f.lon_deg, late.geodetic[:, 1], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(f.alt_m, late.geodetic[:, 2], rtol=0, atol=1e-9)
     # before the latency has passed, the oldest truth stands in
-    np.testing.assert_allclose(fixes[0].lon_deg, truth(0.0).lon_deg, atol=1e-12)
+    np.testing.assert_allclose(fixes[0].lon_deg, truth(0.0).geodetic[:, 1], atol=1e-12)
 
 
 def test_gps_noise_is_of_the_stated_size() -> None:
     spec = SensorSpec(gps=GpsSpec(drift_sigma_m=0.0, horizontal_sigma_m=0.3,
                                   vertical_sigma_m=0.5, velocity_sigma_mps=0.05))
     suite = SensorSuite(spec, 1, seed=11)
-    tr = SensorTruth(lat_deg=np.array([47.0]), lon_deg=np.array([8.0]),
-                     height_m=np.array([400.0]), velocity=np.zeros((1, 3)),
+    tr = SensorTruth.of(geodetic=np.array([[47.0, 8.0, 400.0]]), velocity=np.zeros((1, 3)),
                      quat=np.array([[1.0, 0, 0, 0]]), rates=np.zeros((1, 3)),
                      specific_force=np.array([[0, 0, 9.8]]), airspeed=np.array([20.0]))
     north, up, vel = [], [], []
