@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test,ros2]'
-	$(PY) -c 'import sim_core.flight as f, sim_core.world.ball as b, sim_core.sonar.precull as p; f.warm_up(); b.warm_up(); p.warm_up()'  # compile the kernels once
+	$(PY) -c 'import sim_core.flight as f, sim_core.world.ball as b, sim_core.sonar.precull as p, sim_core.sensors.kernels as s; f.warm_up(); b.warm_up(); p.warm_up(); s.warm_up()'  # compile the kernels once
 	touch $(STAMP)
 
 demo: $(STAMP)

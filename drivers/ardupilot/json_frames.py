@@ -10,7 +10,8 @@ rad/s and ``imu.accel_body`` m/s² (body FRD, specific force: about [0, 0, -9.81
 FRD), and ``airspeed`` m/s (without it SITL assumes still air). Keys go in that order.
 
 This module is the one place the edge's frames are converted: echoloop's states are ENU/FLU
-(:class:`hil_bridge.bus.messages.FdmState`), SITL's NED/FRD.
+(:class:`hil_bridge.bus.messages.FdmState`), SITL's NED/FRD. The IMU comes from echoloop's
+sensor model (:class:`sim_core.sensors.SensorSuite`), like every other firmware edge's.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 
 from hil_bridge.bus.messages import FdmState
 from sim_core.pose import frd_from_flu, ned_from_enu, quat_ned_frd_from_enu_flu
+from sim_core.sensors import SensorReadings
 
 __all__ = [
     "MAGIC_16",
@@ -112,18 +114,18 @@ def surfaces_from_pwm(pwm: tuple[int, ...], channels: ChannelMap) -> tuple[float
     return tuple(out)
 
 
-def fdm_line(state: FdmState) -> bytes | None:
-    """The JSON line SITL reads for ``state`` (newline before and after), or None when a
+def fdm_line(state: FdmState, imu: SensorReadings, k: int = 0) -> bytes | None:
+    """The JSON line SITL reads for ``state`` (newline before and after), its IMU (rates and
+    specific force) from row ``k`` of the sensor model's readings ``imu``, or None when a
     value is not finite (SITL must never be sent a NaN)."""
+    flu = imu.table[k, :6]
     values = (state.x, state.y, state.z, state.vx, state.vy, state.vz, state.qw, state.qx,
-              state.qy, state.qz, state.p, state.q, state.r, state.fx, state.fy, state.fz,
-              state.airspeed)
+              state.qy, state.qz, state.airspeed, *flu.tolist())
     if not all(math.isfinite(v) for v in values):
         return None
     enu = np.array([[state.x, state.y, state.z], [state.vx, state.vy, state.vz]])
-    flu = np.array([[state.p, state.q, state.r], [state.fx, state.fy, state.fz]])
     pos, vel = ned_from_enu(enu)
-    gyro, accel = frd_from_flu(flu)
+    accel, gyro = frd_from_flu(flu.reshape(2, 3))
     quat = quat_ned_frd_from_enu_flu([state.qw, state.qx, state.qy, state.qz])
     doc = {
         "timestamp": state.stamp_ns / 1e9,

@@ -18,7 +18,8 @@ fixture) binds a free port.
   state step last sent to SITL, so a ``lockstep`` server (with the vehicle in its
   ``autopilots``) flies exactly one tick per frame;
 - then the node answers with exactly one JSON line of the next ``/glider/<id>/fdm`` state (a
-  newer tick), stamped with that tick's sim time: SITL's clock is the server's. The answer
+  newer tick), stamped with that tick's sim time: SITL's clock is the server's; its IMU is
+  read by echoloop's sensor model (``sensors``: noise off by default, SITL adds its own). The answer
   leaves from the bus callback that receives the state (no thread hand-off), or at once when
   the state is already there. A server that does not tick within ``reply_timeout_s`` gets the
   newest state sent again (``replies_stale``: SITL does not advance on it); a state with a
@@ -48,7 +49,9 @@ from drivers.ardupilot.json_frames import (
 )
 from hil_bridge.bus.domain import current as current_domain
 from hil_bridge.bus.faults import Faults
+from hil_bridge.bus.messages import fdm_truth
 from sim_core.config import ConfigError, from_dict
+from sim_core.sensors import SensorSpec, SensorSuite
 
 __all__ = ["ArduPilotSitl", "SitlInstance", "SitlParams"]
 
@@ -78,12 +81,16 @@ class SitlInstance:
 
 @dataclass(frozen=True, slots=True)
 class SitlParams:
-    """Validated parameters of :class:`ArduPilotSitl`."""
+    """Validated parameters of :class:`ArduPilotSitl`; ``sensors``: the IMU's model
+    (:class:`sim_core.sensors.SensorSpec`; noise off by default: SITL adds its own, its
+    ``SIM_ACC*_RND``, ``SIM_GYR*_RND``), its noise seeded by ``seed`` and the vehicle id."""
 
     instances: tuple[SitlInstance, ...]
     host: str = "127.0.0.1"
     channels: ChannelMap = field(default_factory=ChannelMap)
     reply_timeout_s: float = 1.0
+    sensors: SensorSpec = field(default_factory=lambda: SensorSpec(noise=False))
+    seed: int = 0
 
     def __post_init__(self) -> None:
         if not self.instances:
@@ -113,8 +120,10 @@ class _Pending:
 class _Link:
     """One SITL's socket and the state of its conversation."""
 
-    def __init__(self, spec: SitlInstance, instance: int | None, host: str) -> None:
+    def __init__(self, spec: SitlInstance, instance: int | None, host: str,
+                 imu: SensorSuite) -> None:
         self.spec = spec
+        self.imu = imu
         self.instance = instance
         port = spec.port if spec.port is not None else (
             0 if instance is None else BASE_PORT + 10 * instance)
@@ -131,6 +140,7 @@ class _Link:
         self.port = int(self.sock.getsockname()[1])
         self.cond = threading.Condition()
         self.state: Any = None  # newest FdmState
+        self.readings: Any = None  # its IMU (sim_core.sensors.SensorReadings)
         self.arrived_ns = 0  # when it arrived (monotonic)
         self.replied_step = -1
         self.last_reply: bytes | None = None
@@ -174,8 +184,10 @@ class ArduPilotSitl:
         from hil_bridge.bus.qos import COMMAND, SENSOR
 
         for spec, inst in zip(self.params.instances, self._instances, strict=True):
+            imu = SensorSuite(self.params.sensors, 1, seed=self.params.seed,
+                              key=(spec.vehicle_id,))
             try:
-                self._links.append(_Link(spec, inst, self.params.host))
+                self._links.append(_Link(spec, inst, self.params.host, imu))
             except OSError:
                 for ln in self._links:
                     ln.sock.close()
@@ -242,11 +254,13 @@ class ArduPilotSitl:
             with ln.cond:
                 if ln.state is not None and msg.step <= ln.state.step:
                     return  # a tick sent again while the server waits
-                ln.state, ln.arrived_ns = msg, now
+            imu = ln.imu.sample(int(msg.stamp_ns), fdm_truth([msg]))
+            with ln.cond:
+                ln.state, ln.readings, ln.arrived_ns = msg, imu, now
                 pending = ln.pending
             base = None
             if pending is not None:  # SITL waits for this state: answer from here
-                line = fdm_line(msg)
+                line = fdm_line(msg, imu)
                 with ln.cond:
                     if ln.pending is pending:
                         base = self._answered(ln, line, msg, now, pending, stale=False)
@@ -330,7 +344,7 @@ class ArduPilotSitl:
         with ln.cond:
             state = ln.state
             if state is not None and state.step > pending.answered:
-                line = fdm_line(state)
+                line = fdm_line(state, ln.readings)
                 base = self._answered(ln, line, state, ln.arrived_ns, pending, stale=False)
             else:
                 ln.pending = pending
@@ -343,7 +357,7 @@ class ArduPilotSitl:
                     ln.pending = None
                     state = ln.state
                     if state is not None and not self._stop.is_set():
-                        line = fdm_line(state)
+                        line = fdm_line(state, ln.readings)
                         self._answered(ln, line, state, ln.arrived_ns, pending, stale=True)
         if line is not None:
             ln.sock.sendto(line, pending.addr)

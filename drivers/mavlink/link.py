@@ -117,7 +117,12 @@ class MavlinkLink(ABC):
 
     @abstractmethod
     def _connect(self, timeout_s: float) -> bool:
-        """Look for a peer for up to ``timeout_s``; True when one is connected."""
+        """Look for a peer for up to ``timeout_s``; True when one is connected (counted by
+        :meth:`_found`, under the send lock, as the peer is taken)."""
+
+    def _found(self) -> None:
+        """A new peer is taken (call under the send lock): the next generation."""
+        self._c["connects"] += 1
 
     @abstractmethod
     def _read(self, timeout_s: float) -> bytes | None:
@@ -135,11 +140,19 @@ class MavlinkLink(ABC):
         """Pack and write ``msg`` (contract 2); True if it was written."""
         return self.send_many((msg,))
 
-    def send_many(self, msgs: Sequence[Any]) -> bool:
+    @property
+    def generation(self) -> int:
+        """How many peers this link has found: a peer's messages are written only to it when
+        sent with its ``generation`` (:meth:`send_many`)."""
+        return self._c["connects"]
+
+    def send_many(self, msgs: Sequence[Any], generation: int | None = None) -> bool:
         """Pack ``msgs`` and write them in one go (one system call on a socket), in order;
-        True if they were written."""
+        True if they were written. With ``generation``, only while that peer is connected
+        (a message meant for a peer that has gone is never written to the next one)."""
         with self._send_lock:
-            if self._closed or not self.connected:
+            if self._closed or not self.connected or (
+                    generation is not None and generation != self._c["connects"]):
                 self._c["send_dropped"] += len(msgs)
                 return False
             data = b"".join([m.pack(self._encoder) for m in msgs])
@@ -162,7 +175,6 @@ class MavlinkLink(ABC):
             if not self._connect(timeout_s):
                 self._next_try = time.monotonic() + self._retry_s()
                 return []
-            self._c["connects"] += 1
             self._decoder = mavlink.MAVLink(None)
             self._decoder.robust_parsing = True
         data = self._read(timeout_s)
@@ -262,6 +274,7 @@ class _SocketPeer(MavlinkLink):
         with self._send_lock:
             self._drop_peer()
             self._peer = sock
+            self._found()
 
 
 class TcpServerLink(_SocketPeer):
@@ -303,9 +316,11 @@ class TcpServerLink(_SocketPeer):
             ready, _, _ = select.select([peer, self._listener], [], [], timeout_s)
         except (OSError, ValueError):
             return None
+        if peer in ready:  # what the old peer sent before a new one knocked comes first
+            return super()._read(0.0)
         if self._listener in ready:
             return None  # a restarted peer: the next recv() accepts it
-        return super()._read(0.0) if ready else b""
+        return b""
 
     def _close(self) -> None:
         self._drop_peer()
@@ -364,9 +379,9 @@ class UdpLink(MavlinkLink):
         return self._peer_addr is not None
 
     def _connect(self, timeout_s: float) -> bool:
-        """``udp://`` knows its peer; ``udpin://`` waits for the first datagram."""
-        if not self.connected:
-            self._early = self._recv_from(timeout_s)
+        """``udpin://`` waits for the first datagram (``udp://`` knows its peer from the
+        start: its generation stays 0)."""
+        self._early = self._recv_from(timeout_s)
         return self.connected
 
     def _recv_from(self, timeout_s: float) -> bytes:
@@ -377,8 +392,10 @@ class UdpLink(MavlinkLink):
             data, addr = self._sock.recvfrom(65536)
         except (OSError, ValueError):
             return b""
-        if self._listening:
-            self._peer_addr = (addr[0], addr[1])
+        if self._listening and self._peer_addr != (addr[0], addr[1]):
+            with self._send_lock:
+                self._peer_addr = (addr[0], addr[1])
+                self._found()
         return data
 
     def _read(self, timeout_s: float) -> bytes | None:
@@ -435,6 +452,7 @@ class SerialLink(MavlinkLink):
             return False
         with self._send_lock:
             self._port = port
+            self._found()
         return True
 
     def _retry_s(self) -> float:

@@ -113,7 +113,7 @@ class Px4Params:
 
 
 _COUNTERS = ("states", "sensors_sent", "gps_sent", "ground_truth_sent",
-             "states_nonfinite", "states_unreadable", "values_clipped", "actuators",
+             "states_nonfinite", "values_clipped", "actuators",
              "surfaces_published", "surfaces_paced", "messages_bad", "messages_ignored",
              "interval_requests",
              "px4_connects", "px4_disconnects", "heartbeats_sent", "pace_late", "pace_slips")
@@ -175,6 +175,8 @@ class Px4Hil:
         self._last: _Step | None = None
         self._newest: Any = None  # the newest state, sent or not
         self._answered = -1
+        #: (peer generation, step) of the newest sensors written (each peer is sent each once)
+        self._written = (-1, -1)
         self._paced: deque[_Step] = deque()
         self._pace0: tuple[float, int] | None = None  # (monotonic s, sim ns) of the pace
         self._gt_next_ns = 0
@@ -190,7 +192,9 @@ class Px4Hil:
         from hil_bridge.bus.messages import FdmState, SonarEcho
         from hil_bridge.bus.node import Node
         from hil_bridge.bus.qos import COMMAND, SENSOR
+        from sim_core.sensors.kernels import warm_up
 
+        warm_up()  # the sensor kernels compiled or loaded now, not in the first state's callback
         p = self.params
         self._link = open_mavlink(self.url, system=p.system, component=p.component)
         self._node = Node(self.name, bus=self.bus, faults=self.faults)
@@ -274,14 +278,8 @@ class Px4Hil:
         link = self._link
         assert link is not None
         t_ns = int(msg.stamp_ns)
-        try:
-            readings = self._suite.sample(t_ns, fdm_truth([msg]))
-        except ValueError as exc:  # outside the atmosphere's layers: no sensor reads it
-            with self._lock:
-                self._c["states_unreadable"] += 1
-            log.debug("%s: state %d unreadable: %s", self.name, msg.step, exc)
-            readings = None
-        sensor = None if readings is None else hil_sensor(t_ns // 1000, readings)
+        readings = self._suite.sample(t_ns, fdm_truth([msg]))
+        sensor = hil_sensor(t_ns // 1000, readings)
         # what PX4 reads at this step's time goes first, the HIL_SENSOR that runs it last,
         # all in one write
         out: list[tuple[str, Any]] = []
@@ -294,20 +292,23 @@ class Px4Hil:
         if gt_hz > 0 and t_ns >= self._gt_next_ns:
             period = round(1e9 / gt_hz)
             self._gt_next_ns = (t_ns // period + 1) * period
-            truth = None if readings is None else hil_state_quaternion(
-                t_ns // 1000, msg, readings, self._clip)
+            truth = hil_state_quaternion(t_ns // 1000, msg, readings, self._clip)
             if truth is not None:
                 out.append(("ground_truth_sent", truth))
         if sensor is not None:
             out.append(("sensors_sent", sensor))
         step = _Step(int(msg.step), t_ns, arrived)
+        generation = link.generation
         with self._wake:
+            if (generation, step.step) <= self._written:
+                return  # sent to this peer already (it came meanwhile)
+            self._written = (generation, step.step)
             self._last = step  # before the sensors leave: PX4's answer may come at once
-            if not self._lockstep:
+            if not self._lockstep and step.step > self._answered:
                 self._paced.append(step)
                 self._wake.notify_all()
-            self._c["states_nonfinite"] += sensor is None and readings is not None
-        if not out or not link.send_many([m for _, m in out]):
+            self._c["states_nonfinite"] += sensor is None
+        if not out or not link.send_many([m for _, m in out], generation):
             return
         before = time.monotonic_ns() - arrived
         with self._lock:
@@ -361,7 +362,7 @@ class Px4Hil:
                 self._lockstep = False
                 self._pace0 = None
                 newest = self._newest
-                resend = newest is not None and newest.step > self._answered
+                resend = newest is not None
             else:
                 self._c["px4_disconnects"] += 1
                 self._lockstep = False
@@ -375,7 +376,7 @@ class Px4Hil:
                             self.params.vehicle_id)
                 return
         log.info("%s: PX4 connected%s", self.name, "" if first else " again")
-        if resend:  # the state the server waits on arrived before PX4 did
+        if resend:  # the newest state, unless sent to this peer meanwhile
             self._serve(newest, time.monotonic_ns())
 
     def _on_interval(self, m: Any) -> None:
@@ -412,7 +413,8 @@ class Px4Hil:
                 mode = self.params.lockstep
                 self._lockstep = mode == "on" or (mode == "auto" and self.sitl and
                                                   bool(int(m.flags) & 1))
-                self._paced.clear()
+                if self._lockstep:
+                    self._paced.clear()  # these controls answer the state last sent
                 log.info("%s: PX4's first controls: %s", self.name,
                          "lockstep" if self._lockstep else "paced in real time")
             last = self._last

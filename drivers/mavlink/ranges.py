@@ -16,8 +16,8 @@ the first return above a threshold, by time of flight), never from the scene's g
 * ``covariance``: the square of ``sigma_m`` in cm² (the rule's error on a flat ground is up to
   2 cm: ``tests/sim_core/sensors/test_echo_range.py``); ``type`` ULTRASOUND; ``horizontal_fov``
   and ``vertical_fov`` the beam's ``fov_deg`` (0: unknown); ``signal_quality`` 1..100 from
-  the return's margin over the detection level (30 dB or more: 100), 0 (unknown) for no
-  return; ``time_boot_ms`` the ping's emission, sim time.
+  the return's level above the rule's absolute threshold, its noise floor (60 dB or more:
+  100), 0 (unknown) for no return; ``time_boot_ms`` the ping's emission, sim time.
 
 ``OBSTACLE_DISTANCE`` (optional per sonar): 72 sectors of 5° around the body (frame
 ``MAV_FRAME_BODY_FRD``, sector 0 centred ahead, clockwise), the ones the beam covers
@@ -168,8 +168,8 @@ class EchoRanger:
         t_ms = (int(echo.emit_ns or echo.stamp_ns) // 1_000_000) & 0xFFFFFFFF
         out: list[Any] = []
         cm: list[int] = []
-        for ear, (r, margin) in enumerate(zip(ranges.range_m.tolist(), ranges.margin_db.tolist(),
-                                              strict=True)):
+        for ear, (r, level) in enumerate(zip(ranges.range_m.tolist(), ranges.level_db.tolist(),
+                                             strict=True)):
             self.last[(sonar.sonar_id, ear)] = r
             if math.isnan(r) or r > spec.max_distance_m:
                 c["no_returns"] += 1
@@ -177,7 +177,7 @@ class EchoRanger:
             else:
                 c["returns"] += 1
                 dist = round(r * 100)
-                quality = max(1, min(100, round(100 * margin / 30.0)))
+                quality = max(1, min(100, round(100 * (level - spec.threshold_db) / 60.0)))
             cm.append(dist)
             out.append(mavlink.MAVLink_distance_sensor_message(
                 t_ms, lo, hi, min(dist, _NO_DATA - 1), mavlink.MAV_DISTANCE_SENSOR_ULTRASOUND,

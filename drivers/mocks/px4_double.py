@@ -7,11 +7,17 @@ a ``HEARTBEAT`` and reads what the simulator sends, checking what PX4 relies on 
 :class:`ContractError` otherwise:
 
 - ``HIL_SENSOR``: ``id`` 0, ``fields_updated`` with every group PX4 takes (accel, gyro, mag,
-  baro, differential pressure: 0x1FFF), every value finite, ``time_usec`` rising;
-- in lockstep, exactly one ``HIL_SENSOR`` per ``HIL_ACTUATOR_CONTROLS`` once its controls
-  flow (never the next one before them), ``time_usec`` then steps by exactly the period;
+  baro, differential pressure: 0x1FFF), every value finite, ``time_usec`` rising on one
+  connection;
+- in lockstep, once its controls flow, ``time_usec`` steps by exactly the period, and no
+  ``HIL_SENSOR`` comes before the controls answering the last one (every ``probe_every``-th
+  answer is held back ``probe_s`` to see that none does);
 - ``HIL_GPS``: a 3-D fix of finite values; ``HIL_STATE_QUATERNION``: a unit quaternion;
   ``DISTANCE_SENSOR``: ``min_distance`` < ``max_distance``.
+
+Every ``HIL_SENSOR`` sent with a ``HIL_STATE_QUATERNION`` of the same ``time_usec`` is kept
+with it (``pairs`` of the report), so a test can hold the sensors to closed forms of the
+truth.
 
 Like a booting PX4 it answers nothing for its first ``boot_steps`` sensors (the simulator runs
 on in real time until its first controls), then answers each ``HIL_SENSOR`` in lockstep
@@ -86,6 +92,8 @@ class Px4Double:
     boot_steps: int = 25
     controls_hz: float = 200.0
     timeout_s: float = 10.0
+    probe_every: int = 50
+    probe_s: float = 0.02
     pilot: Pilot = field(default_factory=Pilot)
     counts: dict[str, int] = field(default_factory=dict)
     rtt_us: list[float] = field(default_factory=list)
@@ -94,6 +102,7 @@ class Px4Double:
     wall_times: list[float] = field(default_factory=list)
     last: dict[str, Any] = field(default_factory=dict)
     distances: list[dict[str, Any]] = field(default_factory=list)
+    pairs: list[dict[str, Any]] = field(default_factory=list)
     bytes_in: int = 0
 
     def __post_init__(self) -> None:
@@ -105,7 +114,7 @@ class Px4Double:
         self._pty: Any = None
         self._queue: list[Any] = []
         self._roll = 0.0
-        self._awaiting = False
+        self._first = 0
         self._sent_at = 0.0
         self.path = ""
 
@@ -139,9 +148,9 @@ class Px4Double:
         else:
             raise ValueError(f"url: expected tcp://, serial:// or pty://, got {self.url!r}")
         self._queue.clear()
+        self._first = len(self.sensor_times)  # a new connection: a new PX4 process
         self._rx = mavlink.MAVLink(None)
         self._rx.robust_parsing = True
-        self._awaiting = False
         self.send(mavlink.MAVLink_heartbeat_message(
             mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_AUTOPILOT_PX4, 0, 0,
             mavlink.MAV_STATE_STANDBY, 3))
@@ -211,16 +220,16 @@ class Px4Double:
             if m.id != 0 or m.fields_updated != _ALL_FIELDS:
                 raise ContractError(f"HIL_SENSOR id {m.id}, fields_updated "
                                     f"{m.fields_updated:#x}: expected 0 and {_ALL_FIELDS:#x}")
-            if self.sensor_times and m.time_usec <= self.sensor_times[-1]:
+            if self.sensor_times[self._first:] and m.time_usec <= self.sensor_times[-1]:
                 raise ContractError(f"HIL_SENSOR time_usec went back or stood: {m.time_usec} "
                                     f"after {self.sensor_times[-1]}")
-            if self.lockstep and not self._awaiting and self.counts.get("controls", 0):
-                raise ContractError("a HIL_SENSOR before the controls answering the last one")
             values = [m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro, m.xmag, m.ymag, m.zmag,
                       m.abs_pressure, m.diff_pressure, m.pressure_alt, m.temperature]
             self.sensor_times.append(int(m.time_usec))
             self.wall_times.append(time.monotonic())
-            self._awaiting = False
+            truth = self.last.get("HIL_STATE_QUATERNION")
+            if truth is not None and truth.time_usec == m.time_usec:
+                self.pairs.append({"sensor": m.to_dict(), "truth": truth.to_dict()})
         elif kind == "HIL_GPS":
             if m.fix_type != 3:
                 raise ContractError(f"HIL_GPS fix_type {m.fix_type}: expected a 3-D fix")
@@ -270,11 +279,25 @@ class Px4Double:
                 self.rtt_us.append((now - self._sent_at) * 1e6)
                 self._sent_at = 0.0
             if len(self.sensor_times) > self.boot_steps:
-                self._awaiting = True
-                self.counts["controls"] = self.counts.get("controls", 0) + 1
+                answered = self.counts.get("controls", 0)
+                if self.probe_every and answered % self.probe_every == self.probe_every - 1:
+                    self._probe()
+                self.counts["controls"] = answered + 1
                 self._sent_at = time.perf_counter()
                 self.send(self.controls())
             return m
+
+    def _probe(self) -> None:
+        """Hold an answer back for ``probe_s``: in lockstep no HIL_SENSOR may come meanwhile."""
+        deadline = time.monotonic() + self.probe_s
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                m = self.receive(left)
+            except TimeoutError:
+                return
+            if m.get_type() == "HIL_SENSOR":
+                raise ContractError(f"a HIL_SENSOR (time_usec {m.time_usec}) before the "
+                                    "controls answering the last one")
 
     def fly(self, steps: int) -> None:
         """``steps`` sensors received (lockstep: answered once booted), then a check of the
@@ -316,7 +339,7 @@ class Px4Double:
         return {
             "counts": self.counts, "sensor_times": self.sensor_times, "gps_times": self.gps_times,
             "wall_times": self.wall_times, "rtt_us": self.rtt_us, "bytes_in": self.bytes_in,
-            "distances": self.distances, "roll": self._roll,
+            "distances": self.distances, "roll": self._roll, "pairs": self.pairs,
             "last_sensor": None if s is None else s.to_dict(),
             "last_truth": None if truth is None else truth.to_dict(),
             "last_gps": None if gps is None else gps.to_dict(),

@@ -92,15 +92,15 @@ def sample_into(truth: F8, field: F8, noise: F8, bias: F8, white: F8, walk: F8,
     (N, 6) accel and gyro biases (FLU, updated: a random walk of ``walk`` (6,) per √s),
     ``white`` (9,) accel, gyro, mag densities per √Hz, sigmas Pa, ``dt`` s since the last
     sample; writes ``out`` (N, 14) (:data:`READING_COLUMNS`; the density is the ISA's
-    at the vehicle, not a reading: no noise). False (and nothing trusted)
-    when a height is outside the ISA's layers."""
+    at the vehicle, not a reading: no noise). A vehicle outside the ISA's layers (or at a
+    non-finite height) reads NaN on its barometer, pitot, temperature and density; False
+    then."""
     noisy = noise.shape[0] > 0
     sw = 1.0 / math.sqrt(dt)
     sb = math.sqrt(dt)
+    inside = True
     for k in range(truth.shape[0]):
         h = truth[k, 2]
-        if not H_MIN <= h <= H_MAX:
-            return False
         # the field in body axes: v_b = q* v_w q (t = 2 u x v with u the conjugate's vector)
         w, ux, uy, uz = truth[k, 6], -truth[k, 7], -truth[k, 8], -truth[k, 9]
         vx, vy, vz = field[k, 0], field[k, 1], field[k, 2]
@@ -110,7 +110,11 @@ def sample_into(truth: F8, field: F8, noise: F8, bias: F8, white: F8, walk: F8,
         out[k, 6] = vx + w * tx + (uy * tz - uz * ty)
         out[k, 7] = vy + w * ty + (uz * tx - ux * tz)
         out[k, 8] = vz + w * tz + (ux * ty - uy * tx)
-        p, t, rho = _isa1(h)
+        if H_MIN <= h <= H_MAX:
+            p, t, rho = _isa1(h)
+        else:
+            p, t, rho = math.nan, math.nan, math.nan
+            inside = False
         tas = truth[k, 16]
         q = 0.5 * rho * tas * tas
         for j in range(3):
@@ -128,7 +132,7 @@ def sample_into(truth: F8, field: F8, noise: F8, bias: F8, white: F8, walk: F8,
         out[k, 11] = _pressure_altitude1(p)
         out[k, 12] = t - _T0_C
         out[k, 13] = rho
-    return True
+    return inside
 
 
 def warm_up() -> None:

@@ -237,8 +237,9 @@ class SensorSuite:
 
     def sample(self, t_ns: int, truth: SensorTruth) -> SensorReadings:
         """The readings at ``t_ns`` (sim time, rising) of ``truth``; the GNSS receivers
-        record it too (:attr:`gps`: ``gps.due(t_ns)``, ``gps.fix(t_ns)``). ``ValueError``
-        when a vehicle is outside the ISA's layers (-5 km to 20 km)."""
+        record it too (:attr:`gps`: ``gps.due(t_ns)``, ``gps.fix(t_ns)``). A vehicle outside
+        the ISA's layers (-5 km to 20 km), or of unknown height, reads NaN on its barometer,
+        pitot and temperature: an edge never sends those."""
         spec = self.spec
         table = truth.table
         self.gps.record(t_ns, table)
@@ -247,11 +248,8 @@ class SensorSuite:
             (t_ns - self._last_ns) / 1e9, 1e-6)
         noise = self._no_noise if self._rng is None else self._rng.standard_normal((self.n, 17))
         out = np.empty((self.n, 14))
-        if not sample_into(table, field_enu, noise, self._bias, self._white, self._walk,
-                           spec.baro_noise_pa, spec.pitot_noise_pa, dt, out):
-            bad = table[~((table[:, 2] >= -5000.0) & (table[:, 2] <= 20000.0)), 2][0]
-            raise ValueError(f"height {bad} m is outside the ISA's layers modelled here "
-                             "(-5000 m to 20000 m)")
+        sample_into(table, field_enu, noise, self._bias, self._white, self._walk,
+                    spec.baro_noise_pa, spec.pitot_noise_pa, dt, out)
         self._last_ns = int(t_ns)
         return SensorReadings(t_ns=int(t_ns), table=out)
 

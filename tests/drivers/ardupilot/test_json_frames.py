@@ -21,8 +21,9 @@ from drivers.ardupilot.json_frames import (
     surfaces_from_pwm,
 )
 from drivers.mocks.sitl_double import ContractError, SitlDouble
-from hil_bridge.bus.messages import FdmState
+from hil_bridge.bus.messages import FdmState, fdm_truth
 from sim_core.pose import quat_from_euler
+from sim_core.sensors import SensorSpec, SensorSuite
 
 G = 9.80665
 u16 = st.integers(0, 65535)
@@ -75,11 +76,17 @@ def _state(**kw: float) -> FdmState:
     return FdmState(**base)  # type: ignore[arg-type]
 
 
+def line_of(state: FdmState) -> bytes | None:
+    """``fdm_line`` with the noise-free sensor model's IMU, as the node sends it."""
+    imu = SensorSuite(SensorSpec(noise=False), 1).sample(state.stamp_ns, fdm_truth([state]))
+    return fdm_line(state, imu)
+
+
 def test_a_glider_flying_north_in_enu_is_north_in_ned() -> None:
     """ENU heading 90° (north) is yaw 0 in NED; position and velocity swap x/y and negate z;
     the accelerometer at rest reads -g on FRD z; FLU rates flip q and r."""
     q = quat_from_euler(0.0, 0.0, math.pi / 2)  # ENU-from-FLU facing north
-    line = fdm_line(_state(qw=q[0], qx=q[1], qy=q[2], qz=q[3], p=0.1, q=0.2, r=0.3))
+    line = line_of(_state(qw=q[0], qx=q[1], qy=q[2], qz=q[3], p=0.1, q=0.2, r=0.3))
     assert line is not None and line.startswith(b"\n") and line.endswith(b"\n")
     doc = json.loads(line.split(b"\n")[-2])
     assert list(doc) == ["timestamp", "imu", "position", "quaternion", "velocity", "airspeed"]
@@ -96,21 +103,21 @@ def test_east_and_a_right_bank() -> None:
     """ENU yaw 0 faces east: NED yaw +90°. A right bank (right wing down) is a positive roll
     about the forward axis in FLU as in FRD."""
     q = quat_from_euler(0.3, 0.0, 0.0)
-    doc = json.loads(fdm_line(_state(qw=q[0], qx=q[1], qy=q[2], qz=q[3])).split(b"\n")[-2])
+    doc = json.loads(line_of(_state(qw=q[0], qx=q[1], qy=q[2], qz=q[3])).split(b"\n")[-2])
     np.testing.assert_allclose(doc["quaternion"], quat_from_euler(0.3, 0.0, math.pi / 2),
                                atol=1e-12)
 
 
 @pytest.mark.parametrize("field", ["x", "vz", "qw", "fz", "airspeed", "p"])
 def test_a_non_finite_state_is_never_sent(field: str) -> None:
-    assert fdm_line(_state(**{field: math.nan})) is None
-    assert fdm_line(_state(**{field: math.inf})) is None
+    assert line_of(_state(**{field: math.nan})) is None
+    assert line_of(_state(**{field: math.inf})) is None
 
 
 def test_the_double_accepts_our_lines_and_refuses_broken_ones() -> None:
     double = SitlDouble(port=9)
     try:
-        line = fdm_line(_state())
+        line = line_of(_state())
         assert line is not None
         assert double.check(line)["airspeed"] == 20.0
         doc = json.loads(line.split(b"\n")[-2])
