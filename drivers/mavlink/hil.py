@@ -42,6 +42,8 @@ __all__ = ["FIELDS_ALL", "ActuatorMap", "Clip", "hil_gps", "hil_sensor",
 
 #: HIL_SENSOR.fields_updated with every field (accel, gyro, mag, pressures, altitude, temp)
 FIELDS_ALL = 0x1FFF
+#: :func:`sim_core.pose.frd_from_flu` of three body vectors in a row, as factors (9,)
+_FRD_OF_FLU_3X3 = frd_from_flu(np.ones((3, 3))).ravel()
 
 
 class Clip:
@@ -62,8 +64,8 @@ def hil_sensor(time_usec: int, r: SensorReadings, k: int = 0, sensor_id: int = 0
     """``HIL_SENSOR`` of vehicle row ``k`` of ``r`` at ``time_usec`` (sim time), or None."""
     row = r.table[k]
     p, q, alt, temp = row[9:13].tolist()
-    v = [*frd_from_flu(row[:9].reshape(3, 3)).ravel().tolist(), p / 100.0, q / 100.0, alt, temp]
-    if not all(math.isfinite(x) for x in v):
+    v = [*(row[:9] * _FRD_OF_FLU_3X3).tolist(), p / 100.0, q / 100.0, alt, temp]
+    if not math.isfinite(sum(v)):  # a NaN or an infinity anywhere makes the sum one
         return None
     return mavlink.MAVLink_hil_sensor_message(time_usec, *v, FIELDS_ALL, sensor_id)
 
@@ -72,7 +74,7 @@ def hil_gps(time_usec: int, fix: GpsFix, clip: Clip, k: int = 0, gps_id: int = 0
     """``HIL_GPS`` of vehicle row ``k`` of ``fix`` at ``time_usec`` (when reported), or None."""
     lat, lon, alt = float(fix.lat_deg[k]), float(fix.lon_deg[k]), float(fix.alt_m[k])
     vn, ve, vd = ned_from_enu(fix.velocity[k]).tolist()
-    if not all(math.isfinite(x) for x in (lat, lon, alt, vn, ve, vd)):
+    if not math.isfinite(lat + lon + alt + vn + ve + vd):
         return None
     ground = math.hypot(vn, ve)
     cog = math.degrees(math.atan2(ve, vn)) % 360.0
@@ -93,8 +95,8 @@ def hil_state_quaternion(time_usec: int, s: FdmState, r: SensorReadings, clip: C
     rates_force = frd_from_flu(np.array([[s.p, s.q, s.r], [s.fx, s.fy, s.fz]])).ravel().tolist()
     vn, ve, vd = ned_from_enu(np.array([s.vx, s.vy, s.vz])).tolist()
     ias = float(equivalent_airspeed(s.airspeed, r.table[k, 13]))
-    v = [*q, *rates_force, vn, ve, vd, s.lat, s.lon, s.alt, s.airspeed, ias]
-    if not all(math.isfinite(x) for x in v):
+    if not math.isfinite(sum((*q, *rates_force, vn, ve, vd, s.lat, s.lon, s.alt, s.airspeed,
+                              ias))):
         return None
     p, qr, rr, fx, fy, fz = rates_force
     mg = 1000.0 / G0
@@ -133,15 +135,11 @@ def surfaces_from_controls(controls: Sequence[float], amap: ActuatorMap
     """JSBSim's ``(aileron, elevator, throttle, rudder)`` (:data:`sim_core.sixdof.CONTROLS`
     order) from 16 controls, or None when a control used is not finite. JSBSim's signs:
     aileron + rolls right, elevator + pitches down, rudder + yaws left."""
-    def total(pairs: tuple[tuple[int, float], ...]) -> float:
-        return sum(weight * float(controls[index]) for index, weight in pairs)
-
-    roll, pitch, yaw, thr = (total(amap.roll), total(amap.pitch), total(amap.yaw),
-                             total(amap.throttle))
-    if not all(math.isfinite(v) for v in (roll, pitch, yaw, thr)):
+    roll = sum([w * controls[i] for i, w in amap.roll])
+    pitch = sum([w * controls[i] for i, w in amap.pitch])
+    yaw = sum([w * controls[i] for i, w in amap.yaw])
+    thr = sum([w * controls[i] for i, w in amap.throttle])
+    if not math.isfinite(roll + pitch + yaw + thr):
         return None
-
-    def unit(v: float) -> float:
-        return min(max(v, -1.0), 1.0)
-
-    return unit(roll), -unit(pitch), min(max(thr, 0.0), 1.0), -unit(yaw)
+    return (min(max(roll, -1.0), 1.0), -min(max(pitch, -1.0), 1.0), min(max(thr, 0.0), 1.0),
+            -min(max(yaw, -1.0), 1.0))

@@ -280,8 +280,27 @@ class Px4Hil:
         t_ns = int(msg.stamp_ns)
         readings = self._suite.sample(t_ns, fdm_truth([msg]))
         sensor = hil_sensor(t_ns // 1000, readings)
-        # what PX4 reads at this step's time goes first, the HIL_SENSOR that runs it last,
-        # all in one write
+        step = _Step(int(msg.step), t_ns, arrived)
+        generation = link.generation
+        with self._wake:
+            if (generation, step.step) <= self._written:
+                return  # sent to this peer already (it came meanwhile)
+            self._written = (generation, step.step)
+            self._last = step  # before the sensors leave: PX4's answer may come at once
+            if not self._lockstep and step.step > self._answered:
+                self._paced.append(step)
+                self._wake.notify_all()
+            self._c["states_nonfinite"] += sensor is None
+        if sensor is not None and link.send_many((sensor,), generation):
+            before = time.monotonic_ns() - arrived
+            with self._lock:
+                self._c["sensors_sent"] += 1
+                step.before_ns = before
+                self._parts_us[0].append(before / 1e3)
+                if step.after_ns >= 0:
+                    self._added_us.append((before + step.after_ns) / 1e3)
+        # the rest of this step's time, after the HIL_SENSOR that runs PX4's step: PX4 reads
+        # each as it comes, on its clock of that step (the truth is for its logs alone)
         out: list[tuple[str, Any]] = []
         fix = self._suite.gps_fix(t_ns)
         if fix is not None:
@@ -295,30 +314,10 @@ class Px4Hil:
             truth = hil_state_quaternion(t_ns // 1000, msg, readings, self._clip)
             if truth is not None:
                 out.append(("ground_truth_sent", truth))
-        if sensor is not None:
-            out.append(("sensors_sent", sensor))
-        step = _Step(int(msg.step), t_ns, arrived)
-        generation = link.generation
-        with self._wake:
-            if (generation, step.step) <= self._written:
-                return  # sent to this peer already (it came meanwhile)
-            self._written = (generation, step.step)
-            self._last = step  # before the sensors leave: PX4's answer may come at once
-            if not self._lockstep and step.step > self._answered:
-                self._paced.append(step)
-                self._wake.notify_all()
-            self._c["states_nonfinite"] += sensor is None
-        if not out or not link.send_many([m for _, m in out], generation):
-            return
-        before = time.monotonic_ns() - arrived
-        with self._lock:
-            for name, _ in out:
-                self._c[name] += 1
-            if sensor is not None:
-                step.before_ns = before
-                self._parts_us[0].append(before / 1e3)
-                if step.after_ns >= 0:
-                    self._added_us.append((before + step.after_ns) / 1e3)
+        if out and link.send_many([m for _, m in out], generation):
+            with self._lock:
+                for name, _ in out:
+                    self._c[name] += 1
 
     # ------------------------------------------------------------------ PX4 (link thread)
 
@@ -398,7 +397,7 @@ class Px4Hil:
             m.command, mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_UNSUPPORTED))
 
     def _on_controls(self, m: Any, t_in: int) -> None:
-        controls = list(m.controls)
+        controls = m.controls
         surfaces = surfaces_from_controls(controls, self.params.actuators) if len(
             controls) == 16 else None
         if surfaces is None:

@@ -227,9 +227,6 @@ class Px4Double:
                       m.abs_pressure, m.diff_pressure, m.pressure_alt, m.temperature]
             self.sensor_times.append(int(m.time_usec))
             self.wall_times.append(time.monotonic())
-            truth = self.last.get("HIL_STATE_QUATERNION")
-            if truth is not None and truth.time_usec == m.time_usec:
-                self.pairs.append({"sensor": m.to_dict(), "truth": truth.to_dict()})
         elif kind == "HIL_GPS":
             if m.fix_type != 3:
                 raise ContractError(f"HIL_GPS fix_type {m.fix_type}: expected a 3-D fix")
@@ -241,6 +238,9 @@ class Px4Double:
                 raise ContractError(f"HIL_STATE_QUATERNION not a unit quaternion: {q}")
             w, x, y, z = q
             self._roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+            sensor = self.last.get("HIL_SENSOR")
+            if sensor is not None and sensor.time_usec == m.time_usec:
+                self.pairs.append({"sensor": sensor.to_dict(), "truth": m.to_dict()})
             values = [*q, m.rollspeed, m.pitchspeed, m.yawspeed]
         elif kind == "DISTANCE_SENSOR":
             if not m.min_distance < m.max_distance:

@@ -14,7 +14,9 @@ up (``CodecError`` naming the known types when unknown).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
+import operator
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
@@ -281,14 +283,18 @@ class FdmState(Message):
     alt: float = math.nan
 
 
+#: an FdmState's truth, in :data:`sim_core.sensors.kernels.TRUTH_COLUMNS` order
+_TRUTH = operator.attrgetter("lat", "lon", "alt", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "p",
+                             "q", "r", "fx", "fy", "fz", "airspeed")
+
+
 def fdm_truth(states: Sequence[FdmState]) -> SensorTruth:
     """The truth of K 6-DoF states as :class:`sim_core.sensors.SensorTruth` (rows in order),
     what :class:`sim_core.sensors.SensorSuite` reads sensors from."""
     from sim_core.sensors import SensorTruth
 
-    return SensorTruth(np.array([[s.lat, s.lon, s.alt, s.vx, s.vy, s.vz, s.qw, s.qx, s.qy,
-                                  s.qz, s.p, s.q, s.r, s.fx, s.fy, s.fz, s.airspeed]
-                                 for s in states], dtype=np.float64).reshape(-1, 17))
+    flat = itertools.chain.from_iterable(map(_TRUTH, states))
+    return SensorTruth(np.fromiter(flat, np.float64).reshape(-1, 17))
 
 
 @register
