@@ -127,7 +127,7 @@ def test_lockstep_demo_twice_gives_identical_states_pings_and_echoes(tmp_path: P
     assert len(echoed) >= 5
     for seq in echoed:
         ea, eb = _echo_content(a["echoes"][seq]), _echo_content(b["echoes"][seq])
-        for key in ("samples", "position", "orientation", "boresight"):  # the array fields
+        for key in ("samples", "position", "orientation", "boresight", "boresight_body"):  # arrays
             np.testing.assert_array_equal(ea.pop(key), eb.pop(key))
         assert ea == eb
     assert any(a["echoes"][seq].leaves_in_beam > 0 for seq in echoed)
