@@ -10,7 +10,7 @@ rad/s and ``imu.accel_body`` m/s² (body FRD, specific force: about [0, 0, -9.81
 FRD), and ``airspeed`` m/s (without it SITL assumes still air). Keys go in that order.
 
 This module is the one place the edge's frames are converted: echoloop's states are ENU/FLU
-(:class:`hil_bridge.bus.messages.FdmState`), SITL's NED/FRD. The IMU comes from echoloop's
+(:class:`hil_bridge.bus.messages.FdmState`), SITL's NED/FRD. A noisy IMU comes from echoloop's
 sensor model (:class:`sim_core.sensors.SensorSuite`), like every other firmware edge's.
 """
 
@@ -114,11 +114,13 @@ def surfaces_from_pwm(pwm: tuple[int, ...], channels: ChannelMap) -> tuple[float
     return tuple(out)
 
 
-def fdm_line(state: FdmState, imu: SensorReadings, k: int = 0) -> bytes | None:
+def fdm_line(state: FdmState, imu: SensorReadings | None = None, k: int = 0) -> bytes | None:
     """The JSON line SITL reads for ``state`` (newline before and after), its IMU (rates and
-    specific force) from row ``k`` of the sensor model's readings ``imu``, or None when a
-    value is not finite (SITL must never be sent a NaN)."""
-    flu = imu.table[k, :6]
+    specific force) from row ``k`` of the sensor model's readings ``imu`` (None: the state's
+    own, which is what the model reads without noise), or None when a value is not finite
+    (SITL must never be sent a NaN)."""
+    flu = imu.table[k, :6] if imu is not None else np.array(
+        [state.fx, state.fy, state.fz, state.p, state.q, state.r])
     values = (state.x, state.y, state.z, state.vx, state.vy, state.vz, state.qw, state.qx,
               state.qy, state.qz, state.airspeed, *flu.tolist())
     if not all(math.isfinite(v) for v in values):

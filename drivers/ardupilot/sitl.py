@@ -18,8 +18,9 @@ fixture) binds a free port.
   state step last sent to SITL, so a ``lockstep`` server (with the vehicle in its
   ``autopilots``) flies exactly one tick per frame;
 - then the node answers with exactly one JSON line of the next ``/glider/<id>/fdm`` state (a
-  newer tick), stamped with that tick's sim time: SITL's clock is the server's; its IMU is
-  read by echoloop's sensor model (``sensors``: noise off by default, SITL adds its own). The answer
+  newer tick), stamped with that tick's sim time: SITL's clock is the server's; with
+  ``sensors: {noise: true}`` its IMU is read by echoloop's sensor model (off by default: SITL
+  adds its own noise). The answer
   leaves from the bus callback that receives the state (no thread hand-off), or at once when
   the state is already there. A server that does not tick within ``reply_timeout_s`` gets the
   newest state sent again (``replies_stale``: SITL does not advance on it); a state with a
@@ -82,8 +83,10 @@ class SitlInstance:
 @dataclass(frozen=True, slots=True)
 class SitlParams:
     """Validated parameters of :class:`ArduPilotSitl`; ``sensors``: the IMU's model
-    (:class:`sim_core.sensors.SensorSpec`; noise off by default: SITL adds its own, its
-    ``SIM_ACC*_RND``, ``SIM_GYR*_RND``), its noise seeded by ``seed`` and the vehicle id."""
+    (:class:`sim_core.sensors.SensorSpec`), its noise seeded by ``seed`` and the vehicle id.
+    Noise is off by default (SITL adds its own, ``SIM_ACC*_RND``, ``SIM_GYR*_RND``): the
+    model then reads the truth exactly, and the node sends the state's own rates and specific
+    force without sampling it (off the frame's path)."""
 
     instances: tuple[SitlInstance, ...]
     host: str = "127.0.0.1"
@@ -121,7 +124,7 @@ class _Link:
     """One SITL's socket and the state of its conversation."""
 
     def __init__(self, spec: SitlInstance, instance: int | None, host: str,
-                 imu: SensorSuite) -> None:
+                 imu: SensorSuite | None) -> None:
         self.spec = spec
         self.imu = imu
         self.instance = instance
@@ -185,7 +188,7 @@ class ArduPilotSitl:
 
         for spec, inst in zip(self.params.instances, self._instances, strict=True):
             imu = SensorSuite(self.params.sensors, 1, seed=self.params.seed,
-                              key=(spec.vehicle_id,))
+                              key=(spec.vehicle_id,)) if self.params.sensors.noise else None
             try:
                 self._links.append(_Link(spec, inst, self.params.host, imu))
             except OSError:
@@ -254,7 +257,7 @@ class ArduPilotSitl:
             with ln.cond:
                 if ln.state is not None and msg.step <= ln.state.step:
                     return  # a tick sent again while the server waits
-            imu = ln.imu.sample(int(msg.stamp_ns), fdm_truth([msg]))
+            imu = None if ln.imu is None else ln.imu.sample(int(msg.stamp_ns), fdm_truth([msg]))
             with ln.cond:
                 ln.state, ln.readings, ln.arrived_ns = msg, imu, now
                 pending = ln.pending

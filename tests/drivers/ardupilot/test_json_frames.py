@@ -77,9 +77,11 @@ def _state(**kw: float) -> FdmState:
 
 
 def line_of(state: FdmState) -> bytes | None:
-    """``fdm_line`` with the noise-free sensor model's IMU, as the node sends it."""
+    """``fdm_line`` with the noise-free sensor model's IMU, which must be the state's own."""
     imu = SensorSuite(SensorSpec(noise=False), 1).sample(state.stamp_ns, fdm_truth([state]))
-    return fdm_line(state, imu)
+    line = fdm_line(state, imu)
+    assert line == fdm_line(state)  # what the node sends without noise, not sampling
+    return line
 
 
 def test_a_glider_flying_north_in_enu_is_north_in_ned() -> None:

@@ -144,3 +144,25 @@ def test_a_port_in_use_fails_the_start_naming_it() -> None:
     finally:
         taken.close()
         node.stop()
+
+
+def test_a_noisy_imu_comes_from_the_sensor_model() -> None:
+    """``sensors: {noise: true}``: the IMU SITL is sent is the sensor model's, seeded: the
+    gyro's white noise at 100 Hz is 3.394e-4 · √100 = 3.4e-3 rad/s per sample."""
+    bus = f"mem://sitl_{next(_n)}"
+    srv = SimServer("server", bus=bus, scene=_scene(), autopilots=[7])
+    node = ArduPilotSitl("sitl", bus=bus, instances=[{"vehicle_id": 7, "port": 0}],
+                         reply_timeout_s=5.0, sensors={"noise": True}, seed=3)
+    node.start()
+    srv.start()
+    double = SitlDouble(port=node.ports[7], timeout_s=10.0)
+    try:
+        answers = double.fly(300, WingLeveler())
+    finally:
+        double.close()
+        srv.stop()
+        node.stop()
+    gyro = np.array([a["imu"]["gyro"] for a in answers[100:]])
+    wobble = np.diff(gyro, axis=0).std(axis=0) / math.sqrt(2.0)  # white: the flight is smooth
+    np.testing.assert_allclose(wobble, 3.394e-4 * 10.0, rtol=0.25)
+    assert node.failure(final=True) is None
