@@ -79,14 +79,14 @@ def test_no_return_and_a_return_below_the_threshold_are_nan() -> None:
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.floats(0.2, 9.8), st.floats(-40.0, -1.0), st.floats(0.5, 3.0))
+@given(st.floats(0.2, 7.0), st.floats(-40.0, -1.0), st.floats(0.5, 3.0))
 def test_the_first_of_two_returns_is_reported(first: float, weaker_db: float,
                                               gap_m: float) -> None:
     """Two band-limited returns (the model's pulse: a Hann-windowed 60-80 kHz band): the nearer
     one is reported, at its range, whenever it is above the detection level, even when the
     farther one is louder; it is missed only when more than |relative_db| below the loudest."""
     params = EchoParams()
-    second = min(first + gap_m, 10.0)
+    second = first + gap_m  # at least 0.5 m apart: far beyond the pulse's envelope
     n, fs = params.samples, params.fs
     spectrum = np.zeros(n // 2 + 1, complex)
     k = np.arange(round(params.f_lo * n / fs), round(params.f_hi * n / fs) + 1)
@@ -95,7 +95,7 @@ def test_the_first_of_two_returns_is_reported(first: float, weaker_db: float,
         spectrum[k] += amp * w * np.exp(-2j * np.pi * k * fs / n * 2 * r / 340.0)
     x = np.fft.irfft(spectrum, n)  # peaks near -26 dB re A0: both above -100 dB
     got = echo_ranges(x, fs).range_m[0]
-    if weaker_db >= -24.0:
-        assert got == pytest.approx(first, abs=1e-6)
+    if weaker_db >= -24.0:  # the other pulse's tails move the peak by well under 0.1 mm
+        assert got == pytest.approx(first, abs=1e-4)
     elif weaker_db < -26.0:
-        assert got == pytest.approx(second, abs=1e-6)
+        assert got == pytest.approx(second, abs=1e-4)
