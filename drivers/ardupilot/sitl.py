@@ -39,7 +39,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 from drivers.ardupilot.json_frames import (
     ChannelMap,
@@ -86,7 +86,9 @@ class SitlParams:
     (:class:`sim_core.sensors.SensorSpec`), its noise seeded by ``seed`` and the vehicle id.
     Noise is off by default (SITL adds its own, ``SIM_ACC*_RND``, ``SIM_GYR*_RND``): the
     model then reads the truth exactly, and the node sends the state's own rates and specific
-    force without sampling it (off the frame's path)."""
+    force without sampling it (off the frame's path). ``surfaces``: ``pwm`` flies SITL's servo
+    PWM; ``hold`` answers each frame's step and changes no surface, for a firmware that drives
+    its servos by another wire (DroneCAN: ``drivers.dronecan``)."""
 
     instances: tuple[SitlInstance, ...]
     host: str = "127.0.0.1"
@@ -94,6 +96,7 @@ class SitlParams:
     reply_timeout_s: float = 1.0
     sensors: SensorSpec = field(default_factory=lambda: SensorSpec(noise=False))
     seed: int = 0
+    surfaces: Literal["pwm", "hold"] = "pwm"
 
     def __post_init__(self) -> None:
         if not self.instances:
@@ -286,6 +289,7 @@ class ArduPilotSitl:
         vid = ln.spec.vehicle_id
         pub = self._pubs[vid]
         chans = self.params.channels
+        hold = self.params.surfaces == "hold"
         while not self._stop.is_set():
             try:
                 data, addr = ln.sock.recvfrom(4096)
@@ -331,7 +335,8 @@ class ArduPilotSitl:
             if answered >= 0:
                 a, e, t, r = surfaces_from_pwm(pkt.pwm, chans)
                 pub.publish(SurfaceCmd(stamp_ns=stamp, aileron=a, elevator=e,
-                                       throttle=t, rudder=r, glider_id=vid, step=answered))
+                                       throttle=t, rudder=r, glider_id=vid, step=answered,
+                                       hold=hold))
                 t_pub = time.monotonic_ns()
                 with ln.cond:
                     ln.c["surfaces_published"] += 1

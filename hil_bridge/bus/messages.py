@@ -230,7 +230,9 @@ class GliderCmd(Message):
 class SurfaceCmd(Message):
     """``/glider/<id>/surfaces``: control surfaces of a 6-DoF vehicle (JSBSim's normalised
     commands: ``aileron``, ``elevator``, ``rudder`` in [-1, 1], positive elevator nose down;
-    ``throttle`` in [0, 1]); ``step``: the state step it answers (lockstep)."""
+    ``throttle`` in [0, 1]); ``step``: the state step it answers (lockstep); ``hold``: it
+    answers the step and changes no surface (a firmware's clock whose surfaces come by another
+    wire, e.g. ArduPilot SITL's JSON frames while DroneCAN drives its servos)."""
 
     TYPE: ClassVar[str] = "echoloop/SurfaceCmd"
     VERSION: ClassVar[int] = 1
@@ -242,6 +244,7 @@ class SurfaceCmd(Message):
     rudder: float
     glider_id: int = 0
     step: int = 0
+    hold: bool = False
 
 
 @register

@@ -8,7 +8,8 @@ SimServer` (its bus callbacks call in, its tick loop takes what each tick flies)
   is outside (0, 3 * max speed]; otherwise it is clipped to the glider's (the law's) or
   vehicle's envelope (``cmd_clipped``) and held until the next good one. Commands for path and
   6-DoF vehicles are counted in ``cmd_ignored``.
-- **Control surfaces** (``SurfaceCmd``, 6-DoF vehicles): rejected (``surfaces_rejected``) when a
+- **Control surfaces** (``SurfaceCmd``, 6-DoF vehicles): one with ``hold`` answers its step and
+  changes nothing (``surfaces_held``); rejected (``surfaces_rejected``) when a
   value is non-finite or out of its range (aileron, elevator, rudder in [-1, 1], throttle in
   [0, 1]); a good one is held (``surfaces_applied``).
 
@@ -34,7 +35,7 @@ from sim_core.scene import Scene
 __all__ = ["COUNTERS", "AutopilotInputs"]
 
 COUNTERS = ("cmd_received", "cmd_applied", "cmd_rejected", "cmd_clipped", "cmd_ignored",
-            "surfaces_received", "surfaces_applied", "surfaces_rejected")
+            "surfaces_received", "surfaces_applied", "surfaces_rejected", "surfaces_held")
 _REJECT_BANK = math.pi / 2
 
 
@@ -93,6 +94,9 @@ class AutopilotInputs:
         with self._lock:
             self._c["surfaces_received"] += 1
             self._registered.add(gid)
+            if msg.hold:
+                self._c["surfaces_held"] += 1
+                return
             if not good:
                 self._c["surfaces_rejected"] += 1
                 return

@@ -8,8 +8,8 @@ higher of an absolute threshold (``threshold_db`` re A0, the receiver's sensitiv
 ``relative_db`` below the echo's strongest return (the band-limited pulse has time sidelobes:
 the Hann window of the echo model's band puts its first at -31.5 dB, so a level above it never
 fires on the sidelobe before a strong return). The first sample at or above the level, after
-the blind zone (``min_range_m``), starts the first return; its range is the envelope's peak
-that follows (refined between samples by a parabola through the peak and its neighbours):
+the blind zone (``min_range_m``), starts the first return; its range is the time of the
+envelope's peak that follows (the envelope's maximum between samples, from the spectrum):
 ``range = sound_speed · t / 2``. A point scatterer's echo peaks at its delay 2r/v exactly, so
 the rule is unbiased for an isolated return; on a flat ground the first return's peak is its
 nearest point plus up to a couple of centimetres (``tests/sim_core/sensors/test_echo_range.py``
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -71,14 +72,21 @@ def echo_ranges(samples: ArrayLike, fs: float, rule: RangeRule | None = None) ->
     """The first return of each channel of ``samples`` ((C, n) or (n,) at ``fs`` Hz, t = 0 at
     emission) by ``rule`` (:class:`RangeRule` defaults when None). Real samples are the echo
     itself; complex ones its baseband (:func:`sim_core.sonar.to_baseband`: x = 2 Re(iq
-    e^{j2πf_c t})), whose envelope is 2|iq|."""
-    from scipy.signal import hilbert
+    e^{j2πf_c t})), whose envelope is 2|iq|.
 
+    How (the same envelope as the analytic signal's at every sample, without its full-length
+    transform): the signal's spectrum (one real FFT), the bins that carry it (above 1e-7 of the
+    largest), shifted to baseband and transformed back on as few samples as hold them (every
+    D-th sample of the envelope, exactly); the level, the first sample at or above it and the
+    first peak after it on those; then the peak's time to a thousandth of a sample by Newton's
+    method on the envelope's square, evaluated from the bins themselves."""
     rule = RangeRule() if rule is None else rule
     if not (math.isfinite(fs) and fs > 0):
         raise ValueError(f"fs: expected a finite rate > 0 Hz, got {fs}")
     x = np.asarray(samples)
-    x = x.astype(np.complex128 if np.iscomplexobj(x) else np.float64, copy=False)
+    complex_in = np.iscomplexobj(x)
+    if x.dtype not in (np.float32, np.complex64):  # single precision is transformed as it is
+        x = x.astype(np.complex128 if complex_in else np.float64, copy=False)
     if x.ndim == 1:
         x = x[None]
     if x.ndim != 2:
@@ -90,11 +98,15 @@ def echo_ranges(samples: ArrayLike, fs: float, rule: RangeRule | None = None) ->
     margin = np.full(c, np.nan)
     if n < 3 or not np.all(np.isfinite(x)):
         return EchoRanges(rng, level, margin, window)
-    env = 2.0 * np.abs(x) if np.iscomplexobj(x) else np.abs(hilbert(x, axis=-1))
+    bins, spec = _analytic_bins(x, complex_in)
+    if bins.size == 0:
+        return EchoRanges(rng, level, margin, window)
+    step, env = _coarse_envelope(bins, spec, n)
     start = min(n, math.ceil(2.0 * rule.min_range_m / rule.sound_speed * fs))
+    first = -(-start // step)
     floor = 10.0 ** (rule.threshold_db / 20.0)
     for k in range(c):
-        e = env[k, start:]
+        e = env[k, first:]
         if e.size < 3:
             continue
         detect = max(floor, float(e.max()) * 10.0 ** (rule.relative_db / 20.0))
@@ -103,14 +115,70 @@ def echo_ranges(samples: ArrayLike, fs: float, rule: RangeRule | None = None) ->
             continue
         i = int(above[0])
         falls = np.flatnonzero(np.diff(e[i:]) < 0)
-        j = i + int(falls[0]) if falls.size else e.size - 1
-        shift = 0.0
-        if 0 < j < e.size - 1:
-            y0, y1, y2 = float(e[j - 1]), float(e[j]), float(e[j + 1])
-            den = y0 - 2.0 * y1 + y2
-            shift = 0.5 * (y0 - y2) / den if den < 0 else 0.0
-        t = (start + j + shift) / fs
-        rng[k] = rule.sound_speed * t / 2.0
-        level[k] = 20.0 * math.log10(float(e[j]))
+        j = first + i + (int(falls[0]) if falls.size else e.size - 1)
+        t, peak = _peak(bins, spec[k], n, j * step, step)
+        rng[k] = rule.sound_speed * (t / fs) / 2.0
+        level[k] = 20.0 * math.log10(peak)
         margin[k] = level[k] - 20.0 * math.log10(detect)
     return EchoRanges(rng, level, margin, window)
+
+
+def _analytic_bins(x: NDArray[Any], complex_in: bool
+                   ) -> tuple[NDArray[np.int64], NDArray[np.complex128]]:
+    """The signed bins (K,) and values (C, K) of the analytic signal's spectrum that carry it:
+    a(n) = (1/N) Σ A_k e^{j2πkn/N} is the analytic signal of real samples (A_k = 2 X_k on the
+    positive bins, X_0 and the Nyquist bin once) and twice a complex baseband."""
+    n = x.shape[-1]
+    if complex_in:
+        spec = 2.0 * np.fft.fft(x, axis=-1)
+        bins = np.fft.fftfreq(n, 1.0 / n).astype(np.int64)
+    else:
+        spec = np.fft.rfft(x.real, axis=-1)
+        spec[:, 1:(n + 1) // 2] *= 2.0
+        bins = np.arange(spec.shape[-1], dtype=np.int64)
+    mag = np.abs(spec).max(axis=0)
+    top = float(mag.max())
+    if not top > 0:
+        return bins[:0], np.zeros((x.shape[0], 0), dtype=np.complex128)
+    keep = np.flatnonzero(mag > 1e-7 * top)
+    return bins[keep], spec[:, keep].astype(np.complex128)
+
+
+def _coarse_envelope(bins: NDArray[np.int64], spec: NDArray[np.complex128], n: int
+                     ) -> tuple[int, F8]:
+    """(D, the envelope at every D-th sample (C, n/D)): the bins shifted to baseband on the
+    fewest samples, a divisor of n, that hold them with a quarter to spare (exact: no
+    aliasing)."""
+    lo, hi = int(bins.min()), int(bins.max())
+    span = hi - lo + 1
+    step = 1
+    for d in range(min(64, n // max(1, math.ceil(1.25 * span))), 1, -1):
+        if n % d == 0:
+            step = d
+            break
+    m = n // step
+    centre = (lo + hi) // 2
+    z = np.zeros((spec.shape[0], m), dtype=np.complex128)
+    z[:, (bins - centre) % m] = spec
+    return step, np.abs(np.fft.ifft(z, axis=-1)) * (m / n)
+
+
+def _peak(bins: NDArray[np.int64], a_k: NDArray[np.complex128], n: int, guess: int,
+          step: int) -> tuple[float, float]:
+    """(time in samples, envelope there) of the envelope's maximum nearest ``guess``, by
+    Newton's method on |a(t)|² (at most ``step`` samples from it)."""
+    w = 2j * math.pi * bins / n
+    t = float(guess)
+    for _ in range(12):
+        ph = a_k * np.exp(w * t)
+        a, a1, a2 = ph.sum(), (ph * w).sum(), (ph * w * w).sum()
+        f1 = 2.0 * (a.conjugate() * a1).real
+        f2 = 2.0 * (abs(a1) ** 2 + (a.conjugate() * a2).real)
+        if not f2 < 0:
+            break
+        delta = max(-0.5 * step, min(0.5 * step, -f1 / f2))
+        t = min(max(t + delta, guess - step), guess + step)
+        if abs(delta) < 1e-3:
+            break
+    value = abs((a_k * np.exp(w * t)).sum()) / n
+    return t, float(value)
