@@ -188,6 +188,7 @@ class DroneCanNode:
         self._bad: dict[str, int] = {}
         self._echo_us: deque[float] = deque(maxlen=100_000)
         self._surfaces = (0.0, 0.0, 0.0, 0.0)
+        self._outgoing: Any = None  # the newest command to publish
         self._state: Any = None
         self._air_next_ns = 0
         self._node: Any = None
@@ -310,6 +311,12 @@ class DroneCanNode:
                     except (ValueError, IndexError, KeyError, OverflowError) as exc:
                         self._count_bad(f"malformed payload: {exc}")
                 self._allocate()
+                outgoing, self._outgoing = self._outgoing, None
+            if outgoing is not None:  # the newest of the batch, with the node's lock free
+                self._pub.publish(outgoing)
+                with self._lock:
+                    self._c["surfaces_published" if self.params.profile == "sixdof"
+                            else "cmds_published"] += 1
 
     def _count_bad(self, why: str) -> None:
         """Count a transfer dropped (under the lock), by the first words of its reason."""
@@ -360,8 +367,8 @@ class DroneCanNode:
         self._command(surfaces_from_esc(e.message.cmd, self.params.actuators, self._surfaces))
 
     def _command(self, out: tuple[float, float, float, float] | None) -> None:
-        """Publish the surfaces (or a point mass's command) the actuators now say (under the
-        lock, on the CAN thread)."""
+        """Take the surfaces (or a point mass's command) the actuators now say (under the lock,
+        on the CAN thread, which publishes the newest once it has let go of the lock)."""
         from hil_bridge.bus.messages import GliderCmd, SurfaceCmd
 
         if out is None:
@@ -373,16 +380,14 @@ class DroneCanNode:
         a, e, t, r = out
         vid = self.params.vehicle_id
         if self.params.profile == "sixdof":
-            self._pub.publish(SurfaceCmd(stamp_ns=stamp, aileron=a, elevator=e, throttle=t,
-                                         rudder=r, glider_id=vid, step=step))
-            self._c["surfaces_published"] += 1
+            self._outgoing = SurfaceCmd(stamp_ns=stamp, aileron=a, elevator=e, throttle=t,
+                                        rudder=r, glider_id=vid, step=step)
         else:
             pm = self.params.pointmass
             lo, hi = pm.airspeed_mps
-            self._pub.publish(GliderCmd(stamp_ns=stamp, bank_cmd=a * pm.bank_max_rad,
-                                        airspeed_cmd=lo + (e + 1.0) / 2.0 * (hi - lo),
-                                        glider_id=vid, step=step))
-            self._c["cmds_published"] += 1
+            self._outgoing = GliderCmd(stamp_ns=stamp, bank_cmd=a * pm.bank_max_rad,
+                                       airspeed_cmd=lo + (e + 1.0) / 2.0 * (hi - lo),
+                                       glider_id=vid, step=step)
 
     def _broadcast(self, msgs: list[Any], counter: str, unsent: str | None = None) -> bool:
         """Broadcast ``msgs`` (counted in ``counter``) once the node has an ID; before, count

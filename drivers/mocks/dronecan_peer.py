@@ -5,11 +5,12 @@ own ``mcast`` driver, playing a flight controller.
 and prints what it saw as JSON. It is node ``--node-id`` (10) and runs the package's dynamic
 node-ID allocator (``CentralizedServer``, with its ``NodeMonitor``), so an anonymous node on the
 bus is given an ID; it asks every node it sees for ``GetNodeInfo``; it records every
-``NodeStatus``, every ``range_sensor.Measurement`` (sensor id, reading type, range) and the
-allocations it granted; with ``--servo-hz`` it broadcasts ``actuator.ArrayCommand`` (actuators
-1-4, unitless) at that rate, aileron ``--aileron`` and the rest neutral; with ``--garbage`` it
-first sends what a noisy bus carries: a multi-frame transfer whose CRC fails, one whose toggle
-bit is wrong, and a message of a data type no DSDL defines.
+``NodeStatus``, every ``range_sensor.Measurement`` (sensor id, reading type, range) and its
+allocation table (the IDs it granted). With ``--servo-hz`` it broadcasts
+``actuator.ArrayCommand`` (actuators 1-4, unitless) at that rate, aileron ``--aileron`` and the
+rest neutral. With ``--garbage`` it first sends what a noisy bus carries: a multi-frame
+transfer whose CRC fails, one whose toggle bit is wrong, and a message of a data type no DSDL
+of the package defines.
 """
 
 from __future__ import annotations
@@ -91,20 +92,8 @@ def main(argv: list[str] | None = None) -> int:
                                        "sensor_id": m.sensor_id, "reading": m.reading_type,
                                        "range": m.range, "t_us": m.timestamp.usec})
 
-    def on_transfer(tr: Any) -> None:  # what the allocator grants, as it goes out
-        if getattr(tr, "direction", "") != "tx" or tr.payload is None:
-            return
-        if dronecan.get_dronecan_data_type(tr.payload).full_name != \
-                "uavcan.protocol.dynamic_node_id.Allocation":
-            return
-        m = tr.payload
-        if len(m.unique_id) == 16 and m.node_id:
-            report["allocations"].append({"node_id": m.node_id,
-                                          "unique_id": bytes(m.unique_id).hex()})
-
     node.add_handler(dronecan.uavcan.protocol.NodeStatus, on_status)
     node.add_handler(dronecan.uavcan.equipment.range_sensor.Measurement, on_measurement)
-    node.add_transfer_hook(on_transfer)
 
     if args.garbage:
         _garbage(node, dronecan)
@@ -122,6 +111,9 @@ def main(argv: list[str] | None = None) -> int:
                 for k, v in enumerate(values)]
             node.broadcast(cmd)
         time.sleep(0.002)
+    report["allocations"] = [{"node_id": nid, "unique_id": bytes(uid).hex()}
+                             for uid, nid in allocator.get_allocation_table()
+                             if uid is not None and nid != args.node_id]
     allocator.close()
     print(json.dumps(report))
     sys.stdout.flush()

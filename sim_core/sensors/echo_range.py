@@ -116,7 +116,13 @@ def echo_ranges(samples: ArrayLike, fs: float, rule: RangeRule | None = None) ->
         i = int(above[0])
         falls = np.flatnonzero(np.diff(e[i:]) < 0)
         j = first + i + (int(falls[0]) if falls.size else e.size - 1)
-        t, peak = _peak(bins, spec[k], n, j * step, step)
+        guess = float(j * step)
+        if step > 1 and 0 < j < env.shape[1] - 1:  # the coarse peak's parabola: a close start
+            y0, y1, y2 = (float(v) for v in env[k, j - 1:j + 2])
+            den = y0 - 2.0 * y1 + y2
+            if den < 0:
+                guess += step * 0.5 * (y0 - y2) / den
+        t, peak = _peak(bins, spec[k], n, guess, step)
         rng[k] = rule.sound_speed * (t / fs) / 2.0
         level[k] = 20.0 * math.log10(peak)
         margin[k] = level[k] - 20.0 * math.log10(detect)
@@ -163,7 +169,7 @@ def _coarse_envelope(bins: NDArray[np.int64], spec: NDArray[np.complex128], n: i
     return step, np.abs(np.fft.ifft(z, axis=-1)) * (m / n)
 
 
-def _peak(bins: NDArray[np.int64], a_k: NDArray[np.complex128], n: int, guess: int,
+def _peak(bins: NDArray[np.int64], a_k: NDArray[np.complex128], n: int, guess: float,
           step: int) -> tuple[float, float]:
     """(time in samples, envelope there) of the envelope's maximum nearest ``guess``, by
     Newton's method on |a(t)|² (at most ``step`` samples from it)."""

@@ -1,0 +1,137 @@
+"""Real firmware: ArduPlane SITL on its multicast CAN bus takes echoloop's DroneCAN node as its
+range finder and drives the glider's servos over DroneCAN.
+
+Runs only where ``ECHOLOOP_ARDUPILOT_SITL`` names an ``arduplane`` binary (built by the user from
+ArduPilot, outside this repository). ``launch/ardupilot_glider.yaml`` with its sonar carried
+15 m over a dense maple forest, its MAVLink range finder replaced by the dronecan node on SITL's
+CAN bus (``mcast:0``: every SITL's first bus), the sitl node answering SITL's frames without
+flying its PWM (``surfaces: hold``), and ArduPlane booted with ``echoloop-sgs126.parm``,
+``echoloop-dronecan.parm`` and ``echoloop-dronecan-servos.parm``: the firmware's DNA server
+gives the node an ID, its ``RFND`` records are the echoes' ranges as the node sent them, and its
+``actuator.ArrayCommand`` are what the glider flies.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from hil_bridge.bus.domain import Domain, claim_first_free
+
+SITL = os.environ.get("ECHOLOOP_ARDUPILOT_SITL", "")
+pytestmark = [
+    pytest.mark.processes,
+    pytest.mark.skipif(not (SITL and os.access(SITL, os.X_OK)),
+                       reason="ECHOLOOP_ARDUPILOT_SITL does not name an arduplane binary"),
+]
+
+ROOT = Path(__file__).resolve().parents[3]
+DATA = ROOT / "launch" / "data" / "ardupilot"
+PARMS = [DATA / f"echoloop-{n}.parm" for n in ("sgs126", "dronecan", "dronecan-servos")]
+FLY_S = 45.0
+
+
+@pytest.fixture
+def domain() -> Iterator[Domain]:
+    with claim_first_free(Domain(int.from_bytes(os.urandom(1)) % 40 + 20)) as (dom, _):
+        yield dom
+
+
+def _stop(proc: subprocess.Popen[str]) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _spec(path: Path) -> dict[str, Any]:
+    spec = yaml.safe_load((ROOT / "launch" / "ardupilot_glider.yaml").read_text())
+    scene = spec["nodes"][0]["params"]["scene"]
+    scene["vehicles"].append({"id": 8, "path": {
+        "kind": "points", "points": [[0.0, 0.0, 15.0], [1000.0, 0.0, 15.0]], "speed_mps": 8.0}})
+    scene["sonars"][0]["mount"] = 8
+    scene["forest"]["spec"]["species"] = [{"name": "maple", "tree": "maple", "rate": 0.01,
+                                           "count": 1500}]
+    nodes = [n for n in spec["nodes"] if n["name"] != "rangefinder"]
+    for n in nodes:
+        if n["name"] == "sitl":
+            n["params"]["surfaces"] = "hold"
+    nodes.append({"name": "dronecan", "entry": "drivers.dronecan.node:DroneCanNode", "params": {
+        "vehicle_id": 7, "interface": "mcast:0",
+        "ranges": [{"sonar_id": 0, "sensor_id": 1, "fov_deg": 40.0}]}})
+    spec["nodes"] = nodes
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return spec
+
+
+def test_arduplane_takes_echoloop_as_dronecan_peripherals(domain: Domain, tmp_path: Path) -> None:
+    from pymavlink import mavutil
+
+    from drivers.dronecan.messages import measurement
+    from hil_bridge.bus.codec import decode_payload
+    from hil_bridge.recording.bag import read_bag
+    from sim_core.sensors import RangeRule, echo_ranges
+
+    n = domain.number
+    assert n is not None
+    launch_file = tmp_path / "dronecan.yaml"
+    _spec(launch_file)
+    bag = tmp_path / "run.mcap"
+    launch = subprocess.Popen(
+        [sys.executable, "-m", "hil_bridge.cli", "launch", str(launch_file), "--domain", str(n),
+         "--duration", "600", "--record", str(bag), "--json"], cwd=ROOT, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    firmware = subprocess.Popen(
+        [SITL, "--model", "JSON:127.0.0.1", "-I", str(n), "-w", "--home", "47.0,8.0,0,90",
+         "--defaults", ",".join(str(p) for p in PARMS)], cwd=tmp_path, text=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        mav = mavutil.mavlink_connection(f"tcp:127.0.0.1:{5760 + 10 * n}", retries=120)
+        assert mav.wait_heartbeat(timeout=120) is not None, "no heartbeat from SITL"
+        deadline = time.monotonic() + FLY_S
+        while time.monotonic() < deadline:  # SITL starts once its SERIAL0 has a peer: read it
+            mav.recv_match(blocking=True, timeout=1)
+    finally:
+        _stop(firmware)
+        launch.send_signal(signal.SIGTERM)
+        out, _ = launch.communicate(timeout=120)
+        _stop(launch)
+    nodes = json.loads(out)["nodes"]
+    dc, server = nodes["dronecan"], nodes["server"]
+    assert dc["node_id"], "the firmware's DNA server gave the node no ID"
+    # what was sent: the recording's echoes through the node's rule, as float16
+    rule = RangeRule(min_range_m=0.2)
+    sent = []
+    for m in read_bag(bag, ["/sonar/0/echo"]):
+        echo = decode_payload(m.header.type, m.header.v, m.payload)
+        for r in echo_ranges(echo.samples, echo.fs, rule).range_m.tolist():
+            msg = measurement(0, 1, r, np.zeros(3), min_m=0.2, max_m=10.0, fov_rad=0.0)
+            if msg.reading_type == msg.READING_TYPE_VALID_RANGE:
+                sent.append(msg.range)
+    assert sent, "no echo had a return"
+    log = mavutil.mavlink_connection(str(sorted((tmp_path / "logs").glob("*.BIN"))[-1]))
+    good = []
+    while (r := log.recv_match(type="RFND")) is not None:
+        if r.Stat == 4:
+            good.append(r.Dist)
+    assert len(good) > 50, f"only {len(good)} good RFND records"
+    values = np.array(sent)
+    for d in good:  # ArduPilot keeps whole centimetres of the float16 range it was sent
+        assert np.min(np.abs(np.floor(values * 100) / 100 - d)) < 1e-4
+    # the servos: ArduPlane's ArrayCommand flew the glider, the JSON frames only kept time
+    assert dc["array_commands"] > 0 and dc["surfaces_published"] > 0
+    assert server["surfaces_held"] > 0 and server["surfaces_applied"] > 0

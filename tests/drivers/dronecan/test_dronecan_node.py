@@ -1,0 +1,148 @@
+"""The DroneCAN node against an independent peer (the dronecan package's own node and
+allocator, in a process of its own) over CAN over UDP multicast: node-ID allocation,
+NodeStatus and GetNodeInfo, Measurements equal to the echo's range within the float16 step,
+ArrayCommand flying the glider's surfaces, bad transfers dropped and counted, the peer
+restarting; and launch/dronecan_glider.yaml in processes."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from drivers.dronecan.messages import FLOAT16_STEP
+from drivers.dronecan.node import DroneCanNode
+from hil_bridge.bus.domain import Domain, claim_first_free
+from hil_bridge.bus.messages import SonarEcho, SurfaceCmd
+from hil_bridge.bus.node import Node
+from sim_core.config import ConfigError
+from sim_core.sensors import echo_ranges
+from tests.drivers.mavlink.test_ranges import leaf_echo
+
+pytestmark = pytest.mark.processes
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+@pytest.fixture
+def domain() -> Iterator[Domain]:
+    with claim_first_free(Domain(int.from_bytes(os.urandom(1)) % 60 + 20)) as (dom, _):
+        yield dom
+
+
+def peer(bus: int, *args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "drivers.mocks.dronecan_peer", "--bus",
+                             str(bus), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+
+
+def report(proc: subprocess.Popen[str]) -> dict[str, Any]:
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-2000:]
+    data: dict[str, Any] = json.loads(out.splitlines()[-1])
+    return data
+
+
+def test_a_flight_controller_allocates_hears_and_drives_the_node(domain: Domain) -> None:
+    assert domain.number is not None
+    bus = f"mem://dronecan_{domain.number}"
+    node = DroneCanNode("dronecan", bus=bus, vehicle_id=7, interface=f"mcast:{domain.number}",
+                        ranges=[{"sonar_id": 0, "sensor_id": 5}])
+    sim = Node("sim", bus=bus)
+    echoes = sim.create_publisher(SonarEcho, "/sonar/0/echo")
+    surfaces: list[SurfaceCmd] = []
+    sim.create_subscription(SurfaceCmd, "/glider/7/surfaces", surfaces.append)
+    sim.start()
+    node.start()
+    try:
+        fc = peer(domain.number, "--seconds", "6", "--servo-hz", "20", "--aileron", "0.4",
+                  "--garbage")
+        deadline = time.monotonic() + 20
+        while node.node_id is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert node.node_id is not None, "no node ID was allocated"
+        sent = []
+        for k in range(8):
+            echo = leaf_echo(2.0 + 0.37 * k)
+            sent.append(echo_ranges(echo.samples, echo.fs).range_m)
+            echoes.publish(echo)
+            time.sleep(0.3)
+        seen = report(fc)
+        # a restarted flight controller hears the node again, under the same ID
+        fc2 = peer(domain.number, "--seconds", "2.5")
+        time.sleep(1.0)
+        echoes.publish(leaf_echo(4.0))
+        again = report(fc2)
+    finally:
+        node.stop()
+        sim.stop()
+    me = str(node.node_id)
+    assert seen["allocations"] and seen["allocations"][0]["node_id"] == node.node_id
+    assert seen["allocations"][0]["unique_id"] == node.unique_id.hex()
+    assert seen["node_status"][me] >= 3
+    assert seen["node_info"][me]["name"] == "org.echoloop.sim"
+    ours = [m for m in seen["measurements"] if m["src"] == node.node_id]
+    assert {m["sensor_id"] for m in ours} == {5, 6}  # one per ear
+    got = np.array([m["range"] for m in ours]).reshape(-1, 2)
+    want = np.array(sent)[-len(got):]
+    assert len(got) >= 6
+    for g, w in zip(got.ravel(), want.ravel(), strict=True):
+        assert abs(g - w) <= FLOAT16_STEP(w) / 2  # float16 rounding, no more
+    assert all(m["reading"] == 1 for m in ours)  # VALID_RANGE
+    assert again["node_status"][me] >= 1
+    assert [m["range"] for m in again["measurements"] if m["src"] == node.node_id]
+    st = node.stats()
+    assert st["transfers_bad_by"] == {"crc mismatch": 1, "toggle bit": 1,
+                                      "unrecognised message": 1}
+    assert st["array_commands"] >= 80 and surfaces
+    assert surfaces[-1].aileron == pytest.approx(0.4, abs=1e-3)  # float16 of 0.4
+    assert surfaces[-1].throttle == 0.0 and surfaces[-1].elevator == 0.0
+    assert node.failure(final=True) is None
+
+
+def test_bad_params_fail_at_load() -> None:
+    with pytest.raises(ConfigError, match="node_id"):
+        DroneCanNode("dronecan", bus="mem://x", vehicle_id=7, interface="mcast:0", node_id=200)
+    with pytest.raises(ConfigError, match="profile"):
+        DroneCanNode("dronecan", bus="mem://x", vehicle_id=7, interface="mcast:0",
+                     profile="pointmass", gnss=True)
+
+
+def test_the_dronecan_launch_feeds_a_flight_controller(domain: Domain) -> None:
+    assert domain.number is not None
+    cmd = [sys.executable, "-m", "hil_bridge.cli", "launch",
+           str(ROOT / "launch" / "dronecan_glider.yaml"), "--domain", str(domain.number),
+           "--duration", "120", "--json"]
+    launch = subprocess.Popen(cmd, cwd=ROOT, text=True, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    try:
+        assert launch.stderr is not None
+        for line in launch.stderr:
+            if "echoloop launch: running" in line:
+                break
+        else:
+            pytest.fail("the launch never ran")
+        seen = report(peer(domain.number, "--seconds", "6", "--servo-hz", "50"))
+        launch.send_signal(signal.SIGTERM)
+        out, err = launch.communicate(timeout=120)
+    finally:
+        if launch.poll() is None:
+            launch.kill()
+            launch.communicate()
+    assert launch.returncode == 0, err[-3000:]
+    nodes = json.loads(out)["nodes"]
+    dc, server = nodes["dronecan"], nodes["server"]
+    assert dc["node_id"] and seen["node_info"][str(dc["node_id"])]["name"] == "org.echoloop.sim"
+    assert {m["sensor_id"] for m in seen["measurements"]} == {1, 2}
+    assert dc["air_data_sent"] > 0 and dc["gnss_sent"] > 0
+    assert dc["surfaces_published"] > 0 and server["surfaces_applied"] > 0
+    assert dc["transfers_bad"] == 0
