@@ -46,11 +46,13 @@ def FLOAT16_STEP(x: float) -> float:  # noqa: N802 - a constant of the format, a
 
 
 def _coarse(o: Any, axis_flu: np.ndarray) -> None:
-    """Fill the coarse orientation ``o`` with the beam axis (FLU body)."""
-    if not np.all(np.isfinite(axis_flu)):
+    """Fill the coarse orientation ``o`` with the beam axis (FLU body); an axis that is not
+    finite or has no length leaves the orientation undefined."""
+    norm = float(np.linalg.norm(axis_flu))
+    if not (math.isfinite(norm) and norm > 0.0):
         o.orientation_defined = False
         return
-    x, y, z = (float(v) for v in frd_from_flu(axis_flu / np.linalg.norm(axis_flu)))
+    x, y, z = (float(v) for v in frd_from_flu(axis_flu / norm))
     yaw = math.atan2(y, x)
     pitch = -math.asin(max(-1.0, min(1.0, z)))  # FRD: a beam down is pitched -90°
     k = o.ANGLE_MULTIPLIER
@@ -92,6 +94,7 @@ def raw_air_data(r: SensorReadings, k: int = 0) -> Any | None:
 
 
 def static_pressure(r: SensorReadings, k: int = 0, sigma_pa: float = 1.0) -> Any | None:
+    """The barometer of readings row ``k`` (Pa, variance ``sigma_pa``²), or None."""
     p = float(r.abs_pressure[k])
     if not math.isfinite(p):
         return None
@@ -101,6 +104,7 @@ def static_pressure(r: SensorReadings, k: int = 0, sigma_pa: float = 1.0) -> Any
 
 
 def static_temperature(r: SensorReadings, k: int = 0) -> Any | None:
+    """The outside air temperature of readings row ``k`` (K, variance 1 K²), or None."""
     t = float(r.temperature[k])
     if not math.isfinite(t):
         return None

@@ -33,6 +33,21 @@ def test_frame_bits_within_bounds(frame_id: int, data: bytes) -> None:
     assert 47 + 8 * n <= frame_bits(frame_id, data) <= worst_case_bits(n)
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 0x1FFFFFFF), st.binary(min_size=0, max_size=8))
+def test_extended_frame_bits_within_bounds(frame_id: int, data: bytes) -> None:
+    n = len(data)
+    assert 67 + 8 * n <= frame_bits(frame_id, data, extended=True) <= worst_case_bits(n, True)
+
+
+def test_extended_worst_case_values() -> None:
+    assert worst_case_bits(8, True) == 160 and worst_case_bits(0, True) == 80
+    # an all-ones id and payload: long runs, close to the bound
+    assert frame_bits(0x1FFFFFFF, b"\xff" * 8, extended=True) >= 145
+    with pytest.raises(ValueError, match="29-bit"):
+        frame_bits(0x20000000, b"", extended=True)
+
+
 def test_worst_case_values() -> None:
     assert worst_case_bits(8) == 135 and worst_case_bits(0) == 55
     # all-ones payload after an all-ones id: long runs, close to the bound

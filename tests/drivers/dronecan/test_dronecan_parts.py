@@ -131,6 +131,13 @@ def test_too_far_and_too_close() -> None:
     assert near.range == pytest.approx(0.2, abs=FLOAT16_STEP(0.2))
 
 
+@pytest.mark.parametrize("axis", [[0.0, 0.0, 0.0], [math.nan, 0.0, 1.0], [math.inf, 0.0, 0.0]])
+def test_an_axis_without_a_direction_leaves_the_orientation_undefined(axis: list[float]) -> None:
+    m = measurement(0, 1, 2.0, np.array(axis), min_m=0.2, max_m=10.0, fov_rad=0)
+    assert not m.beam_orientation_in_body_frame.orientation_defined
+    assert m.reading_type == m.READING_TYPE_VALID_RANGE
+
+
 def _cmd(actuator: int, value: float, kind: int = 0) -> object:
     return uc.actuator.Command(actuator_id=actuator, command_type=kind, command_value=value)
 
