@@ -139,6 +139,9 @@ class Fleet:
             )
             self._surfaces = np.zeros((len(self._sixdof_specs), len(CONTROLS)))
         self._sixdof_out: Any = None
+        self._sixdof_up = np.ones(len(self._sixdof_specs), dtype=bool)
+        #: (vehicle id, ENU position) of each 6-DoF vehicle that came down since it was read
+        self.came_down: list[tuple[int, F8]] = []
         self._vy = np.zeros((6, n_c))
         for i, v in enumerate(self._commanded):
             self._vy[:, i] = self._takeover_state(v.id, 0)
@@ -250,6 +253,9 @@ class Fleet:
         blocks: list[tuple[list[int], dict[str, Any]]] = []
         if self.sixdof is not None:
             so = self._sixdof_out = self.sixdof.outputs()
+            for i in np.flatnonzero(self._sixdof_up & ~so.alive):
+                self.came_down.append((self._sixdof_specs[i].id, so.position[i].copy()))
+            self._sixdof_up = so.alive.copy()
             blocks.append((list(self._sindex), {
                 "position": so.position, "velocity": so.velocity, "heading": so.yaw,
                 "bank": -so.roll, "airspeed": so.airspeed, "vz": so.velocity[:, 2],

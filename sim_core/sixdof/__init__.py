@@ -11,6 +11,7 @@ aircraft definitions are JSBSim's package data, read by JSBSim itself).
 
 from sim_core.sixdof.model import (
     CONTROLS,
+    GROUND_MARGIN_M,
     SixDofGliders,
     SixDofOutputs,
     SixDofSpec,
@@ -21,6 +22,7 @@ from sim_core.sixdof.polar import Glide, SoarPolar, fit_polar, measure_glides, p
 
 __all__ = [
     "CONTROLS",
+    "GROUND_MARGIN_M",
     "Glide",
     "SixDofGliders",
     "SixDofOutputs",

@@ -12,6 +12,12 @@ trailing edge down, nose down), throttle in [0, 1] (ignored by an aircraft witho
 Each internal step of at most ``dt_max_s`` sets JSBSim's wind to the updraft the caller gives
 at the vehicle's horizontal position (``atmosphere/wind-down-fps = -w``), so a glider climbs at
 the updraft minus its sink.
+
+A vehicle that comes down (its height above JSBSim's terrain below ``-GROUND_MARGIN_M``: through
+the ground, which JSBSim's contact points let a glider on its back or its wing do) or whose
+state JSBSim no longer keeps finite is **down**: ``alive`` False from then on, no longer
+stepped, and its outputs frozen at rest where it was last sound (its last position and
+attitude, no velocity, no rates, the specific force of gravity's reaction, no airspeed).
 """
 
 from __future__ import annotations
@@ -28,12 +34,15 @@ from sim_core.pose import (
     enu_from_ned,
     euler_from_quat,
     flu_from_frd,
+    quat_conjugate,
     quat_enu_flu_from_ned_frd,
     quat_from_euler,
+    quat_rotate,
 )
 
 __all__ = [
     "CONTROLS",
+    "GROUND_MARGIN_M",
     "SixDofGliders",
     "SixDofOutputs",
     "SixDofSpec",
@@ -46,6 +55,9 @@ F8 = NDArray[np.float64]
 #: the columns of a controls array, in order
 CONTROLS = ("aileron", "elevator", "throttle", "rudder")
 _FT = 0.3048
+_G = 9.80665  # m/s², standard gravity: what an accelerometer at rest reads, up
+#: m below JSBSim's terrain past which a vehicle has gone through the ground: down
+GROUND_MARGIN_M = 1.0
 _SLUG = 14.5939029
 _WGS84_A = 6378137.0
 _WGS84_E2 = 6.69437999014e-3
@@ -87,7 +99,8 @@ class SixDofOutputs:
     (N,) its Z-Y-X Euler angles; ``rates`` (N, 3) body rates rad/s FLU; ``specific_force``
     (N, 3) m/s² FLU (what an accelerometer reads: +g up at rest); ``airspeed`` (N,) true
     airspeed m/s; ``geodetic`` (N, 3) JSBSim's own position: latitude, longitude deg and height
-    m above the WGS-84 ellipsoid; ``alive`` (N,) False once a state is not finite."""
+    m above the WGS-84 ellipsoid; ``alive`` (N,) False once the vehicle is down (the module
+    docstring: its rows then hold it at rest where it was last sound)."""
 
     position: F8
     velocity: F8
@@ -164,6 +177,7 @@ class SixDofGliders:
         self._fdm: list[Any] = []
         self._controls = np.zeros((len(self.specs), len(CONTROLS)))
         self._alive = np.ones(len(self.specs), dtype=bool)
+        self._last: SixDofOutputs | None = None  # the last outputs, for a vehicle down
         origins = np.radians([[sp.origin[0], sp.origin[1]] for sp in self.specs]).reshape(-1, 2)
         self._origin_ecef = _ecef(origins[:, 0], origins[:, 1],
                                   np.array([sp.origin[2] for sp in self.specs], dtype=np.float64))
@@ -240,13 +254,15 @@ class SixDofGliders:
         return np.asarray(np.einsum("nij,nj->ni", self._origin_axes, d), dtype=np.float64)
 
     def outputs(self) -> SixDofOutputs:
-        """Every vehicle's state now (:class:`SixDofOutputs`)."""
+        """Every vehicle's state now (:class:`SixDofOutputs`); a vehicle down is held at rest
+        where it was last sound (the module docstring)."""
         n = len(self._fdm)
         v_ned = np.empty((n, 3))
         euler = np.empty((n, 3))
         pqr = np.empty((n, 3))
         f_frd = np.empty((n, 3))
         vt = np.empty(n)
+        agl = np.empty(n)
         for k, fdm in enumerate(self._fdm):
             v_ned[k] = fdm["velocities/v-north-fps"], fdm["velocities/v-east-fps"], \
                 fdm["velocities/v-down-fps"]
@@ -257,15 +273,41 @@ class SixDofGliders:
             f_frd[k] = (fdm["forces/fbx-total-lbs"] / mass, fdm["forces/fby-total-lbs"] / mass,
                         fdm["forces/fbz-total-lbs"] / mass)
             vt[k] = fdm["velocities/vt-fps"]
+            agl[k] = fdm["position/h-agl-ft"] * _FT
         geo = self._geodetic()
+        sound = np.isfinite(np.column_stack([v_ned, euler, pqr, f_frd, vt, geo])).all(axis=1)
+        sound &= agl >= -GROUND_MARGIN_M
+        self._alive &= sound
+        euler[~sound] = 0.0  # a row not sound is replaced below: keep its maths finite
+        geo[~sound] = 0.0
         pos = self._positions(geo)
         quat = quat_enu_flu_from_ned_frd(quat_from_euler(euler[:, 0], euler[:, 1], euler[:, 2]))
         roll, pitch, yaw = euler_from_quat(quat)
-        vel = enu_from_ned(v_ned) * _FT
-        self._alive &= np.isfinite(np.concatenate([pos, vel, quat, f_frd], axis=1)).all(axis=1)
-        return SixDofOutputs(
-            position=pos, velocity=vel, quat=quat, roll=roll, pitch=pitch, yaw=yaw,
-            rates=flu_from_frd(pqr), specific_force=flu_from_frd(f_frd) * _FT,
-            airspeed=vt * _FT, alive=self._alive.copy(),
+        out = SixDofOutputs(
+            position=pos, velocity=enu_from_ned(v_ned) * _FT, quat=quat, roll=roll,
+            pitch=pitch, yaw=yaw, rates=flu_from_frd(pqr),
+            specific_force=flu_from_frd(f_frd) * _FT, airspeed=vt * _FT,
+            alive=self._alive.copy(),
             geodetic=np.column_stack([np.degrees(geo[:, 0]), np.degrees(geo[:, 1]), geo[:, 2]]),
         )
+        down = ~self._alive
+        if down.any():
+            out = self._at_rest(out, down)
+        self._last = out
+        return out
+
+    def _at_rest(self, out: SixDofOutputs, down: NDArray[np.bool_]) -> SixDofOutputs:
+        """``out`` with the rows ``down`` held at rest where the previous outputs had them."""
+        last = out if self._last is None else self._last
+        fields: dict[str, Any] = {}
+        for name in ("position", "quat", "roll", "pitch", "yaw", "geodetic"):
+            now, was = getattr(out, name), getattr(last, name)
+            fields[name] = np.where(down.reshape(-1, *([1] * (now.ndim - 1))), was, now)
+        rest = np.zeros((int(down.sum()), 3))
+        up = quat_rotate(quat_conjugate(fields["quat"][down]), np.array([0.0, 0.0, _G]))
+        for name, value in (("velocity", rest), ("rates", rest), ("specific_force", up),
+                            ("airspeed", 0.0)):
+            a = getattr(out, name).copy()
+            a[down] = value
+            fields[name] = a
+        return SixDofOutputs(alive=out.alive, **fields)

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from sim_core.config import from_dict
 from sim_core.pose import quat_rotate
 from sim_core.sixdof import (
+    GROUND_MARGIN_M,
     SixDofGliders,
     SixDofSpec,
     enu_from_geodetic,
@@ -141,6 +142,35 @@ def test_same_inputs_same_bits() -> None:
         o = g.outputs()
         runs.append(np.concatenate([o.position.ravel(), o.quat.ravel(), o.specific_force.ravel()]))
     assert runs[0].tobytes() == runs[1].tobytes()
+
+
+def test_a_glider_that_comes_down_is_held_at_rest_where_it_was_last_sound() -> None:
+    # banked hard from 30 m: it hits the ground, rolls onto its wing and (JSBSim's contact
+    # points are its skid and wheel) falls through the terrain, where JSBSim's state goes NaN
+    g = SixDofGliders([SixDofSpec(airspeed_mps=20.0)], np.array([[0.0, 0.0, 30.0]]),
+                      np.zeros(1))
+    u = np.array([[0.5, 0.0, 0.0, 0.0]])
+    down_at, held = None, None
+    for k in range(2500):
+        g.step(0.01, u, _still)
+        o = g.outputs()
+        rows = np.concatenate([o.position, o.velocity, o.quat, o.rates, o.specific_force,
+                               o.geodetic], axis=1)
+        assert np.isfinite(rows).all() and np.isfinite(o.airspeed).all()
+        if not o.alive[0] and down_at is None:
+            down_at, held = k, o
+        if down_at is not None:
+            assert not o.alive[0]
+            np.testing.assert_array_equal(o.position, held.position)  # type: ignore[union-attr]
+            np.testing.assert_array_equal(o.quat, held.quat)  # type: ignore[union-attr]
+    assert down_at is not None and 5 <= down_at / 100 <= 25
+    assert held is not None and held.position[0, 2] > -GROUND_MARGIN_M - 1.0
+    np.testing.assert_array_equal(held.velocity, 0.0)
+    np.testing.assert_array_equal(held.rates, 0.0)
+    assert held.airspeed[0] == 0.0
+    # at rest the accelerometer reads gravity's reaction: +g up in the world
+    np.testing.assert_allclose(quat_rotate(held.quat[0], held.specific_force[0]), [0.0, 0.0, G],
+                               atol=1e-9)
 
 
 def test_controls_are_clipped_and_nan_is_neutral() -> None:
