@@ -167,9 +167,10 @@ def _bus_section() -> str:
     lat_rows = []
     for k, (_, _, dc) in enumerate(runs):
         lat = dc["echo_to_can_us"]
+        cpu = dc["echo_cpu_us"]
         lat_rows.append([f"launch {k + 1}", lat["n"], f"{lat['p50']:.0f}", f"{lat['p90']:.0f}",
-                         f"{lat['p99']:.0f}", f"{lat['max']:.0f}", dc["measurements_sent"],
-                         dc["transfers_bad"]])
+                         f"{lat['p99']:.0f}", f"{lat['max']:.0f}", f"{cpu['p50']:.0f}",
+                         f"{cpu['p99']:.0f}", dc["measurements_sent"], dc["transfers_bad"]])
     p99 = median([dc["echo_to_can_us"]["p99"] for _, _, dc in runs])
     p50 = median([dc["echo_to_can_us"]["p50"] for _, _, dc in runs])
     return (
@@ -180,16 +181,19 @@ def _bus_section() -> str:
         f"**{bound:.1f} %** if every frame were stuffed to the bound: goal (issue 42) ≤ 30 % "
         f"{'✓' if bound <= 30 else '✗'}. Two ranges at 20 Hz (one `Measurement` per ear of "
         "the sonar), air data at 50 Hz (`RawAirData`, `StaticPressure`, `StaticTemperature`), "
-        "`Fix2` at 10 Hz, the peer's `ArrayCommand` (4 servos, 3 frames) at 50 Hz, each "
-        "node's `NodeStatus` at 1 Hz and the peer's `GetNodeInfo`.\n\n"
+        "`Fix2` at 10 Hz, the peer's `ArrayCommand` (4 servos, 3 frames) at 50 Hz and each "
+        "node's `NodeStatus` at 1 Hz (allocation and `GetNodeInfo` came before the window)."
+        "\n\n"
         f"### Echo → `Measurement` on the bus, added by the node ({REPEAT} launches of "
         f"{WINDOW_S + 13:.0f} s or so)\n\n"
-        + table(["run", "echoes", "µs p50", "p90", "p99", "max", "Measurements sent",
-                 "transfers dropped"], lat_rows)
+        + table(["run", "echoes", "µs p50", "p90", "p99", "max", "CPU µs p50", "CPU p99",
+                 "Measurements sent", "transfers dropped"], lat_rows)
         + f"\n\nMedian p50 {p50:.0f} µs, p99 **{p99:.0f} µs**: goal (issue 42) ≤ 1000 µs p99 "
         f"{'✓' if p99 <= 1000 else '✗'}. The node's time from an echo's arrival in its bus "
-        "callback to its last frame handed to the socket, in a launch whose server computes "
-        "the echoes and steps the glider on the same 2 cores."
+        "callback to its last frame handed to the socket (`echo_to_can_us`), and the CPU "
+        "time its thread spent meanwhile (`echo_cpu_us`; the rest it waited for a core), in "
+        "a launch whose server computes the echoes and steps the glider, and whose flight "
+        f"controller stand-in runs, on the same {os.cpu_count()} cores."
     )
 
 

@@ -27,7 +27,9 @@ A transfer that cannot be taken (a multi-frame CRC that fails, a toggle or trans
 an unknown data type, a payload that does not decode) is dropped and counted by its reason
 (``transfers_bad``); a datagram of ``mcast:`` that is not a frame is counted by the driver.
 ``echo_to_can_us``: the node's time from an echo's arrival to its last ``Measurement`` written
-(the rule runs in the bus callback that receives the echo: no thread hand-off).
+(the rule runs in the bus callback that receives the echo: no thread hand-off);
+``echo_cpu_us``: the CPU time of that thread meanwhile (the rest is waiting for a core or
+for the interpreter).
 """
 
 from __future__ import annotations
@@ -187,6 +189,7 @@ class DroneCanNode:
         self._c = dict.fromkeys(_COUNTERS, 0)
         self._bad: dict[str, int] = {}
         self._echo_us: deque[float] = deque(maxlen=100_000)
+        self._cpu_us: deque[float] = deque(maxlen=100_000)
         self._surfaces = (0.0, 0.0, 0.0, 0.0)
         self._outgoing: Any = None  # the newest command to publish
         self._state: Any = None
@@ -280,6 +283,7 @@ class DroneCanNode:
         with self._lock:
             lat = list(self._echo_us)
         out["echo_to_can_us"] = percentiles(lat)
+        out["echo_cpu_us"] = percentiles(list(self._cpu_us))
         return out
 
     def failure(self, *, final: bool = False) -> str | None:
@@ -430,6 +434,7 @@ class DroneCanNode:
     def _on_echo(self, msg: Any) -> None:
         """An echo of a listed sonar: its Measurements, from this callback (no hand-off)."""
         arrived = time.monotonic_ns()
+        cpu0 = time.thread_time_ns()
         p = self.params
         sonar = self._sonars.get(int(msg.sonar_id))
         if sonar is None:
@@ -454,3 +459,4 @@ class DroneCanNode:
         if self._broadcast(msgs, "measurements_sent", "measurements_unsent"):
             with self._lock:
                 self._echo_us.append((time.monotonic_ns() - arrived) / 1e3)
+                self._cpu_us.append((time.thread_time_ns() - cpu0) / 1e3)

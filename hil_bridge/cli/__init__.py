@@ -33,6 +33,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ros2": ("ros2_bridge.cli", "bridge|mapping: the live ROS 2 bridge (extra 'ros2')"),
     "ardupilot": ("drivers.ardupilot.cli", "sitl|polar: ArduPilot SITL in the loop (JSON)"),
     "mavlink": ("drivers.mavlink.cli", "px4|rangefinder: PX4 HIL, echo ranges into any autopilot"),
+    "dronecan": ("drivers.dronecan.cli", "node: echoloop as DroneCAN peripherals of a flight "
+                 "controller"),
 }
 
 

@@ -146,3 +146,21 @@ def test_the_dronecan_launch_feeds_a_flight_controller(domain: Domain) -> None:
     assert dc["air_data_sent"] > 0 and dc["gnss_sent"] > 0
     assert dc["surfaces_published"] > 0 and server["surfaces_applied"] > 0
     assert dc["transfers_bad"] == 0
+
+
+def test_echoloop_dronecan_node_runs_alone_beside_a_flight_controller(domain: Domain) -> None:
+    assert domain.number is not None
+    fc = peer(domain.number, "--seconds", "8")
+    cmd = [sys.executable, "-m", "hil_bridge.cli", "dronecan", "node", "--domain",
+           str(domain.number), "--param", "vehicle_id=7", "--duration", "6", "--json",
+           "--expect", "dronecan.allocation_requests >= 1"]
+    run = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    seen = report(fc)
+    assert run.returncode == 0, run.stderr[-2000:]
+    me = json.loads(run.stdout)["nodes"]["dronecan"]["node_id"]
+    assert me and seen["node_status"][str(me)] >= 2
+    assert seen["node_info"][str(me)]["name"] == "org.echoloop.sim"
+    bad = subprocess.run([*cmd[:-2], "--param", "node_id=300"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120)
+    lines = bad.stderr.strip().splitlines()
+    assert bad.returncode == 1 and len(lines) == 1 and "node_id" in lines[0] and "300" in lines[0]
