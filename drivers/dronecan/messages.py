@@ -9,8 +9,9 @@ FRD):
   the minimum below it, ``TOO_FAR`` with the maximum where the echo has no return in reach;
   ``sensor_type`` sonar; ``field_of_view`` rad; the beam's axis as a coarse orientation in
   the body (yaw and pitch in 12° steps, ``ANGLE_MULTIPLIER``). ``range`` is a float16: 11
-  significant bits, so a range is rounded to 2⁻⁸ m (3.9 mm) from 2 to 4 m, 2⁻⁷ m (7.8 mm) from 4
-  to 8 m and 2⁻⁶ m (15.6 mm) from 8 to 16 m;
+  significant bits, so a range is a multiple of 2⁻¹⁰ m (0.98 mm) from 1 to 2 m, 2⁻⁹ m
+  (1.95 mm) from 2 to 4 m, 2⁻⁸ m (3.9 mm) from 4 to 8 m and 2⁻⁷ m (7.8 mm) from 8 to 16 m,
+  rounded to the nearest (an error of at most half that step);
 * :func:`raw_air_data`, :func:`static_pressure`, :func:`static_temperature`: the pitot and
   barometer (Pa, K);
 * :func:`fix2`: ``uavcan.equipment.gnss.Fix2``, a 3-D fix (1e-8°, mm, NED m/s, its
