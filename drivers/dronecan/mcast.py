@@ -16,6 +16,7 @@ is 0: frames never leave the host.
 
 from __future__ import annotations
 
+import binascii
 import select
 import socket
 import struct
@@ -23,7 +24,6 @@ import threading
 from typing import Any
 
 from dronecan.driver.common import AbstractDriver, CANFrame
-from dronecan.dsdl.common import crc16_from_bytes
 
 __all__ = ["MCAST_PORT", "McastDriver"]
 
@@ -31,6 +31,12 @@ MCAST_PORT = 57732
 _MAGIC = 0x2934
 _FLAG_CANFD = 0x0001
 _EFF = 1 << 31
+
+
+def _crc(data: bytes) -> int:
+    """The datagram's CRC-16-CCITT (initial 0xFFFF, polynomial 0x1021: the ``dronecan``
+    package's ``crc16_from_bytes``), in C: the package's runs in Python, 10 µs a frame."""
+    return binascii.crc_hqx(data, 0xFFFF)
 
 
 class McastDriver(AbstractDriver):
@@ -73,7 +79,7 @@ class McastDriver(AbstractDriver):
         body = struct.pack("<HI", _FLAG_CANFD if canfd else 0,
                            message_id | (_EFF if extended else 0)) + bytes(message)
         with self._lock:
-            self._tx.send(struct.pack("<HH", _MAGIC, crc16_from_bytes(body)) + body)
+            self._tx.send(struct.pack("<HH", _MAGIC, _crc(body)) + body)
             self.counts["frames_out"] += 1
 
     def send_frame(self, frame: CANFrame) -> None:
@@ -106,7 +112,7 @@ class McastDriver(AbstractDriver):
             self.counts["bad_datagrams"] += 1
             return None
         magic, crc, flags, message_id = struct.unpack_from("<HHHI", data)
-        if magic != _MAGIC or crc != crc16_from_bytes(data[4:]):
+        if magic != _MAGIC or crc != _crc(data[4:]):
             self.counts["bad_datagrams"] += 1
             return None
         self.counts["frames_in"] += 1

@@ -29,6 +29,16 @@ from sim_core.sensors import GpsFix
 uc = dronecan.uavcan.equipment
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=80))
+def test_the_datagram_crc_is_the_package_s(data: bytes) -> None:
+    from dronecan.dsdl.common import crc16_from_bytes
+
+    from drivers.dronecan.mcast import _crc
+
+    assert _crc(data) == crc16_from_bytes(data)
+
+
 def test_mcast_frames_cross_and_noise_is_counted() -> None:
     a, b, other = McastDriver(201), McastDriver(201), McastDriver(202)
     try:
