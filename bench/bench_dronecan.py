@@ -194,7 +194,8 @@ def _bus_section() -> str:
         "callback to its last frame handed to the socket (`echo_to_can_us`), and the CPU "
         "time its thread spent meanwhile (`echo_cpu_us`; the rest it waited for a core), in "
         "a launch whose server computes the echoes and steps the glider, and whose flight "
-        f"controller stand-in runs, on the same {os.cpu_count()} cores."
+        f"controller stand-in runs, on the same {os.cpu_count()} cores; the launch runs the "
+        "server and the node under `SCHED_FIFO` where the OS allows it (`realtime:`)."
     )
 
 
