@@ -24,6 +24,7 @@ fleet.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -46,6 +47,8 @@ from sim_core.flight import (
     path_states,
 )
 from sim_core.scene import Scene
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Fleet", "FleetStates"]
 
@@ -140,8 +143,8 @@ class Fleet:
             self._surfaces = np.zeros((len(self._sixdof_specs), len(CONTROLS)))
         self._sixdof_out: Any = None
         self._sixdof_up = np.ones(len(self._sixdof_specs), dtype=bool)
-        #: (vehicle id, ENU position) of each 6-DoF vehicle that came down since it was read
-        self.came_down: list[tuple[int, F8]] = []
+        #: 6-DoF vehicles that came down (each warned of once)
+        self.vehicles_down = 0
         self._vy = np.zeros((6, n_c))
         for i, v in enumerate(self._commanded):
             self._vy[:, i] = self._takeover_state(v.id, 0)
@@ -254,7 +257,11 @@ class Fleet:
         if self.sixdof is not None:
             so = self._sixdof_out = self.sixdof.outputs()
             for i in np.flatnonzero(self._sixdof_up & ~so.alive):
-                self.came_down.append((self._sixdof_specs[i].id, so.position[i].copy()))
+                x, y, z = so.position[i]
+                log.warning("vehicle %d came down at t = %.2f s, (%.1f, %.1f, %.1f) m: held at "
+                            "rest there (alive false)", self._sixdof_specs[i].id,
+                            self.t_ns / 1e9, x, y, z)
+                self.vehicles_down += 1
             self._sixdof_up = so.alive.copy()
             blocks.append((list(self._sindex), {
                 "position": so.position, "velocity": so.velocity, "heading": so.yaw,

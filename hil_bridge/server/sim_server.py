@@ -175,7 +175,6 @@ BUS_SYNC_S = 10.0
 _COUNTERS = (
     "ticks", "physics_steps", "control_steps", "states_published", "neighbors_published",
     "clock_published", "late_ticks", "diagnostics_published", "external_steps", "fdm_published",
-    "vehicles_down",
 )
 
 
@@ -381,6 +380,7 @@ class SimServer:
         out["echo_compute_ms"] = percentiles(sonars["echo_compute_ms"])
         if self.scene.spec.swarm is not None and "swarm" in self.scene.built:
             out["gliders_alive"] = int(np.count_nonzero(self.fleet.swarm.alive[0]))
+        out["vehicles_down"] = self.fleet.vehicles_down
         return out
 
     def failure(self, *, final: bool = False) -> str | None:
@@ -571,13 +571,6 @@ class SimServer:
                     self._c["control_steps"] += 1
                 self._record_flown(commands)
             states = fleet.states()
-            while fleet.came_down:
-                vid, (x, y, z) = fleet.came_down.pop(0)
-                log.warning("%s: vehicle %d came down at t = %.2f s, (%.1f, %.1f, %.1f) m: "
-                            "held at rest there (alive false)", self.name, vid, t_ns / 1e9,
-                            x, y, z)
-                with self._lock:
-                    self._c["vehicles_down"] += 1
             with self._lock:
                 self._sim_ns = max(self._sim_ns, t_ns)
             if t_ns > self.clock.now_ns():
