@@ -105,8 +105,11 @@ def test_arduplane_enters_thermal_and_climbs(domain: Domain, tmp_path: Path) -> 
         mav.mav.command_long_send(mav.target_system, mav.target_component,
                                   mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 21196,
                                   0, 0, 0, 0, 0)
+        armed_s: float | None = None  # the boot clock of the first position after arming
         entered: float | None = None  # height above the origin when THERMAL began
+        entered_s = 0.0
         best = height = -1e9
+        boot_s = 0.0
         deadline = time.monotonic() + 900
         while time.monotonic() < deadline and not (entered is not None
                                                    and best - entered >= CLIMB_M):
@@ -117,9 +120,15 @@ def test_arduplane_enters_thermal_and_climbs(domain: Domain, tmp_path: Path) -> 
             if msg.get_type() == "GLOBAL_POSITION_INT":
                 height = msg.relative_alt / 1000.0
                 best = max(best, height)
+                boot_s = msg.time_boot_ms / 1e3
+                armed_s = boot_s if armed_s is None else armed_s
             elif msg.custom_mode == THERMAL and entered is None and height > -1e9:
-                entered = best = height
+                entered, best, entered_s = height, height, boot_s
         assert entered is not None, "ArduPlane never switched to THERMAL"
+        print(f"THERMAL entered {entered_s:.0f} s after boot"
+              + ("" if armed_s is None else f", {entered_s - armed_s:.0f} s after arming "
+                 f"(armed {armed_s:.0f} s after boot)")
+              + f", at {entered:.0f} m; reached {best:.0f} m")
         assert best - entered >= CLIMB_M, (
             f"in THERMAL from {entered:.0f} m the glider reached only {best:.0f} m")
     finally:
