@@ -21,7 +21,8 @@ package (its DSDL and transfers):
   ``esc.RawCommand``) become the 6-DoF vehicle's surfaces on ``/glider/<id>/surfaces``
   (``actuators``: ArduPilot's servo order by default), or, with ``profile: pointmass``,
   commanded bank and airspeed (``/glider/<id>/cmd``: the aileron's [-1, 1] times
-  ``bank_max_rad``, the elevator's across ``airspeed_mps``).
+  ``bank_max_rad``, a positive aileron rolling right, so to a negative bank: echoloop's bank,
+  the seed's, is positive in a left turn; the elevator's across ``airspeed_mps``).
 
 A transfer that cannot be taken (a multi-frame CRC that fails, a toggle or transfer-id error,
 an unknown data type, a payload that does not decode) is dropped and counted by its reason
@@ -87,7 +88,8 @@ class SonarSensor:
 
 @dataclass(frozen=True, slots=True)
 class PointMass:
-    """What commands mean to a point-mass vehicle: bank = aileron × ``bank_max_rad``,
+    """What commands mean to a point-mass vehicle: bank = −aileron × ``bank_max_rad`` (a
+    positive aileron rolls right; the bus's bank is positive to the left),
     airspeed from ``airspeed_mps[0]`` (elevator -1) to ``airspeed_mps[1]`` (+1)."""
 
     bank_max_rad: float = 0.6
@@ -389,7 +391,7 @@ class DroneCanNode:
         else:
             pm = self.params.pointmass
             lo, hi = pm.airspeed_mps
-            self._outgoing = GliderCmd(stamp_ns=stamp, bank_cmd=a * pm.bank_max_rad,
+            self._outgoing = GliderCmd(stamp_ns=stamp, bank_cmd=-a * pm.bank_max_rad,
                                        airspeed_cmd=lo + (e + 1.0) / 2.0 * (hi - lo),
                                        glider_id=vid, step=step)
 

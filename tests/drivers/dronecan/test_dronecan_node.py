@@ -109,6 +109,32 @@ def test_a_flight_controller_allocates_hears_and_drives_the_node(domain: Domain)
     assert node.failure(final=True) is None
 
 
+def test_a_point_mass_profile_turns_servo_commands_into_bank_and_airspeed(
+        domain: Domain) -> None:
+    from hil_bridge.bus.messages import GliderCmd
+
+    assert domain.number is not None
+    bus = f"mem://dronecan_pm_{domain.number}"
+    node = DroneCanNode("dronecan", bus=bus, vehicle_id=3, interface=f"mcast:{domain.number}",
+                        node_id=42, profile="pointmass",
+                        pointmass={"bank_max_rad": 0.6, "airspeed_mps": [9.0, 16.0]})
+    sim = Node("sim", bus=bus)
+    cmds: list[GliderCmd] = []
+    sim.create_subscription(GliderCmd, "/glider/3/cmd", cmds.append)
+    sim.start()
+    node.start()
+    try:
+        report(peer(domain.number, "--seconds", "3", "--servo-hz", "20", "--aileron", "-0.5"))
+    finally:
+        node.stop()
+        sim.stop()
+    assert node.stats()["cmds_published"] > 0 and cmds
+    # aileron -0.5 rolls left; the bus's bank is positive in a left turn (docs/bus.md)
+    assert cmds[-1].bank_cmd == pytest.approx(0.5 * 0.6)
+    assert cmds[-1].airspeed_cmd == pytest.approx(12.5)  # elevator neutral: mid-range
+    assert cmds[-1].glider_id == 3
+
+
 def test_bad_params_fail_at_load() -> None:
     with pytest.raises(ConfigError, match="node_id"):
         DroneCanNode("dronecan", bus="mem://x", vehicle_id=7, interface="mcast:0", node_id=200)
