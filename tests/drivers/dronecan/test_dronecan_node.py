@@ -190,3 +190,53 @@ def test_echoloop_dronecan_node_runs_alone_beside_a_flight_controller(domain: Do
                          text=True, timeout=120)
     lines = bad.stderr.strip().splitlines()
     assert bad.returncode == 1 and len(lines) == 1 and "node_id" in lines[0] and "300" in lines[0]
+
+
+def test_a_bus_of_noise_is_dropped_and_counted_and_the_node_carries_on(domain: Domain) -> None:
+    """Seeded noise on the node's bus: frames of every id and length (single- and multi-frame
+    tails, services, anonymous, standard ids), datagrams that are not frames; the node
+    neither fails nor stops, and then still takes a servo command."""
+    import socket
+
+    from drivers.dronecan.mcast import MCAST_PORT, McastDriver
+
+    assert domain.number is not None
+    n = domain.number
+    bus = f"mem://dronecan_noise_{n}"
+    node = DroneCanNode("dronecan", bus=bus, vehicle_id=7, interface=f"mcast:{n}", node_id=42)
+    sim = Node("sim", bus=bus)
+    surfaces: list[SurfaceCmd] = []
+    sim.create_subscription(SurfaceCmd, "/glider/7/surfaces", surfaces.append)
+    sim.start()
+    node.start()
+    noise = McastDriver(n)
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    raw.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
+    rng = np.random.default_rng(42)
+    try:
+        for k in range(3000):
+            if k % 10 == 9:
+                raw.sendto(rng.bytes(int(rng.integers(0, 40))), (f"239.65.82.{n}", MCAST_PORT))
+                continue
+            data = bytearray(rng.bytes(int(rng.integers(0, 9))))
+            if data and rng.random() < 0.5:  # a plausible tail byte: start/end/toggle/id
+                data[-1] = (data[-1] & 0x1F) | int(rng.choice([0xC0, 0x80, 0x40, 0x00, 0x20]))
+            extended = bool(rng.random() < 0.9)
+            fid = int(rng.integers(0, 1 << 29 if extended else 1 << 11))
+            noise.send(fid, bytes(data), extended=extended)
+            if k % 100 == 0:
+                time.sleep(0.005)  # let the node keep up: a bus, not a flood
+        fc = peer(n, "--seconds", "2", "--servo-hz", "20", "--aileron", "0.25")
+        report(fc)
+        time.sleep(0.2)
+    finally:
+        raw.close()
+        noise.close()
+        node.stop()
+        sim.stop()
+    st = node.stats()
+    assert node.failure(final=True) is None
+    assert st["frames_in"] >= 2000 and st["driver"]["bad_datagrams"] >= 250
+    assert {"unrecognised message", "unrecognised service", "toggle bit"} <= set(
+        st["transfers_bad_by"])
+    assert st["array_commands"] > 0 and surfaces[-1].aileron == pytest.approx(0.25, abs=1e-3)
