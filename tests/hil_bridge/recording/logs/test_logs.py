@@ -234,8 +234,6 @@ def test_replay_cli_flies_a_tlog_and_reports_what_it_read(
 
 
 def _bad_files(d: Path) -> dict[str, Path]:
-    import os
-
     write_ulog(d / "good.ulg", truth(POS_T), truth(ATT_T), local=True, glob=False)
     write_dataflash(d / "good.bin", truth(POS_T), truth(ATT_T))
     ulg, df = (d / "good.ulg").read_bytes(), (d / "good.bin").read_bytes()
@@ -246,8 +244,8 @@ def _bad_files(d: Path) -> dict[str, Path]:
         "dataflash magic then garbage": b"\xa3\x95" + bytes(rng.integers(0, 256, 500,
                                                                          dtype=np.uint8)),
         "empty tlog": b"",
-        "sqlite magic then garbage": b"SQLite format 3\x00" + os.urandom(200),
-        "mcap magic then garbage": b"\x89MCAP0\r\n" + os.urandom(200),
+        "sqlite magic then garbage": b"SQLite format 3\x00" + rng.bytes(200),
+        "mcap magic then garbage": b"\x89MCAP0\r\n" + rng.bytes(200),
         "empty csv": b"",
         "csv header only": b"t,x,y,z\n",
     }
@@ -259,6 +257,23 @@ def _bad_files(d: Path) -> dict[str, Path]:
     (d / "cut.ulg").write_bytes(ulg[: len(ulg) // 2 + 3])
     (d / "cut.bin").write_bytes(df[: len(df) // 2 + 5])
     return out
+
+
+def test_any_garbage_after_a_bag_s_magic_fails_with_one_line_naming_the_file(
+        tmp_path: Path) -> None:
+    """Seeded garbage behind MCAP's and SQLite's magic: rosbags raises TypeError,
+    OverflowError or MemoryError on some of it (about 1 in 100), besides its own errors; each
+    file fails with one ValueError naming it."""
+    rng = np.random.default_rng(0)
+    for k in range(1500):
+        magic, ext = ((b"\x89MCAP0\r\n", "mcap"), (b"SQLite format 3\x00", "db3"))[k % 2]
+        path = tmp_path / f"g{k}.{ext}"
+        path.write_bytes(magic + rng.bytes(int(rng.integers(0, 400))))
+        with pytest.raises(ValueError) as info:
+            read_log(path)
+        msg = str(info.value)
+        assert msg.startswith(f"{path}: ") and "\n" not in msg, msg
+        path.unlink()
 
 
 def test_bad_files_fail_with_one_line_naming_the_file_and_parsers_stay_quiet(
