@@ -9,10 +9,7 @@ controller's CAN adapter is plugged into; every option of ``echoloop run`` appli
 
 from __future__ import annotations
 
-import argparse
-import sys
-
-from hil_bridge.cli import run as run_cli
+from hil_bridge.cli.run import node_commands
 
 ENTRIES = {
     "node": ("drivers.dronecan.node:DroneCanNode",
@@ -20,15 +17,6 @@ ENTRIES = {
 }
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="echoloop dronecan",
-                                description="A stock flight controller on CAN (DroneCAN).")
-    sub = p.add_subparsers(dest="command", required=True)
-    for name, (_, text) in ENTRIES.items():
-        sub.add_parser(name, help=f"{text} (other options: those of `echoloop run`)")
-    return p
-
-
 def main(argv: list[str] | None = None) -> int:
-    args, rest = _parser().parse_known_args(sys.argv[1:] if argv is None else argv)
-    return run_cli.main([ENTRIES[args.command][0], "--name", "dronecan", *rest])
+    return node_commands("echoloop dronecan", "A stock flight controller on CAN (DroneCAN).",
+                         ENTRIES, argv, node_name="dronecan")

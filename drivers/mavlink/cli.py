@@ -8,10 +8,7 @@ every option of ``echoloop run`` applies (``--param vehicle_id=7``,
 
 from __future__ import annotations
 
-import argparse
-import sys
-
-from hil_bridge.cli import run as run_cli
+from hil_bridge.cli.run import node_commands
 
 ENTRIES = {
     "px4": ("drivers.mavlink.px4:Px4Hil", "PX4's simulator interface (SITL on TCP 4560 + N, "
@@ -22,16 +19,6 @@ ENTRIES = {
 }
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="echoloop mavlink",
-                                description="Stock autopilots in the loop over MAVLink.")
-    sub = p.add_subparsers(dest="command", required=True)
-    for name, (_, text) in ENTRIES.items():
-        sub.add_parser(name, help=f"{text} (other options: those of `echoloop run`)")
-    return p
-
-
 def main(argv: list[str] | None = None) -> int:
-    args, rest = _parser().parse_known_args(sys.argv[1:] if argv is None else argv)
-    entry = ENTRIES[args.command][0]
-    return run_cli.main([entry, "--name", args.command, *rest])
+    return node_commands("echoloop mavlink", "Stock autopilots in the loop over MAVLink.",
+                         ENTRIES, argv)

@@ -72,3 +72,16 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(format_summary(summary))
     return report_failures(summary, "echoloop run")
+
+
+def node_commands(prog: str, description: str, entries: dict[str, tuple[str, str]],
+                  argv: list[str] | None = None, *, node_name: str | None = None) -> int:
+    """``PROG COMMAND [RUN OPTIONS]`` for a driver's launchable nodes: ``entries`` maps each
+    command to its ``(ENTRY, help)``; the command runs as ``echoloop run ENTRY --name NAME``
+    (NAME: ``node_name``, else the command), every option of ``echoloop run`` applying."""
+    p = argparse.ArgumentParser(prog=prog, description=description)
+    sub = p.add_subparsers(dest="command", required=True)
+    for name, (_, text) in entries.items():
+        sub.add_parser(name, help=f"{text} (other options: those of `echoloop run`)")
+    args, rest = p.parse_known_args(sys.argv[1:] if argv is None else argv)
+    return main([entries[args.command][0], "--name", node_name or args.command, *rest])

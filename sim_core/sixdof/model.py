@@ -277,9 +277,10 @@ class SixDofGliders:
         geo = self._geodetic()
         sound = np.isfinite(np.column_stack([v_ned, euler, pqr, f_frd, vt, geo])).all(axis=1)
         sound &= agl >= -GROUND_MARGIN_M
-        self._alive &= sound
-        euler[~sound] = 0.0  # a row not sound is replaced below: keep its maths finite
-        geo[~sound] = 0.0
+        if not sound.all():
+            self._alive &= sound
+            euler[~sound] = 0.0  # a row not sound is replaced below: keep its maths finite
+            geo[~sound] = 0.0
         pos = self._positions(geo)
         quat = quat_enu_flu_from_ned_frd(quat_from_euler(euler[:, 0], euler[:, 1], euler[:, 2]))
         roll, pitch, yaw = euler_from_quat(quat)

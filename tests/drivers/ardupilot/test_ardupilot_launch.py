@@ -9,26 +9,19 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from drivers.mocks.sitl_double import SitlDouble, WingLeveler
-from hil_bridge.bus.domain import Domain, claim_first_free
+from hil_bridge.bus.domain import Domain
 
 pytestmark = pytest.mark.processes
 
 ROOT = Path(__file__).resolve().parents[3]
 LAUNCH = ROOT / "launch" / "ardupilot_glider.yaml"
 FRAMES = 1500
-
-
-@pytest.fixture
-def domain() -> Iterator[Domain]:
-    with claim_first_free(Domain(int.from_bytes(os.urandom(1)) % 60 + 20)) as (dom, _):
-        yield dom
 
 
 def test_the_glider_launch_flies_a_double_in_lockstep(domain: Domain) -> None:

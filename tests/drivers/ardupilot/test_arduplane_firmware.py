@@ -11,24 +11,20 @@ must climb 30 m above where it entered the thermal.
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from hil_bridge.bus.domain import Domain, claim_first_free
+from hil_bridge.bus.domain import Domain
+from tests.drivers.firmware import SITL, needs_sitl, stop
 
-SITL = os.environ.get("ECHOLOOP_ARDUPILOT_SITL", "")
 pytestmark = [
     pytest.mark.processes,
-    pytest.mark.skipif(not (SITL and os.access(SITL, os.X_OK)),
-                       reason="ECHOLOOP_ARDUPILOT_SITL does not name an arduplane binary"),
+    needs_sitl,
 ]
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -38,22 +34,6 @@ MISSION = ROOT / "launch" / "data" / "ardupilot" / "echoloop-thermal.waypoints"
 AUTO, THERMAL = 10, 24  # ArduPlane's mode numbers
 CLIMB_M = 30.0
 ORIGIN = (47.0, 8.0, 0.0)  # the launch's sixdof origin: SITL's --home and the mission's home
-
-
-@pytest.fixture
-def domain() -> Iterator[Domain]:
-    with claim_first_free(Domain(int.from_bytes(os.urandom(1)) % 40 + 20)) as (dom, _):
-        yield dom
-
-
-def _stop(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def _upload_mission(mav: Any, mavutil: Any) -> None:
@@ -132,5 +112,5 @@ def test_arduplane_enters_thermal_and_climbs(domain: Domain, tmp_path: Path) -> 
         assert best - entered >= CLIMB_M, (
             f"in THERMAL from {entered:.0f} m the glider reached only {best:.0f} m")
     finally:
-        _stop(firmware)
-        _stop(launch)
+        stop(firmware)
+        stop(launch)

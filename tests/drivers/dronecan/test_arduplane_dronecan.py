@@ -15,12 +15,10 @@ receivers at once hear every ``ArrayCommand`` it sends, however few.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -28,35 +26,18 @@ import numpy as np
 import pytest
 import yaml
 
-from hil_bridge.bus.domain import Domain, claim_first_free
+from hil_bridge.bus.domain import Domain
+from tests.drivers.firmware import SITL, needs_sitl, stop
 
-SITL = os.environ.get("ECHOLOOP_ARDUPILOT_SITL", "")
 pytestmark = [
     pytest.mark.processes,
-    pytest.mark.skipif(not (SITL and os.access(SITL, os.X_OK)),
-                       reason="ECHOLOOP_ARDUPILOT_SITL does not name an arduplane binary"),
+    needs_sitl,
 ]
 
 ROOT = Path(__file__).resolve().parents[3]
 DATA = ROOT / "launch" / "data" / "ardupilot"
 PARMS = [DATA / f"echoloop-{n}.parm" for n in ("sgs126", "dronecan", "dronecan-servos")]
 FLY_S = 45.0
-
-
-@pytest.fixture
-def domain() -> Iterator[Domain]:
-    with claim_first_free(Domain(int.from_bytes(os.urandom(1)) % 40 + 20)) as (dom, _):
-        yield dom
-
-
-def _stop(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def _spec(path: Path) -> dict[str, Any]:
@@ -107,10 +88,10 @@ def test_arduplane_takes_echoloop_as_dronecan_peripherals(domain: Domain, tmp_pa
         while time.monotonic() < deadline:  # SITL starts once its SERIAL0 has a peer: read it
             mav.recv_match(blocking=True, timeout=1)
     finally:
-        _stop(firmware)
+        stop(firmware)
         launch.send_signal(signal.SIGTERM)
         out, _ = launch.communicate(timeout=120)
-        _stop(launch)
+        stop(launch)
     nodes = json.loads(out)["nodes"]
     dc, server = nodes["dronecan"], nodes["server"]
     assert dc["node_id"], "the firmware's DNA server gave the node no ID"
@@ -176,7 +157,7 @@ def test_two_receivers_hear_every_servo_command_of_sitl_s_own_plane(tmp_path: Pa
                 node.spin(0)
             time.sleep(0.002)
     finally:
-        _stop(firmware)
+        stop(firmware)
         for node in nodes.values():
             node.close()
     print(f"ArrayCommand heard in 20 s: {counts}")

@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,7 @@ import pytest
 
 from drivers.dronecan.messages import FLOAT16_STEP
 from drivers.dronecan.node import DroneCanNode
-from hil_bridge.bus.domain import Domain, claim_first_free
+from hil_bridge.bus.domain import Domain
 from hil_bridge.bus.messages import SonarEcho, SurfaceCmd
 from hil_bridge.bus.node import Node
 from sim_core.config import ConfigError
@@ -31,12 +30,6 @@ from tests.drivers.mavlink.test_ranges import leaf_echo
 pytestmark = pytest.mark.processes
 
 ROOT = Path(__file__).resolve().parents[3]
-
-
-@pytest.fixture
-def domain() -> Iterator[Domain]:
-    with claim_first_free(Domain(int.from_bytes(os.urandom(1)) % 60 + 20)) as (dom, _):
-        yield dom
 
 
 def peer(bus: int, *args: str) -> subprocess.Popen[str]:

@@ -14,24 +14,20 @@ centimetre of ``DISTANCE_SENSOR``, stored as a float), good ones among them.
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import yaml
 
-from hil_bridge.bus.domain import Domain, claim_first_free
+from hil_bridge.bus.domain import Domain
+from tests.drivers.firmware import SITL, needs_sitl, stop
 
-SITL = os.environ.get("ECHOLOOP_ARDUPILOT_SITL", "")
 pytestmark = [
     pytest.mark.processes,
-    pytest.mark.skipif(not (SITL and os.access(SITL, os.X_OK)),
-                       reason="ECHOLOOP_ARDUPILOT_SITL does not name an arduplane binary"),
+    needs_sitl,
 ]
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -39,22 +35,6 @@ LAUNCH = ROOT / "launch" / "ardupilot_glider.yaml"
 PARMS = [ROOT / "launch" / "data" / "ardupilot" / f"echoloop-{n}.parm"
          for n in ("sgs126", "rangefinder")]
 FLY_S = 45.0
-
-
-@pytest.fixture
-def domain() -> Iterator[Domain]:
-    with claim_first_free(Domain(int.from_bytes(os.urandom(1)) % 40 + 20)) as (dom, _):
-        yield dom
-
-
-def _stop(proc: subprocess.Popen[str]) -> None:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def _low_over_the_forest(path: Path) -> dict:
@@ -101,8 +81,8 @@ def test_arduplane_logs_the_echo_ranges_it_was_sent(domain: Domain, tmp_path: Pa
         while time.monotonic() < deadline:  # SITL starts once its SERIAL0 has a peer: read it
             mav.recv_match(blocking=True, timeout=1)
     finally:
-        _stop(firmware)
-        _stop(launch)
+        stop(firmware)
+        stop(launch)
     rule = from_dict(RangeFinderSpec, spec["nodes"][-1]["params"]["ranges"])
     ranger = EchoRanger(rule)
     sent: set[int] = set()
