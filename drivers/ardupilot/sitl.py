@@ -39,7 +39,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from drivers.ardupilot.json_frames import (
     ChannelMap,
@@ -159,6 +159,9 @@ class _Link:
 class ArduPilotSitl:
     """Launchable SITL JSON node (see the module docstring)."""
 
+    #: a launch puts it in one process with a lockstep server (docs/launch.md, Composition)
+    LOCKSTEP_PARTNER: ClassVar[bool] = True
+
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
         self.name = name
         self.bus = bus
@@ -205,7 +208,7 @@ class ArduPilotSitl:
                 SurfaceCmd, f"/glider/{vid}/surfaces", qos=COMMAND)
             self._node.create_subscription(
                 FdmState, f"/glider/{vid}/fdm", self._on_state_for(ln), qos=SENSOR,
-                priority=True)
+                priority=True, inline=True)
         self._node.start()
         for ln in self._links:
             t = threading.Thread(target=self.faults.guarded(f"SITL of vehicle {ln.spec.vehicle_id}",

@@ -51,7 +51,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from drivers.mavlink.hil import (
     ActuatorMap,
@@ -135,6 +135,9 @@ class _Step:
 class Px4Hil:
     """Launchable PX4 HIL node (see the module docstring)."""
 
+    #: a launch puts it in one process with a lockstep server (docs/launch.md, Composition)
+    LOCKSTEP_PARTNER: ClassVar[bool] = True
+
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
         self.name = name
         self.bus = bus
@@ -201,7 +204,7 @@ class Px4Hil:
         self._pub = self._node.create_publisher(SurfaceCmd, f"/glider/{p.vehicle_id}/surfaces",
                                                 qos=COMMAND)
         self._node.create_subscription(FdmState, f"/glider/{p.vehicle_id}/fdm", self._on_state,
-                                       qos=SENSOR, priority=True)
+                                       qos=SENSOR, priority=True, inline=True)
         if self._ranges is not None:
             for sonar in self._ranges.ranger.spec.sonars:
                 self._node.create_subscription(SonarEcho, f"/sonar/{sonar.sonar_id}/echo",

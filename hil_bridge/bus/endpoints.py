@@ -13,14 +13,17 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 from hil_bridge.bus.clock import SimClock
-from hil_bridge.bus.codec import Envelope, Header, encode_header, encode_payload
+from hil_bridge.bus.codec import Envelope, Header, encode_payload, pack_header
 from hil_bridge.bus.messages import Message
 from hil_bridge.bus.qos import QoSProfile
 from hil_bridge.bus.seq import SeqTracker, Verdict
 from hil_bridge.bus.transport import Transport
+
+if TYPE_CHECKING:
+    from hil_bridge.bus.intra import IntraBus
 
 __all__ = ["EndpointHost", "Lane", "Publisher", "Subscription", "Timer"]
 
@@ -33,11 +36,14 @@ _RELIABLE_QUEUE_MAX = 4096
 class EndpointHost(Protocol):
     """What an endpoint needs of its node (:class:`hil_bridge.bus.node.Node`): its ``src``
     (publisher id in headers), sim ``clock``, ``transport``, the counters of a topic and a way
-    to wake its executor (a reliable publish or a cancelled timer changes what is due)."""
+    to wake its executor (a reliable publish or a cancelled timer changes what is due), and
+    the composed bus its messages are also handed over on in this process
+    (:mod:`hil_bridge.bus.intra`; None: not composed)."""
 
     src: str
     clock: SimClock
     transport: Transport
+    intra: IntraBus | None
 
     def _topic(self, topic: str) -> dict[str, int]: ...
 
@@ -60,6 +66,7 @@ class Publisher(Generic[M]):
         self._lock = threading.Lock()
         self._seq = 0
         self._last: list[bytes] | None = None
+        self._last_local: tuple[Header, M, bytes] | None = None
         self._acked = threading.Condition(self._lock)
         #: seq -> [frames, first_sent_mono, next_retry_mono]
         self._pending: dict[int, list[Any]] = {}
@@ -67,33 +74,43 @@ class Publisher(Generic[M]):
         self._counters = node._topic(topic)
 
     def publish(self, msg: M) -> int:
-        """Send ``msg`` (its ``stamp_ns`` goes in the header); return its ``seq``."""
+        """Send ``msg`` (its ``stamp_ns`` goes in the header); return its ``seq``. On a
+        composed bus it is then handed to this process's subscriptions of the topic
+        (:mod:`hil_bridge.bus.intra`)."""
         if type(msg) is not self.msg_type:
             raise TypeError(
                 f"publisher of {self.topic!r} sends {self.msg_type.__name__}, "
                 f"got {type(msg).__name__}"
             )
+        intra = self.node.intra
         with self._lock:
             seq = self._seq
-            frames = [
-                self.topic_frame,
-                encode_header(
-                    msg, seq=seq, pub_ns=time.monotonic_ns(), frame_id=self.frame_id,
-                    src=self.node.src,
-                ),
-                encode_payload(msg),
-            ]
+            stamp = int(msg.stamp_ns)  # type: ignore[attr-defined]
+            header = Header(msg.TYPE, msg.VERSION, seq, stamp, time.monotonic_ns(),
+                            self.frame_id, self.node.src)
+            payload = encode_payload(msg)
+            frames = [self.topic_frame, pack_header(header), payload]
             self.node.transport.publish(frames)
             self._seq = seq + 1
             self._counters["sent"] += 1
             if self.qos.latched:
                 self._last = frames
+                if intra is not None:
+                    self._last_local = (header, msg, payload)
             if self.qos.reliable:
                 now = time.monotonic()
-                self._pending[seq] = [frames, now, now + self.qos.retry_period_s]
+                self._pending[seq] = [frames, now, now + self.qos.retry_period_s, header, msg]
         if self.qos.reliable:
             self.node._wake_exec()
+        if intra is not None:
+            for deliver, sub in intra.route(self.topic):
+                deliver(sub, header, msg, payload)
         return seq
+
+    def last_local(self) -> tuple[Header, M, bytes] | None:
+        """A latched publisher's last message on a composed bus (header, message, payload)."""
+        with self._lock:
+            return self._last_local
 
     def wait_for_subscribers(self, timeout: float) -> bool:
         """True once a subscription to this topic is known to receive what is published next
@@ -127,10 +144,11 @@ class Publisher(Generic[M]):
     def _retransmit(self, now: float) -> float | None:
         """Re-send due messages; return the next due time (monotonic s) or None."""
         nxt: float | None = None
+        again: list[tuple[Header, M, bytes]] = []
         with self._lock:
             for seq in list(self._pending):
                 entry = self._pending[seq]
-                frames, first, due = entry
+                frames, first, due = entry[:3]
                 if now - first >= self.qos.ack_timeout_s:
                     del self._pending[seq]
                     self._failed.append(seq)
@@ -139,9 +157,15 @@ class Publisher(Generic[M]):
                     continue
                 if now >= due:
                     self.node.transport.publish(frames)
+                    again.append((entry[3], entry[4], frames[2]))
                     self._counters["retransmits"] += 1
                     due = entry[2] = now + self.qos.retry_period_s
                 nxt = due if nxt is None else min(nxt, due)
+        intra = self.node.intra
+        if intra is not None:  # the transport's copy of a re-send is skipped here as loopback
+            for deliver, sub in intra.route(self.topic):
+                for header, msg, payload in again:
+                    deliver(sub, header, msg, payload)
         return nxt
 
     def _resend_latched(self, prefix: bytes) -> None:
@@ -178,6 +202,7 @@ class Subscription(Generic[M]):
         envelope: bool,
         priority: bool = False,
         lane: Lane | None = None,
+        inline: bool = False,
     ) -> None:
         self.node = node
         self.msg_type = msg_type
@@ -186,6 +211,9 @@ class Subscription(Generic[M]):
         self.qos = qos
         self.envelope = envelope
         self.priority = priority
+        #: its callback is short and never blocks: on a composed bus it may run on the
+        #: publishing thread (:meth:`~hil_bridge.bus.executor.Executor.deliver_local`)
+        self.inline = inline
         self._lane = lane if lane is not None else Lane()
         self._lane.priority |= priority
         #: deliveries of this subscription waiting in its lane, at most ``limit``: keep-last

@@ -71,7 +71,10 @@ class Executor:
 
     ``send_ack(topic, header)`` acknowledges a reliable message; ``periodic()`` runs the node's
     own duties in the executor role and returns wall seconds until they are due again;
-    ``counters(topic)`` is the node's counter dict of a topic.
+    ``counters(topic)`` is the node's counter dict of a topic. ``own``: the header bytes that
+    mark this process's composed publishers (:mod:`hil_bridge.bus.intra`): frames holding them
+    came back over the transport after they were handed over in-process, and are skipped
+    (``loopback``) before they are decoded.
     """
 
     def __init__(
@@ -84,6 +87,7 @@ class Executor:
         send_ack: Callable[[str, Header], None],
         periodic: Callable[[], float],
         counters: Callable[[str], dict[str, int]],
+        own: bytes | None = None,
     ) -> None:
         self.name = name
         self.transport = transport
@@ -92,6 +96,9 @@ class Executor:
         self._send_ack = send_ack
         self._periodic = periodic
         self._counters = counters
+        self._own = own
+        #: frames of this process's composed publishers skipped on reception
+        self.loopback = 0
         self._lock = threading.Lock()
         self._cond = threading.Condition()
         #: frame prefix (topic + NUL) -> its subscriptions (replaced, never mutated in place)
@@ -134,6 +141,10 @@ class Executor:
         with self._lock:
             self._timers.append(timer)
         self.wake()
+
+    def subscriptions(self) -> list[Subscription[Any]]:
+        with self._lock:
+            return [sub for subs in self._subs.values() for sub in subs]
 
     @property
     def has_timers(self) -> bool:
@@ -268,6 +279,7 @@ class Executor:
         transport = self.transport
         cond = self._cond
         gen = self._lead_gen
+        own = self._own
         try:
             while not self.stopping:
                 now = time.monotonic()
@@ -279,6 +291,9 @@ class Executor:
                     self._window_t0, self._window_n = now, 0
                 frames = transport.recv(timeout=_RX_SLICE_S)
                 if frames is None:
+                    continue
+                if own is not None and len(frames) == 3 and own in frames[1]:
+                    self.loopback += 1  # handed over in-process already
                     continue
                 self._window_n += 1
                 subs = self._subs.get(frames[0])
@@ -400,6 +415,45 @@ class Executor:
         self._next_reset[frame] = now + max(_MIN_RESET_PERIOD_S, age_s)
         self.transport.reset(frame)
         sub._counters["queue_resets"] = sub._counters.get("queue_resets", 0) + 1
+
+    # -- composition -------------------------------------------------------------------------
+    def deliver_local(self, sub: Subscription[Any], header: Header, msg: Message,
+                      payload: bytes) -> None:
+        """A message handed over in-process (:mod:`hil_bridge.bus.intra`), with the QoS of
+        ``sub`` (``max_age_s``, acknowledgement, per-publisher ``seq`` accounting, keep-last
+        depth): it queues as a received message does, or, for a subscription made
+        ``inline=True``, its callback runs here on the publishing thread when the executor role
+        is free, nothing is queued and the workers run (no thread hand-off)."""
+        if self.stopping:
+            return
+        counters = sub._counters
+        if sub.max_age_ns is not None and self.clock.now_ns() - header.stamp_ns > sub.max_age_ns:
+            counters["stale"] += 1
+            return
+        if sub.qos.reliable:
+            self._send_ack(sub.topic, header)
+        if sub._is_duplicate(header):
+            counters["duplicates"] += 1
+            return
+        counters["received"] += 1
+        counters["local"] += 1
+        envelope = Envelope(sub.topic, header, msg, payload)
+        cond = self._cond
+        with cond:
+            inline = sub.inline and not self._busy and not self._ready_hi and not self._ready \
+                and bool(self._threads)
+            if inline:
+                self._busy = True
+            else:
+                self._enqueue(sub, envelope)
+                cond.notify_all()
+        if inline:
+            self._run_callback(sub, envelope)
+            with cond:
+                self._busy = False
+                if (self._ready_hi or self._ready
+                        or time.monotonic() >= self._next_housekeeping):
+                    cond.notify_all()
 
     # -- the executor role -------------------------------------------------------------------
     def _run_callback(self, sub: Subscription[Any], envelope: Envelope) -> None:

@@ -37,6 +37,7 @@ from hil_bridge.bus.domain import current as current_domain
 from hil_bridge.bus.endpoints import Publisher, Subscription, Timer
 from hil_bridge.bus.executor import DECODE_LOG_PERIOD_S, Executor
 from hil_bridge.bus.faults import Faults
+from hil_bridge.bus.intra import intra_bus, own_tag
 from hil_bridge.bus.messages import Clock, CmdAck, Diagnostics, Message
 from hil_bridge.bus.qos import LATCHED, SENSOR, QoSProfile, qos_profile
 from hil_bridge.bus.transport import Transport, open_transport
@@ -62,6 +63,7 @@ def _topic_counters() -> dict[str, int]:
         "retransmits": 0,
         "acked": 0,
         "ack_failed": 0,
+        "local": 0,
     }
 
 
@@ -95,7 +97,10 @@ class Node:
         self.name = name
         self.bus = bus if bus is not None else current_domain().bus_url
         self.clock = clock if clock is not None else default_clock()
-        self.src = f"{name}#{os.getpid():x}.{next(_NODE_IDS)}.{os.urandom(3).hex()}"
+        #: the composed bus this node also delivers on in-process (hil_bridge.bus.intra)
+        self.intra = intra_bus(self.bus)
+        self.src = (f"{name}#{own_tag()}.{next(_NODE_IDS)}" if self.intra is not None else
+                    f"{name}#{os.getpid():x}.{next(_NODE_IDS)}.{os.urandom(3).hex()}")
         self.diagnostics_period_s = diagnostics_period_s
         #: what went wrong in this node (its callbacks, timers, reception, its own threads)
         self.faults = faults if faults is not None else Faults(name)
@@ -112,6 +117,7 @@ class Node:
         self._executor = Executor(
             name, self.transport, self.clock, self.faults, send_ack=self._send_ack,
             periodic=self._periodic, counters=self._topic,
+            own=None if self.intra is None else f"#{own_tag()}.".encode(),
         )
         self.transport.on_subscribe = self._on_remote_subscribe
         self.clock.add_listener(self._clock_stepped)
@@ -141,8 +147,11 @@ class Node:
             self._publishers.append(pub)
             if profile.reliable:
                 self._ack_targets[topic] = pub
+        if self.intra is not None and profile.latched:
+            self.intra.add_latched(topic, pub)
         if profile.reliable:
-            self._add_subscription(CmdAck, f"{topic}/ack", self._on_ack, SENSOR, False, True)
+            self._add_subscription(CmdAck, f"{topic}/ack", self._on_ack, SENSOR, False, True,
+                                   inline=True)
         return pub
 
     def create_subscription(
@@ -155,10 +164,13 @@ class Node:
         envelope: bool = False,
         priority: bool = False,
         lane: str | None = None,
+        inline: bool = False,
     ) -> Subscription[M]:
         """Call ``callback(msg)`` for each ``msg_type`` message on ``topic`` (``envelope=True``:
         ``callback(Envelope)`` with topic, header and raw payload). ``priority=True`` puts the
         subscription on the control path: its callbacks run before any other queued ones.
+        ``inline=True`` says the callback is short and never blocks: on a composed bus
+        (:mod:`hil_bridge.bus.intra`) it may then run on the publishing thread itself.
 
         Every subscription has its own receive queue (its *lane*), served in turn with the
         others, so a flood on one topic cannot hold back another; messages of different lanes
@@ -174,7 +186,7 @@ class Node:
                 if topic not in self._ack_pubs:
                     self._ack_pubs[topic] = self.create_publisher(CmdAck, f"{topic}/ack")
         return self._add_subscription(msg_type, topic, callback, profile, envelope, priority,
-                                      lane)
+                                      lane, inline)
 
     def _add_subscription(
         self,
@@ -185,12 +197,16 @@ class Node:
         envelope: bool,
         priority: bool = False,
         lane: str | None = None,
+        inline: bool = False,
     ) -> Subscription[M]:
         shared = None if lane is None else self._executor.lane(lane)
-        sub = Subscription(self, msg_type, topic, callback, qos, envelope, priority, shared)
+        sub = Subscription(self, msg_type, topic, callback, qos, envelope, priority, shared,
+                           inline)
         frame = topic.encode() + b"\0"
         self._executor.add_subscription(frame, sub)
         self.transport.subscribe(frame, lane=None if lane is None else f"lane:{lane}")
+        if self.intra is not None:
+            self.intra.add_subscription(topic, self._executor.deliver_local, sub)
         return sub
 
     def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
@@ -244,6 +260,10 @@ class Node:
             if self._stopped:
                 return
             self._stopped = True
+        if self.intra is not None:
+            with self._lock:
+                publishers = list(self._publishers)
+            self.intra.remove_node(self._executor.subscriptions(), publishers)
         self._executor.stop()
         self.clock.remove_listener(self._clock_stepped)
         self.transport.close()
@@ -280,6 +300,7 @@ class Node:
         for key in _topic_counters():
             totals[key] = sum(c.get(key, 0) for c in topics.values())
         totals["timer_overruns"] = overruns
+        totals["loopback"] = self._executor.loopback
         totals["faults"] = sum(self.faults.counts().values())
         totals["topics"] = topics
         totals["transport"] = self.transport.stats()

@@ -10,10 +10,12 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
    imports the nodes' modules and answers ``("prepared", None)`` (hosts of one launch import at
    the same time);
 2. on ``("construct", None)`` the host activates the domain and constructs the nodes in order,
-   answering ``("constructed", None)``; on ``("start", None)`` it starts them in order, answering
-   ``("ready", None)``. The runner constructs every container's nodes in the launch file's
-   order before it starts any, as it does with threads, so no node runs (a server's clock
-   ticking) while the next ones are still being built. A node that fails is answered with
+   answering ``("constructed", None)`` (a container of several nodes composes the bus first:
+   they deliver to each other in-process, :mod:`hil_bridge.bus.intra`); on ``("start",
+   None)`` it starts them in order, answering ``("ready", None)``. The runner constructs every
+   container's nodes in the launch file's order before it starts any, as it does with threads,
+   so no node runs (a server's clock ticking) while the next ones are still being built. A
+   node that fails is answered with
    ``("error", "node: traceback text")``, after the host stopped those of its nodes it started.
    When the launch runs the bus's proxy (``sync``), before it answers "constructed" and again
    before it starts its nodes, the host syncs every bus endpoint of the process
@@ -61,6 +63,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from hil_bridge.bus.domain import resolve, use
+from hil_bridge.bus.intra import compose
 from hil_bridge.bus.transport import sync_open
 from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of
 from hil_bridge.launch.spec import resolve_entry
@@ -289,6 +292,8 @@ def main(argv: list[str] | None = None) -> int:
     rt = int(request.get("realtime", 0))
     if rt:
         realtime_io(rt)  # before the first socket starts its I/O thread
+    if len(request["nodes"]) > 1:  # a container's nodes deliver to each other in-process
+        compose(request["bus"])
     with use(resolve(request["domain"])):
         made, error = _construct(request["nodes"], classes, request["bus"])
         sync = request["bus"] if request["sync"] else None

@@ -73,6 +73,7 @@ from hil_bridge.launch.spec import (
     NodeSpec,
     check_duration,
     check_entry_module,
+    compose_lockstep,
     launch_proxy,
     load,
     node_params,
@@ -449,9 +450,9 @@ def run(
 ) -> RunSummary:
     """Start every node of a launch file in order, watch them, stop them in reverse order.
 
-    ``processes`` (default: whenever the bus crosses processes, i.e. it is not ``mem://``, and
-    the domain is numbered) runs each container, by default each node, in a process of its own
-    (:mod:`hil_bridge.launch.process`); otherwise every node is a thread of this process.
+    ``processes`` (default: the bus crosses processes, not ``mem://``, in a numbered domain)
+    runs each container in a process (:mod:`hil_bridge.launch.process`; a node alone by default,
+    :func:`~hil_bridge.launch.spec.compose_lockstep`); else every node is a thread of this one.
     ``only``/``skip`` name the nodes to run or leave out; ``realtime`` False runs them at normal
     scheduling, whatever their ``realtime`` keys; ``log_dir`` receives one log file per process.
     ``monitor`` False runs no bus monitor (``echoloop run``: a node alone must not decode every
@@ -485,6 +486,7 @@ def run(
     bus_url = bus if bus is not None else spec.bus or dom.bus_url
     spec = dataclasses.replace(spec, bus=bus_url)
     in_processes = processes_for(bus_url, dom) if processes is None else processes
+    spec = compose_lockstep(spec) if in_processes else spec  # a lockstep server and partners
     if in_processes and processes_for(bus_url, dom) is False:
         raise ConfigError(f"nodes as processes need a bus that crosses processes (tcp:// or "
                           f"ipc://) in a numbered domain; {bus_url} in {dom} lives in one "

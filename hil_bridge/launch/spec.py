@@ -6,6 +6,7 @@ A launch file is plain data (no substitutions, conditions or event handlers)::
     allow_modules: [my_lab.nodes]   # optional; entries outside the project packages
     duration: 20                 # optional default run time in seconds (CLI --duration wins)
     record: out/run.mcap         # optional MCAP recording of every topic (CLI --record wins)
+    compose_lockstep: true       # optional; false keeps a lockstep server and its partners apart
     nodes:
       - name: server
         entry: hil_bridge.server:SimServer
@@ -22,7 +23,8 @@ runs its module. Entries may come only from the project's packages (the installe
 ``hil_bridge``, ``drivers``, ``ros2_bridge``, ``sim_core``) and from modules listed under
 ``allow_modules:`` (or ``--allow-module``), and every entry is checked against that list
 before the first import (:func:`check_entry_module`). :func:`node_params` gives the params a
-node is constructed with; :mod:`hil_bridge.launch.runner` runs a spec.
+node is constructed with; :func:`compose_lockstep` puts a lockstep server and its firmware
+nodes in one container; :mod:`hil_bridge.launch.runner` runs a spec.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ __all__ = [
     "NodeSpec",
     "check_duration",
     "check_entry_module",
+    "compose_lockstep",
     "launch_proxy",
     "load",
     "node_params",
@@ -106,6 +109,7 @@ class LaunchSpec:
     live: bool = False
     description: str = ""
     allow_modules: tuple[str, ...] = ()
+    compose_lockstep: bool = True
 
     def __post_init__(self) -> None:
         if not self.nodes:
@@ -307,3 +311,33 @@ def launch_proxy(spec: LaunchSpec) -> bool:
     return any(_embeds_proxy(resolve_entry(node.entry, where=f"nodes[{i}].entry",
                                            allow_modules=spec.allow_modules), node.params)
                for i, node in enumerate(spec.nodes))
+
+
+#: the container :func:`compose_lockstep` makes
+LOCKSTEP_CONTAINER = "lockstep"
+
+
+def compose_lockstep(spec: LaunchSpec) -> LaunchSpec:
+    """``spec`` with a lockstep server and its lockstep partners in one container, named
+    :data:`LOCKSTEP_CONTAINER`, whose nodes deliver to each other in-process
+    (:mod:`hil_bridge.bus.intra`): a node whose class's ``lockstep_host(params)`` is true (the
+    simulation server with a ``lockstep`` clock) and every node whose class says
+    ``LOCKSTEP_PARTNER = True`` (the firmware nodes: ArduPilot's JSON, PX4's HIL). Nodes that
+    name a ``container:`` keep it; with ``compose_lockstep: false``, or without one host and one
+    partner, ``spec`` is returned as it is."""
+    if not spec.compose_lockstep:
+        return spec
+    free = [n for n in spec.nodes if not n.container]
+    classes = {n.name: resolve_entry(n.entry, where=f"{n.name}.entry",
+                                     allow_modules=spec.allow_modules) for n in free}
+    hosts = [n.name for n in free
+             if callable(getattr(classes[n.name], "lockstep_host", None))
+             and classes[n.name].lockstep_host(n.params)]  # type: ignore[attr-defined]
+    partners = [n.name for n in free
+                if getattr(classes[n.name], "LOCKSTEP_PARTNER", False) is True]
+    if len(hosts) != 1 or not partners:
+        return spec
+    names = {*hosts, *partners}
+    return dataclasses.replace(spec, nodes=tuple(
+        dataclasses.replace(n, container=LOCKSTEP_CONTAINER) if n.name in names else n
+        for n in spec.nodes))

@@ -34,11 +34,26 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["LockstepGate"]
+from hil_bridge.files.config import load_yaml
+
+__all__ = ["LockstepGate", "runs_lockstep"]
+
+
+def runs_lockstep(params: Mapping[str, Any]) -> bool:
+    """Whether a server of launch ``params`` runs a ``lockstep`` clock (its ``clock``, else its
+    scene's): a launch then composes it with its firmware nodes
+    (:func:`hil_bridge.launch.spec.compose_lockstep`)."""
+    clock = params.get("clock")
+    if clock is None:
+        scene = params.get("scene")
+        data = scene if isinstance(scene, Mapping) else load_yaml(scene) if isinstance(
+            scene, str) else None
+        clock = data.get("clock") if isinstance(data, Mapping) else None
+    return isinstance(clock, Mapping) and clock.get("mode") == "lockstep"
 
 _Key = tuple[str, int]  # ("glider", id) or ("sonar", id)
 

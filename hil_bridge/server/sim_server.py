@@ -64,12 +64,12 @@ paced to the wall clock times ``rate``), ``fast`` (unpaced), ``lockstep`` (after
 :class:`hil_bridge.server.lockstep.LockstepGate` holds the server until the registered autopilots
 answered their state steps and the sonar heads that ping on sim time sent their due pings; a
 swarm glider's answer to a control step is needed before the period it governs is flown;
-``/clock`` says ``lockstep`` so adapters drive their devices on sim time). Within a tick,
-neighbour lists are published before the states of the same step. Stamps are integer sim
-nanoseconds and never decrease. In ``realtime`` mode the tick thread runs at ``tick_nice``
-(-10) where the OS allows it (``tick_priority`` in stats), ahead of the other processes of the
-loop when the cores are short; in a real-time node host (the launch file's ``realtime``,
-:mod:`hil_bridge.priority`) it runs ``SCHED_FIFO`` one above the server's other threads (and
+``/clock`` says ``lockstep`` so adapters drive their devices on sim time). Neighbour lists
+precede the states of their step. Stamps are integer sim nanoseconds and never decrease. In
+``realtime`` mode the tick thread runs at ``tick_nice`` (-10) where the OS allows it
+(``tick_priority`` in stats), ahead of the loop's other processes when the cores are short;
+in a real-time node host (the launch file's ``realtime``, :mod:`hil_bridge.priority`) it runs
+``SCHED_FIFO`` one above the server's other threads (and
 leaves real time in ``fast`` and ``lockstep``, which do not sleep between ticks).
 """
 
@@ -107,7 +107,7 @@ from hil_bridge.server.commands import AutopilotInputs
 from hil_bridge.server.echo_nodes import EchoNodes
 from hil_bridge.server.echo_pool import WORKER_NICE
 from hil_bridge.server.fleet import Fleet, FleetStates
-from hil_bridge.server.lockstep import LockstepGate
+from hil_bridge.server.lockstep import LockstepGate, runs_lockstep
 from hil_bridge.server.sonars import ServerSonars
 from sim_core.config import ConfigError, from_dict
 from sim_core.scene import ClockSpec, Scene
@@ -205,6 +205,7 @@ class SimServer:
     #: ``embed_proxy`` (default true) runs the bus's proxy in this node's process; a launch
     #: runs it itself instead (:func:`hil_bridge.launch.spec.launch_proxy`)
     EMBEDS_PROXY: ClassVar[bool] = True
+    lockstep_host = staticmethod(runs_lockstep)  # hil_bridge.launch.spec.compose_lockstep
 
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
         self.name = name
@@ -304,7 +305,7 @@ class SimServer:
             )
             node.create_subscription(
                 GliderCmd, f"/glider/{gid}/cmd", functools.partial(self._on_cmd, gid),
-                qos=COMMAND, priority=True,
+                qos=COMMAND, priority=True, inline=True,
             )
         for gid in self.fleet.sixdof_ids:
             self._pubs[f"/glider/{gid}/fdm"] = node.create_publisher(
@@ -312,7 +313,7 @@ class SimServer:
             )
             node.create_subscription(
                 SurfaceCmd, f"/glider/{gid}/surfaces", functools.partial(self._on_surfaces, gid),
-                qos=COMMAND, priority=True,
+                qos=COMMAND, priority=True, inline=True,
             )
         for gid in self._glider_index:
             self._pubs[f"/glider/{gid}/neighbors"] = node.create_publisher(

@@ -1,6 +1,8 @@
 """Bus fixtures, used by the conftests of ``bus/`` and ``recording/``: ``bus_url`` is one fresh
-bus per test, parametrised over ``mem`` and ``zmq``; an autouse guard fails a test that leaves
-a ZeroMQ socket or a ``mem://`` endpoint open."""
+bus per test, parametrised over ``mem``, ``zmq`` and ``composed`` (ZeroMQ, with this process
+composing it: the nodes of a test deliver to each other in-process, :mod:`hil_bridge.bus.intra`,
+and everything else must hold as it does between processes); an autouse guard fails a test that
+leaves a ZeroMQ socket or a ``mem://`` endpoint open."""
 
 from __future__ import annotations
 
@@ -10,20 +12,29 @@ from collections.abc import Iterator
 import pytest
 import zmq
 
+from hil_bridge.bus import intra
 from hil_bridge.bus.proxy import Proxy
 from hil_bridge.bus.transport import mem
 
 _names = itertools.count()
 
 
-@pytest.fixture(params=["mem", "zmq"])
+@pytest.fixture(params=["mem", "zmq", "composed"])
 def bus_url(request: pytest.FixtureRequest) -> Iterator[str]:
-    """A bus URL: an unused ``mem://`` channel, or a proxy on free loopback ports."""
+    """A bus URL: an unused ``mem://`` channel, or a proxy on free loopback ports (composed in
+    this process for ``composed``)."""
     if request.param == "mem":
         yield f"mem://test{next(_names)}"
         return
     with Proxy("tcp://127.0.0.1:0", "tcp://127.0.0.1:0") as proxy:
-        yield proxy.url
+        if request.param == "zmq":
+            yield proxy.url
+            return
+        intra.compose(proxy.url)
+        try:
+            yield proxy.url
+        finally:
+            intra.release(proxy.url)
 
 
 @pytest.fixture(autouse=True)
