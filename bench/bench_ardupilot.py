@@ -6,7 +6,8 @@
    the real-time factor (sim s per CPU s). Baselines in the same run: the point-mass
    :class:`sim_core.flight.FlightModel` the swarm flies, for as many vehicles, and JSBSim's own
    ``run()`` alone (the C++ floor). Medians of ``REPEAT`` runs.
-2. **The SITL node's added latency per frame.** A launch in processes (server in lockstep at the
+2. **The SITL node's added latency per frame.** A launch in processes, each node in its own
+   (``--isolate``: composition is measured by ``bench/bench_speed.py``; server in lockstep at the
    frame rate with one 6-DoF glider; the ``ArduPilotSitl`` node) and the protocol double in this
    process sending servo packets paced at 400 Hz and 1200 Hz for ``FLY_S`` s of wall time: the
    node's own time per frame (packet in → surfaces published, plus state in → JSON sent),
@@ -146,7 +147,7 @@ def _fly_once(rate: int, domain: Domain, launch_file: Path) -> dict[str, Any]:
     assert domain.number is not None
     proc = subprocess.Popen(
         [sys.executable, "-m", "hil_bridge.cli", "launch", str(launch_file), "--domain",
-         str(domain.number), "--duration", "600", "--json"], cwd=ROOT, text=True,
+         str(domain.number), "--duration", "600", "--json", "--isolate"], cwd=ROOT, text=True,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
         assert proc.stderr is not None

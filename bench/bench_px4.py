@@ -1,6 +1,7 @@
 """PX4 HIL: the node's added latency per lockstep step, the HITL link budget, the sensor model.
 
-1. **Lockstep at 250 Hz against the PX4 double.** A launch in processes (the server in
+1. **Lockstep at 250 Hz against the PX4 double.** A launch in processes, each node in its own
+   (``--isolate``, the floor's like the node's; composition: ``bench/bench_speed.py``; the server in
    lockstep at 250 Hz with one 6-DoF glider; the :class:`~drivers.mavlink.px4.Px4Hil` node
    with seeded sensor noise, GNSS at 10 Hz, ground truth at 50 Hz) and the PX4 protocol double
    (:mod:`drivers.mocks.px4_double`, a process of its own) flying ``STEPS`` lockstep steps:
@@ -87,7 +88,7 @@ def _run(spec: dict[str, Any], domain: Domain, tmp: Path, double_args: list[str]
     path.write_text(yaml.safe_dump(spec, sort_keys=False))
     proc = subprocess.Popen(
         [sys.executable, "-m", "hil_bridge.cli", "launch", str(path), "--domain",
-         str(domain.number), "--duration", "600", "--json"], cwd=ROOT, text=True,
+         str(domain.number), "--duration", "600", "--json", "--isolate"], cwd=ROOT, text=True,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
         assert proc.stderr is not None

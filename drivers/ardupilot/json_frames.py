@@ -119,22 +119,21 @@ def fdm_line(state: FdmState, imu: SensorReadings | None = None, k: int = 0) -> 
     specific force) from row ``k`` of the sensor model's readings ``imu`` (None: the state's
     own, which is what the model reads without noise), or None when a value is not finite
     (SITL must never be sent a NaN)."""
-    flu = imu.table[k, :6] if imu is not None else np.array(
-        [state.fx, state.fy, state.fz, state.p, state.q, state.r])
-    values = (state.x, state.y, state.z, state.vx, state.vy, state.vz, state.qw, state.qx,
-              state.qy, state.qz, state.airspeed, *flu.tolist())
-    if not all(math.isfinite(v) for v in values):
+    flu = imu.table[k, :6].tolist() if imu is not None else [
+        state.fx, state.fy, state.fz, state.p, state.q, state.r]
+    values = [state.x, state.y, state.z, state.vx, state.vy, state.vz, *flu]
+    quat_in = [state.qw, state.qx, state.qy, state.qz]
+    if not all(map(math.isfinite, [*values, *quat_in, state.airspeed])):
         return None
-    enu = np.array([[state.x, state.y, state.z], [state.vx, state.vy, state.vz]])
-    pos, vel = ned_from_enu(enu)
-    accel, gyro = frd_from_flu(flu.reshape(2, 3))
-    quat = quat_ned_frd_from_enu_flu([state.qw, state.qx, state.qy, state.qz])
+    rows = np.array(values).reshape(4, 3)  # position, velocity (ENU); specific force, rates
+    pos, vel = ned_from_enu(rows[:2]).tolist()
+    accel, gyro = frd_from_flu(rows[2:]).tolist()
     doc = {
         "timestamp": state.stamp_ns / 1e9,
-        "imu": {"gyro": gyro.tolist(), "accel_body": accel.tolist()},
-        "position": pos.tolist(),
-        "quaternion": quat.tolist(),
-        "velocity": vel.tolist(),
+        "imu": {"gyro": gyro, "accel_body": accel},
+        "position": pos,
+        "quaternion": quat_ned_frd_from_enu_flu(quat_in).tolist(),
+        "velocity": vel,
         "airspeed": float(state.airspeed),
     }
     return b"\n" + json.dumps(doc, separators=(",", ":")).encode() + b"\n"

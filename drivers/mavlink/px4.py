@@ -138,6 +138,12 @@ class Px4Hil:
     #: a launch puts it in one process with a lockstep server (docs/launch.md, Composition)
     LOCKSTEP_PARTNER: ClassVar[bool] = True
 
+    @staticmethod
+    def speed_params(params: dict[str, Any], speed: float | None) -> dict[str, Any]:
+        """``params`` with the paced phase at ``speed`` (``echoloop launch --speed``; ``max``:
+        100, the highest; in lockstep PX4 and the server set the pace)."""
+        return {**params, "speed": 100.0 if speed is None else speed}
+
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
         self.name = name
         self.bus = bus

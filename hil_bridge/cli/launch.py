@@ -6,6 +6,9 @@ process instead: see :mod:`hil_bridge.launch.runner`), until ``--duration`` seco
 or Ctrl-C/SIGTERM arrives, then stops them in reverse order. ``--only``/``--skip`` leave nodes
 out (to run one elsewhere, e.g. with ``echoloop run``). ``--no-realtime`` runs every node at
 normal scheduling, whatever the file's ``realtime`` keys (docs/launch.md, *Real time*).
+``--speed FACTOR|max`` paces the run (:func:`hil_bridge.launch.spec.with_speed`);
+``--isolate`` keeps a lockstep server and its firmware nodes apart
+(:func:`~hil_bridge.launch.spec.compose_lockstep`).
 ``--json`` prints the run summary (messages per topic, drops, stalls, latency percentiles, every
 node's ``stats()``, link states, failures) as one JSON document on stdout; otherwise a short
 human summary is printed. What failed (a node, an ``--expect`` that did not hold, a hardware
@@ -19,11 +22,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import Any, Literal
 
 from hil_bridge.bus.domain import Domain
 from hil_bridge.cli._args import add_domain_argument, domain_for_run, seconds
 from hil_bridge.launch.runner import LaunchSpec, RunSummary, parse_param_overrides, run
+from hil_bridge.launch.spec import parse_speed
 from hil_bridge.lifetime import freeze_heap
 from hil_bridge.outputs import atomic_output, check_output
 from hil_bridge.plots.recording import plot_recording
@@ -61,6 +65,13 @@ def _parser() -> argparse.ArgumentParser:
     add_domain_argument(p, auto=True)
     p.add_argument("--threads", action="store_true",
                    help="run every node as a thread of this process (as a mem:// bus must)")
+    p.add_argument("--speed", default=None, metavar="FACTOR|max",
+                   help="sim seconds per wall second: a realtime clock at that rate, a lockstep "
+                        "or fast one at most that fast; max: as fast as the loop goes "
+                        "(default: the file's clock)")
+    p.add_argument("--isolate", action="store_true",
+                   help="keep a lockstep server and its firmware nodes in processes of their "
+                        "own (by default they share one: docs/launch.md, Composition)")
     p.add_argument("--no-realtime", action="store_true",
                    help="run every node at normal scheduling, whatever the file's realtime keys")
     p.add_argument("--only", action="append", default=[], metavar="NODE",
@@ -211,6 +222,8 @@ def report_failures(summary: RunSummary, prog: str = "echoloop launch") -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(sys.argv[1:] if argv is None else argv)
+    speed: float | Literal["file"] | None = (
+        "file" if args.speed is None else parse_speed(args.speed))
     if args.plot and not args.record:
         raise ValueError("--plot needs --record FILE.mcap (the plot is drawn from the recording)")
     after_run: dict[str, Any] = {}
@@ -242,6 +255,8 @@ def main(argv: list[str] | None = None) -> int:
             skip=args.skip,
             log_dir=args.log_dir,
             realtime=not args.no_realtime,
+            speed=speed,
+            compose=not args.isolate,
         )
     if args.json:
         print(json.dumps(_jsonable(summary.to_dict()), indent=2, sort_keys=True))

@@ -36,14 +36,7 @@ the file > the domain's defaults. The run's domain (``run(domain=...)``, ``--dom
 ``ECHOLOOP_DOMAIN``) is active while the nodes are constructed, so every default port, pty link
 and virtual CAN channel a node picks is the domain's (:mod:`hil_bridge.bus.domain`).
 
-**Exit status** (:attr:`RunSummary.exit_status`, computed in one place, :func:`judge`, from the
-summary's ``failures``): 0 all well; otherwise the lowest code among the failures —
-:data:`EXIT_FAILED` (1) a node or the recorder failed (its ``failure()``, its constructor,
-``start()``, ``stop()`` or ``stats()`` raised), :data:`EXIT_DISCONNECTED` (3) a hardware link
-(a node's ``stats()["links"]`` entry) never connected, unless ``allow_disconnected``,
-:data:`EXIT_EXPECT` (4) an expectation (:mod:`hil_bridge.launch.expect`) did not hold,
-:data:`EXIT_AFTER_RUN` (5) a step after the run (``run(after_run=...)``: ``--plot``) failed
-while the run itself went well: such a step never hides or replaces the run's own status.
+**Exit status**: :mod:`hil_bridge.launch.summary` (:func:`judge`, one place).
 """
 
 from __future__ import annotations
@@ -56,10 +49,9 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Literal, Protocol, runtime_checkable
 
 from hil_bridge.bus.domain import Domain, resolve, use
 from hil_bridge.bus.proxy import proxy_for
@@ -80,6 +72,18 @@ from hil_bridge.launch.spec import (
     parse_param_overrides,
     resolve_entry,
     select_nodes,
+    with_speed,
+)
+from hil_bridge.launch.summary import (
+    EXIT_AFTER_RUN,
+    EXIT_DISCONNECTED,
+    EXIT_EXPECT,
+    EXIT_FAILED,
+    EXIT_OK,
+    Failure,
+    RunSummary,
+    collect_links,
+    judge,
 )
 from hil_bridge.priority import RunThreads
 from sim_core.config import ConfigError
@@ -113,17 +117,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
-#: exit status of a run that went well
-EXIT_OK = 0
-#: a node or the recorder failed
-EXIT_FAILED = 1
-#: a hardware link (serial port, CAN bus) never connected during the run
-EXIT_DISCONNECTED = 3
-#: an expectation (``--expect``) did not hold
-EXIT_EXPECT = 4
-#: the run went well but a step after it (``--plot``) failed
-EXIT_AFTER_RUN = 5
-
 #: how often (wall s) the runner asks every launchable for its ``failure()`` while the run goes
 FAILURE_POLL_S = 0.05
 #: seconds the launcher (and each node host) waits for its bus endpoints to be in sync with
@@ -141,93 +134,6 @@ class Launchable(Protocol):
     def stop(self) -> None: ...
 
     def stats(self) -> dict[str, Any]: ...
-
-
-@dataclass(frozen=True, slots=True)
-class Failure:
-    """One reason a run did not go well: its exit ``code``, where it came from (a node name,
-    ``node.link``, ``expect``) and one line saying what happened."""
-
-    code: int
-    source: str
-    message: str
-
-
-@dataclass(slots=True)
-class RunSummary:
-    """What a run produced: wall time, why it stopped, per-node stats, bus-level monitor counts,
-    the stats of the recorder / live view when they ran (``extras``, by name), the run's domain
-    and bus, every hardware link's state (``links``, ``"node.label"`` -> the node's report),
-    the ``failures`` that decide :attr:`exit_status`, and whether the nodes ran as
-    ``"processes"`` or ``"threads"`` (``mode``)."""
-
-    wall_s: float
-    stopped_by: str
-    nodes: dict[str, dict[str, Any]]
-    monitor: dict[str, Any] = field(default_factory=dict)
-    record: str | None = None
-    extras: dict[str, dict[str, Any]] = field(default_factory=dict)
-    domain: str = ""
-    bus: str = ""
-    links: dict[str, dict[str, Any]] = field(default_factory=dict)
-    failures: list[Failure] = field(default_factory=list)
-    mode: str = "threads"
-
-    @property
-    def exit_status(self) -> int:
-        """0 when nothing failed, else the lowest code among :attr:`failures`."""
-        return min((f.code for f in self.failures), default=EXIT_OK)
-
-    def to_dict(self) -> dict[str, Any]:
-        out = dataclasses.asdict(self)
-        out["exit_status"] = self.exit_status
-        return out
-
-
-def collect_links(nodes: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
-    """Every node's ``stats()["links"]`` under ``"node.label"``.
-
-    A link report is ``{"kind": "serial" | "can", "target": str, "connected": bool (ever during
-    the run), "state": str (at the end of the run), "error": str}``.
-    """
-    out: dict[str, dict[str, Any]] = {}
-    for name, stats in nodes.items():
-        links = stats.get("links")
-        if isinstance(links, Mapping):
-            for label, report in links.items():
-                out[f"{name}.{label}"] = dict(report)
-    return out
-
-
-def judge(
-    summary: RunSummary, *, expectations: Sequence[Expectation] = (),
-    allow_disconnected: bool = False, failed: Sequence[tuple[str, str]] = (),
-    after_run: Sequence[tuple[str, str]] = (),
-) -> list[Failure]:
-    """The one place that decides what failed in a run (and so its exit status).
-
-    ``failed`` holds ``(source, reason)`` for launchables (nodes, the recorder) that reported
-    failing (their optional ``failure()``) or whose constructor, ``start()``, ``stop()`` or
-    ``stats()`` raised; ``after_run`` ``(step, reason)`` for steps after the run that failed
-    (:data:`EXIT_AFTER_RUN`, above every code of the run itself)."""
-    failures = [Failure(EXIT_FAILED, source, f"{source} failed: {reason}")
-                for source, reason in failed]
-    if not allow_disconnected:
-        for key, link in summary.links.items():
-            if not link.get("connected"):
-                why = link.get("error") or "no error reported"
-                failures.append(Failure(
-                    EXIT_DISCONNECTED, key,
-                    f"{key}: {link.get('kind', 'hardware')} link {link.get('target', '?')} never "
-                    f"connected during the run ({why}); --allow-disconnected accepts that",
-                ))
-    for expectation in expectations:
-        problem = expectation.check(summary.nodes)
-        if problem is not None:
-            failures.append(Failure(EXIT_EXPECT, "expect", problem))
-    failures += [Failure(EXIT_AFTER_RUN, step, f"{step} failed after the run: {reason}")
-                 for step, reason in after_run]
-    return failures
 
 
 def _describe(exc: BaseException) -> str:
@@ -447,6 +353,8 @@ def run(
     log_dir: str | Path | None = None,
     monitor: bool = True,
     realtime: bool = True,
+    speed: float | Literal["file"] | None = "file",
+    compose: bool = True,
 ) -> RunSummary:
     """Start every node of a launch file in order, watch them, stop them in reverse order.
 
@@ -456,7 +364,9 @@ def run(
     ``only``/``skip`` name the nodes to run or leave out; ``realtime`` False runs them at normal
     scheduling, whatever their ``realtime`` keys; ``log_dir`` receives one log file per process.
     ``monitor`` False runs no bus monitor (``echoloop run``: a node alone must not decode every
-    message of the bus in its own process).
+    message of the bus in its own process). ``speed`` (sim s per wall s, None: max; ``"file"``:
+    as the file says) paces the run (:func:`~hil_bridge.launch.spec.with_speed`); ``compose``
+    False keeps a lockstep server and its firmware nodes in processes of their own.
 
     The run ends ``duration`` seconds after every node started (argument, else the file's;
     ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
@@ -486,7 +396,8 @@ def run(
     bus_url = bus if bus is not None else spec.bus or dom.bus_url
     spec = dataclasses.replace(spec, bus=bus_url)
     in_processes = processes_for(bus_url, dom) if processes is None else processes
-    spec = compose_lockstep(spec) if in_processes else spec  # a lockstep server and partners
+    spec = spec if speed == "file" else with_speed(spec, speed)
+    spec = compose_lockstep(spec) if in_processes and compose else spec
     if in_processes and processes_for(bus_url, dom) is False:
         raise ConfigError(f"nodes as processes need a bus that crosses processes (tcp:// or "
                           f"ipc://) in a numbered domain; {bus_url} in {dom} lives in one "
@@ -586,7 +497,9 @@ def run(
     summary = RunSummary(
         wall_s=time.monotonic() - t0, stopped_by=flag.reason, nodes=nodes, monitor=monitor_stats,
         record=record_path, extras=extra_stats, domain=str(dom), bus=bus_url,
-        links=collect_links(nodes), mode="processes" if in_processes else "threads")
+        links=collect_links(nodes), mode="processes" if in_processes else "threads",
+        containers={n.container: [m.name for m in spec.nodes if m.container == n.container]
+                    for n in spec.nodes if n.container and in_processes})
     steps_failed: list[tuple[str, str]] = []
     for step, action in (after_run or {}).items():
         try:

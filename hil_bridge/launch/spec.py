@@ -55,8 +55,10 @@ __all__ = [
     "load",
     "node_params",
     "parse_param_overrides",
+    "parse_speed",
     "resolve_entry",
     "select_nodes",
+    "with_speed",
 ]
 
 
@@ -341,3 +343,32 @@ def compose_lockstep(spec: LaunchSpec) -> LaunchSpec:
     return dataclasses.replace(spec, nodes=tuple(
         dataclasses.replace(n, container=LOCKSTEP_CONTAINER) if n.name in names else n
         for n in spec.nodes))
+
+
+def parse_speed(text: str | float) -> float | None:
+    """``--speed``: ``"max"`` (None: as fast as the loop goes) or sim seconds per wall second
+    > 0; anything else raises ``ValueError`` naming the value and the expected form."""
+    if isinstance(text, str) and text.strip().lower() == "max":
+        return None
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise ValueError(f"--speed: expected 'max' or sim seconds per wall second > 0, "
+                         f"got {text!r}")
+    return value
+
+
+def with_speed(spec: LaunchSpec, speed: float | None) -> LaunchSpec:
+    """``spec`` run at ``speed`` sim seconds per wall second (None: ``max``, as fast as it goes):
+    every node whose class has ``speed_params(params, speed)`` gets the params it returns (the
+    simulation server's clock, the PX4 node's pace before lockstep); the others keep theirs."""
+    nodes = []
+    for node in spec.nodes:
+        cls = resolve_entry(node.entry, where=f"{node.name}.entry",
+                            allow_modules=spec.allow_modules)
+        hook = getattr(cls, "speed_params", None)
+        nodes.append(node if hook is None else dataclasses.replace(
+            node, params=dict(hook(node.params, speed))))
+    return dataclasses.replace(spec, nodes=tuple(nodes))

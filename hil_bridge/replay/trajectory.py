@@ -46,13 +46,16 @@ DEFAULT_REPLAY_SCENE: dict[str, Any] = {
 
 
 class Pinger:
-    """Launchable node that pings ``/sonar/<sonar_id>/ping`` at ``rate_hz`` (wall clock).
+    """Launchable node that pings ``/sonar/<sonar_id>/ping`` at ``rate_hz``, of the wall clock
+    or, with ``clock: sim``, of the bus's sim time (``/clock``: the same pings a sim second at
+    any ``--speed``, and none while the sim stands still).
 
     ``Pinger(name, *, bus, sonar_id=0, rate_hz=10.0, az=0.0, el=0.0, beamwidth=0.7,
-    beamwidth_range=None, seed=0, max_pings=None, sonar_ids=None)``. With ``beamwidth_range =
-    [lo, hi]`` each ping's beamwidth is drawn from U(lo, hi) (seed 000 used [30°, 65°]). Pings
-    are stamped with the bus's sim time (``/clock``) when sent, their emission. It subscribes
-    to the echoes and reports how many came back, with ping -> echo latency percentiles (ms).
+    beamwidth_range=None, seed=0, max_pings=None, sonar_ids=None, clock="wall")``. With
+    ``beamwidth_range = [lo, hi]`` each ping's beamwidth is drawn from U(lo, hi) (seed 000 used
+    [30°, 65°]). Pings are stamped with the bus's sim time (``/clock``) when sent, their
+    emission. It subscribes to the echoes and reports how many came back, with ping -> echo
+    latency percentiles (ms).
     ``sonar_ids``: ping several sonars from one node (one clock subscription for all), each
     at ``rate_hz`` from its own phase, drawn uniformly over a period (``seed``); ``max_pings``
     then counts per sonar. ``failure()`` says why it failed (its ping thread or an echo
@@ -73,7 +76,10 @@ class Pinger:
         seed: int = 0,
         max_pings: int | None = None,
         sonar_ids: list[int] | tuple[int, ...] | None = None,
+        clock: str = "wall",
     ) -> None:
+        if clock not in ("wall", "sim"):
+            raise ValueError(f"clock: expected 'wall' or 'sim', got {clock!r}")
         if not rate_hz > 0:
             raise ValueError(f"rate_hz: expected > 0, got {rate_hz}")
         if not 0 < beamwidth < np.pi:
@@ -92,6 +98,7 @@ class Pinger:
         self.sonar_ids = tuple(ids)
         self.sonar_id = ids[0]
         self.period_s = 1.0 / float(rate_hz)
+        self.sim_clock = clock == "sim"
         self.az, self.el, self.beamwidth = float(az), float(el), float(beamwidth)
         self.beamwidth_range = None if beamwidth_range is None else (lo, hi)
         self.max_pings = max_pings
@@ -164,7 +171,7 @@ class Pinger:
         n = len(self.sonar_ids)
         phases = [0.0] if n == 1 else (
             derive_rng(self._seed, "phase").uniform(0.0, self.period_s, n).tolist())
-        start = time.monotonic()
+        start = self._node.now_ns() / 1e9 if self.sim_clock else time.monotonic()
         due = [start + ph for ph in phases]
         seqs = [0] * n
         while not self._stop.is_set():
@@ -174,7 +181,7 @@ class Pinger:
                 if all(math.isinf(d) for d in due):
                     break
                 continue
-            if self._stop.wait(max(0.0, due[k] - time.monotonic())):
+            if self._wait_until(due[k]):
                 break
             sonar, seq = self.sonar_ids[k], seqs[k]
             bw = self.beamwidth
@@ -191,6 +198,16 @@ class Pinger:
             ))
             seqs[k] = (seq + 1) % 65536
             due[k] += self.period_s
+
+    def _wait_until(self, due_s: float) -> bool:
+        """Wait until ``due_s`` (wall, or sim seconds with ``clock: sim``); True if stopped."""
+        if not self.sim_clock:
+            return self._stop.wait(max(0.0, due_s - time.monotonic()))
+        due_ns = round(due_s * 1e9)
+        while not self._node.clock.sleep_until(due_ns, timeout=0.1):
+            if self._stop.is_set():
+                return True
+        return self._stop.is_set()
 
     def _on_echo(self, msg: Any) -> None:
         now = time.monotonic_ns()

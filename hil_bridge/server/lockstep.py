@@ -40,20 +40,61 @@ from typing import Any
 
 from hil_bridge.files.config import load_yaml
 
-__all__ = ["LockstepGate", "runs_lockstep"]
+__all__ = ["LockstepGate", "Pacer", "runs_lockstep", "speed_params"]
 
 
-def runs_lockstep(params: Mapping[str, Any]) -> bool:
-    """Whether a server of launch ``params`` runs a ``lockstep`` clock (its ``clock``, else its
-    scene's): a launch then composes it with its firmware nodes
-    (:func:`hil_bridge.launch.spec.compose_lockstep`)."""
+class Pacer:
+    """Holds a tick loop to ``speed`` sim seconds per wall second, from when it is made:
+    :meth:`wait` before the tick at sim time ``t_ns`` sleeps until its wall time (or ``stop``).
+    ``catch_up`` keeps the schedule when the loop falls behind (``realtime``: it catches up,
+    and a tick more than one ``tick_ns`` late is reported); otherwise a late tick re-bases the
+    schedule on itself (a lockstep run at most ``speed`` never bursts to make up a slow
+    partner)."""
+
+    def __init__(self, speed: float, tick_ns: int, stop: threading.Event, *,
+                 catch_up: bool) -> None:
+        self.speed, self.tick_s, self.stop, self.catch_up = speed, tick_ns / 1e9, stop, catch_up
+        self._wall0, self._sim0 = time.monotonic(), 0
+
+    def wait(self, t_ns: int) -> bool:
+        """Sleep until the tick at ``t_ns`` is due; True if it was more than a tick late."""
+        remaining = self._wall0 + (t_ns - self._sim0) / 1e9 / self.speed - time.monotonic()
+        if remaining > 0:
+            self.stop.wait(remaining)
+            return False
+        late = remaining < -self.tick_s
+        if late and not self.catch_up:
+            self._wall0, self._sim0 = time.monotonic(), t_ns
+        return late
+
+
+def _clock_of(params: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The clock a server of launch ``params`` runs: its ``clock``, else its scene's."""
     clock = params.get("clock")
     if clock is None:
         scene = params.get("scene")
         data = scene if isinstance(scene, Mapping) else load_yaml(scene) if isinstance(
             scene, str) else None
         clock = data.get("clock") if isinstance(data, Mapping) else None
-    return isinstance(clock, Mapping) and clock.get("mode") == "lockstep"
+    return clock if isinstance(clock, Mapping) else {}
+
+
+def runs_lockstep(params: Mapping[str, Any]) -> bool:
+    """Whether a server of launch ``params`` runs a ``lockstep`` clock: a launch then composes
+    it with its firmware nodes (:func:`hil_bridge.launch.spec.compose_lockstep`)."""
+    return _clock_of(params).get("mode") == "lockstep"
+
+
+def speed_params(params: Mapping[str, Any], speed: float | None) -> dict[str, Any]:
+    """A server's launch ``params`` at ``speed`` (``echoloop launch --speed``): a ``realtime``
+    clock at that ``rate`` (None: ``fast``), a ``lockstep`` or ``fast`` one at that
+    ``max_speed`` (None: unpaced)."""
+    clock = dict(_clock_of(params))
+    if clock.get("mode", "realtime") == "realtime":
+        clock.update({"mode": "fast"} if speed is None else {"rate": speed})
+    else:
+        clock["max_speed"] = speed
+    return {**params, "clock": clock}
 
 _Key = tuple[str, int]  # ("glider", id) or ("sonar", id)
 

@@ -107,7 +107,7 @@ from hil_bridge.server.commands import AutopilotInputs
 from hil_bridge.server.echo_nodes import EchoNodes
 from hil_bridge.server.echo_pool import WORKER_NICE
 from hil_bridge.server.fleet import Fleet, FleetStates
-from hil_bridge.server.lockstep import LockstepGate, runs_lockstep
+from hil_bridge.server.lockstep import LockstepGate, Pacer, runs_lockstep, speed_params
 from hil_bridge.server.sonars import ServerSonars
 from sim_core.config import ConfigError, from_dict
 from sim_core.scene import ClockSpec, Scene
@@ -206,6 +206,7 @@ class SimServer:
     #: runs it itself instead (:func:`hil_bridge.launch.spec.launch_proxy`)
     EMBEDS_PROXY: ClassVar[bool] = True
     lockstep_host = staticmethod(runs_lockstep)  # hil_bridge.launch.spec.compose_lockstep
+    speed_params = staticmethod(speed_params)  # hil_bridge.launch.spec.with_speed
 
     def __init__(self, name: str, *, bus: str, **params: Any) -> None:
         self.name = name
@@ -545,6 +546,9 @@ class SimServer:
         if "not permitted" in self._tick_priority:
             log.info("%s: tick thread at %s; see docs/server.md, Tick priority", self.name,
                      self._tick_priority)
+        speed = self.clock_spec.rate if mode == "realtime" else self.clock_spec.max_speed
+        pacer = None if speed is None else Pacer(speed, self.tick_ns, self._stop,
+                                                 catch_up=mode == "realtime")
         cpu0 = time.thread_time()
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns
@@ -591,11 +595,6 @@ class SimServer:
             if now >= next_diag:
                 self._publish_diagnostics(t_ns)
                 next_diag = now + self.params.diagnostics_period_s
-            if mode == "realtime":
-                target = wall0 + (tick * self.tick_ns / 1e9) / self.clock_spec.rate
-                remaining = target - time.monotonic()
-                if remaining > 0:
-                    self._stop.wait(remaining)
-                elif remaining < -self.tick_ns / 1e9:
-                    with self._lock:
-                        self._c["late_ticks"] += 1
+            if pacer is not None and pacer.wait(tick * self.tick_ns) and pacer.catch_up:
+                with self._lock:
+                    self._c["late_ticks"] += 1

@@ -66,7 +66,9 @@ class ClockSpec:
     ``lockstep_timeout_s`` of wall time per step, ``lockstep_start_timeout_s`` for a participant
     not heard from yet; a miss is a stall and the step goes ahead), ``fast`` (as fast as
     possible). A participant that stalls ``lockstep_max_stalls`` steps in a row is no longer
-    waited for until it answers again (``hil_bridge.server.lockstep``).
+    waited for until it answers again (``hil_bridge.server.lockstep``). ``max_speed`` holds
+    ``lockstep`` and ``fast`` to at most that many sim seconds per wall second (None: as fast as
+    they go; ``echoloop launch --speed``).
     """
 
     mode: Literal["realtime", "lockstep", "fast"] = "realtime"
@@ -74,6 +76,7 @@ class ClockSpec:
     lockstep_timeout_s: float = 1.0
     lockstep_max_stalls: int = 10
     lockstep_start_timeout_s: float = 10.0
+    max_speed: float | None = None
 
     def __post_init__(self) -> None:
         if not self.rate > 0:
@@ -83,6 +86,8 @@ class ClockSpec:
         if not self.lockstep_start_timeout_s > 0:
             raise ValueError("lockstep_start_timeout_s: expected > 0, got "
                              f"{self.lockstep_start_timeout_s}")
+        if self.max_speed is not None and not self.max_speed > 0:
+            raise ValueError(f"max_speed: expected sim s per wall s > 0, got {self.max_speed}")
         if self.lockstep_max_stalls < 1:
             raise ValueError(f"lockstep_max_stalls: expected >= 1, got {self.lockstep_max_stalls}")
 

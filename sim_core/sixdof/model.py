@@ -61,6 +61,20 @@ GROUND_MARGIN_M = 1.0
 _SLUG = 14.5939029
 _WGS84_A = 6378137.0
 _WGS84_E2 = 6.69437999014e-3
+#: the lower bounds of CONTROLS (their upper bounds are 1)
+_CONTROLS_LO = np.array([-1.0, -1.0, 0.0, -1.0])
+#: what :meth:`SixDofGliders.outputs` reads of each vehicle, in one pass (column order)
+_OUT_PROPS = (
+    "velocities/v-north-fps", "velocities/v-east-fps", "velocities/v-down-fps",
+    "attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad",
+    "velocities/p-rad_sec", "velocities/q-rad_sec", "velocities/r-rad_sec",
+    "forces/fbx-total-lbs", "forces/fby-total-lbs", "forces/fbz-total-lbs",
+    "inertia/mass-slugs", "velocities/vt-fps", "position/h-agl-ft",
+    "position/lat-geod-rad", "position/long-gc-rad", "position/h-sl-meters",
+)
+_GEO_PROPS = _OUT_PROPS[-3:]
+#: the columns a sound state has finite (velocity, attitude, rates, airspeed, position)
+_SOUND_COLS = np.array([*range(9), 13, 15, 16, 17])
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,8 +133,11 @@ def _ecef(lat: F8, lon: F8, h: F8) -> F8:
     """WGS-84 geodetic (rad, rad, m) arrays (N,) → ECEF (N, 3) m."""
     s, c = np.sin(lat), np.cos(lat)
     n = _WGS84_A / np.sqrt(1.0 - _WGS84_E2 * s * s)
-    return np.stack([(n + h) * c * np.cos(lon), (n + h) * c * np.sin(lon),
-                     (n * (1.0 - _WGS84_E2) + h) * s], axis=-1)
+    out = np.empty((len(lat), 3))  # np.stack's bookkeeping cost more than this on a tick's few
+    out[:, 0] = (n + h) * c * np.cos(lon)
+    out[:, 1] = (n + h) * c * np.sin(lon)
+    out[:, 2] = (n * (1.0 - _WGS84_E2) + h) * s
+    return out
 
 
 def _enu_axes(lat0: float, lon0: float) -> F8:
@@ -213,8 +230,9 @@ class SixDofGliders:
         (:data:`CONTROLS`, clipped to their ranges), in JSBSim steps of at most each spec's
         ``dt_max_s``; ``updraft(xy (2, N)) → (N,)`` m/s is asked once per step."""
         u = np.asarray(controls, dtype=np.float64).reshape(len(self), len(CONTROLS))
-        lo = np.array([-1.0, -1.0, 0.0, -1.0])
-        self._controls = np.clip(np.nan_to_num(u), lo, 1.0)
+        # NaN flies neutral, ±inf the range's ends (np.clip(np.nan_to_num(u)) at a fifth of
+        # its cost on a tick's few vehicles)
+        self._controls = np.minimum(np.maximum(np.where(np.isnan(u), 0.0, u), _CONTROLS_LO), 1.0)
         on = self._alive if active is None else self._alive & np.asarray(active, dtype=bool)
         n = max((math.ceil(dt / s.dt_max_s - 1e-9) for s in self.specs), default=0)
         if n == 0 or dt <= 0:
@@ -244,8 +262,7 @@ class SixDofGliders:
 
     def _geodetic(self) -> F8:
         """Every vehicle's latitude, longitude (rad) and height (m) (N, 3)."""
-        return np.array([[fdm["position/lat-geod-rad"], fdm["position/long-gc-rad"],
-                          fdm["position/h-sl-meters"]] for fdm in self._fdm]).reshape(-1, 3)
+        return np.array([[fdm[p] for p in _GEO_PROPS] for fdm in self._fdm]).reshape(-1, 3)
 
     def _positions(self, geo: F8 | None = None) -> F8:
         """Every vehicle's ENU position (N, 3) m (from ``geo``, :meth:`_geodetic`, if given)."""
@@ -256,32 +273,20 @@ class SixDofGliders:
     def outputs(self) -> SixDofOutputs:
         """Every vehicle's state now (:class:`SixDofOutputs`); a vehicle down is held at rest
         where it was last sound (the module docstring)."""
-        n = len(self._fdm)
-        v_ned = np.empty((n, 3))
-        euler = np.empty((n, 3))
-        pqr = np.empty((n, 3))
-        f_frd = np.empty((n, 3))
-        vt = np.empty(n)
-        agl = np.empty(n)
-        for k, fdm in enumerate(self._fdm):
-            v_ned[k] = fdm["velocities/v-north-fps"], fdm["velocities/v-east-fps"], \
-                fdm["velocities/v-down-fps"]
-            euler[k] = fdm["attitude/phi-rad"], fdm["attitude/theta-rad"], fdm["attitude/psi-rad"]
-            pqr[k] = fdm["velocities/p-rad_sec"], fdm["velocities/q-rad_sec"], \
-                fdm["velocities/r-rad_sec"]
-            mass = fdm["inertia/mass-slugs"]
-            f_frd[k] = (fdm["forces/fbx-total-lbs"] / mass, fdm["forces/fby-total-lbs"] / mass,
-                        fdm["forces/fbz-total-lbs"] / mass)
-            vt[k] = fdm["velocities/vt-fps"]
-            agl[k] = fdm["position/h-agl-ft"] * _FT
-        geo = self._geodetic()
-        sound = np.isfinite(np.column_stack([v_ned, euler, pqr, f_frd, vt, geo])).all(axis=1)
+        raw = np.array([[fdm[p] for p in _OUT_PROPS] for fdm in self._fdm]).reshape(
+            -1, len(_OUT_PROPS))
+        v_ned, euler, pqr = raw[:, 0:3], raw[:, 3:6].copy(), raw[:, 6:9]
+        f_frd = raw[:, 9:12] / raw[:, 12:13]
+        vt, agl, geo = raw[:, 13], raw[:, 14] * _FT, raw[:, 15:18].copy()
+        sound = np.isfinite(raw[:, _SOUND_COLS]).all(axis=1) & np.isfinite(f_frd).all(axis=1)
         sound &= agl >= -GROUND_MARGIN_M
         if not sound.all():
             self._alive &= sound
             euler[~sound] = 0.0  # a row not sound is replaced below: keep its maths finite
             geo[~sound] = 0.0
         pos = self._positions(geo)
+        geodetic = geo.copy()
+        geodetic[:, :2] = np.degrees(geo[:, :2])
         quat = quat_enu_flu_from_ned_frd(quat_from_euler(euler[:, 0], euler[:, 1], euler[:, 2]))
         roll, pitch, yaw = euler_from_quat(quat)
         out = SixDofOutputs(
@@ -289,7 +294,7 @@ class SixDofGliders:
             pitch=pitch, yaw=yaw, rates=flu_from_frd(pqr),
             specific_force=flu_from_frd(f_frd) * _FT, airspeed=vt * _FT,
             alive=self._alive.copy(),
-            geodetic=np.column_stack([np.degrees(geo[:, 0]), np.degrees(geo[:, 1]), geo[:, 2]]),
+            geodetic=geodetic,
         )
         down = ~self._alive
         if down.any():

@@ -62,3 +62,60 @@ def test_the_glider_launch_flies_a_double_in_lockstep(domain: Domain) -> None:
     # gliding: it lost height at about its sink rate (NED down grows), at about 19.5 m/s
     assert answers[-1]["position"][2] > answers[0]["position"][2]
     assert answers[-1]["airspeed"] == pytest.approx(19.5, abs=2.0)
+
+
+SHORT = {"description": "one 6-DoF glider and the SITL node, lockstep at 250 Hz", "nodes": [
+    {"name": "server", "entry": "hil_bridge.server:SimServer", "params": {
+        "autopilots": [7], "scene": {
+            "clock": {"mode": "lockstep", "lockstep_timeout_s": 5.0,
+                      "lockstep_start_timeout_s": 120.0},
+            "vehicles": [{"id": 7, "sixdof": {}, "path": {
+                "kind": "points", "points": [[0, 0, 400], [700, 0, 400]]}}]}}},
+    {"name": "sitl", "entry": "drivers.ardupilot.sitl:ArduPilotSitl",
+     "params": {"instances": [{"vehicle_id": 7}]}},
+]}
+
+
+def _fly(domain: Domain, launch: Path, *args: str, frames: int) -> tuple[list[dict], dict]:
+    assert domain.number is not None
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil_bridge.cli", "launch", str(launch), "--domain",
+         str(domain.number), "--duration", "300", "--json", *args], cwd=ROOT, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if "echoloop launch: running" in line:
+                break
+        double = SitlDouble(port=9002 + 10 * domain.number, timeout_s=60.0)
+        try:
+            answers = double.fly(frames, WingLeveler(bank_deg=20.0))
+        finally:
+            double.close()
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err[-3000:]
+    return answers, json.loads(out)
+
+
+def test_composed_at_full_speed_flies_the_bits_of_isolated_processes_paced(
+        domain: Domain, tmp_path: Path) -> None:
+    """The server and the SITL node composed in one process, unpaced (``--speed max``), and
+    each in a process of its own paced at real time (``--isolate --speed 1``): the same
+    answers to SITL, bit for bit, frame by frame (one machine, lockstep)."""
+    import yaml
+
+    launch = tmp_path / "short.yaml"
+    launch.write_text(yaml.safe_dump(SHORT))
+    fast, fast_run = _fly(domain, launch, "--speed", "max", frames=250)
+    paced, paced_run = _fly(domain, launch, "--isolate", "--speed", "1", frames=250)
+    assert fast == paced
+    local = fast_run["nodes"]["sitl"]
+    assert local["replies"] == 250 and local["replies_stale"] == 0
+    assert fast_run["containers"] == {"lockstep": ["server", "sitl"]}
+    assert paced_run["containers"] == {}
+    assert paced_run["wall_s"] > 250 / 250  # paced: not faster than real time

@@ -27,7 +27,7 @@ STEPS = 1500
 def test_the_px4_launch_flies_a_double_in_lockstep_with_echo_ranges(domain: Domain) -> None:
     assert domain.number is not None
     cmd = [sys.executable, "-m", "hil_bridge.cli", "launch", str(LAUNCH), "--domain",
-           str(domain.number), "--duration", "300", "--json"]
+           str(domain.number), "--duration", "300", "--json", "--speed", "max"]
     launch = subprocess.Popen(cmd, cwd=ROOT, text=True, stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED="1"))
     try:
