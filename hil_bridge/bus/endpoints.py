@@ -114,7 +114,11 @@ class Publisher(Generic[M]):
 
     def wait_for_subscribers(self, timeout: float) -> bool:
         """True once a subscription to this topic is known to receive what is published next
-        (the slow-joiner guard; no sleeping). False after ``timeout`` seconds."""
+        (the slow-joiner guard; no sleeping): in this process, on a composed bus, or over the
+        transport. False after ``timeout`` seconds."""
+        intra = self.node.intra
+        if intra is not None and intra.route(self.topic):
+            return True
         return self.node.transport.wait_for_subscriber(self.topic, timeout)
 
     def wait_for_ack(self, seq: int, timeout: float) -> bool:

@@ -15,7 +15,12 @@ and each of its publishers:
    to a lockstep frame leaves from the thread that ticked), else the delivery queues with the
    QoS of the subscription (keep-last depth, ``max_age_s``, acknowledgement of ``COMMAND``).
 
-The copy that comes back over the transport to a composed node is dropped before it is decoded:
+**A topic published in the process is heard from the process only**: while a node of the
+process publishes it, the process's subscriptions of it hold no transport subscription, so the
+copy of what they were handed does not come back to them (and what another process publishes
+on that topic is not heard here; a topic has one publisher in every launch echoloop ships, and
+``/diagnostics``, which every node publishes, has no subscriber in a node). A copy that comes
+back anyway (in flight while the subscription went, a re-send) is dropped before it is decoded:
 a composed node's ``src`` carries this process's tag (:func:`own_tag`) and its executor skips
 frames whose header holds it (counted as ``loopback``). A latched publisher's last message is
 handed to a subscription made after it, in this process, as the transport re-sends it to a
@@ -52,38 +57,60 @@ def own_tag() -> str:
 
 #: one local delivery target: the subscriber executor's ``deliver(sub, header, msg, payload)``
 Deliver = Callable[[Any, Any, Any, bytes], None]
+#: a subscription's hold on the transport: ``attach(True)`` subscribes it, ``attach(False)``
+#: lets it go
+Attach = Callable[[bool], None]
 
 
 class IntraBus:
-    """The subscriptions and latched publishers of one composed bus URL in this process."""
+    """The subscriptions and publishers of one composed bus URL in this process."""
 
     def __init__(self, url: str) -> None:
         self.url = url
         self._lock = threading.Lock()
         #: topic -> ((deliver, subscription), ...): replaced, never mutated (read without lock)
         self._routes: dict[str, tuple[tuple[Deliver, Any], ...]] = {}
-        #: topic -> latched publishers (their ``last_local()`` is handed to late subscribers)
-        self._latched: dict[str, list[Any]] = {}
+        #: topic -> the transport holds of its subscriptions here
+        self._attach: dict[str, list[tuple[Any, Attach]]] = {}
+        #: topic -> its publishers here (a latched one's ``last_local()`` goes to late joiners)
+        self._publishers: dict[str, list[Any]] = {}
 
     def route(self, topic: str) -> tuple[tuple[Deliver, Any], ...]:
         """Where a message on ``topic`` goes in this process (empty: nowhere)."""
         return self._routes.get(topic, ())
 
-    def add_subscription(self, topic: str, deliver: Deliver, sub: Any) -> None:
-        """Route ``topic`` to ``sub`` too; a latched publisher's last message is handed to it."""
+    def published_here(self, topic: str) -> bool:
+        """Whether a node of this process publishes ``topic``."""
+        return bool(self._publishers.get(topic))
+
+    def add_subscription(self, topic: str, deliver: Deliver, sub: Any, attach: Attach) -> None:
+        """Route ``topic`` to ``sub`` too, and hold the transport for it (``attach(True)``)
+        unless the topic is published here; a latched publisher's last message is handed to
+        it."""
         with self._lock:
             self._routes[topic] = (*self._routes.get(topic, ()), (deliver, sub))
-            last = [p.last_local() for p in self._latched.get(topic, ())]
-        for item in last:
+            self._attach.setdefault(topic, []).append((sub, attach))
+            pubs = list(self._publishers.get(topic, ()))
+            if not pubs:
+                attach(True)
+        for pub in pubs:
+            item = pub.last_local() if pub.qos.latched else None
             if item is not None:
                 deliver(sub, *item)
 
-    def add_latched(self, topic: str, publisher: Any) -> None:
+    def add_publisher(self, topic: str, publisher: Any) -> None:
+        """A publisher of ``topic`` here: the first lets the transport go for the topic's
+        subscriptions here (what they hear of it comes in-process)."""
         with self._lock:
-            self._latched.setdefault(topic, []).append(publisher)
+            pubs = self._publishers.setdefault(topic, [])
+            pubs.append(publisher)
+            if len(pubs) == 1:
+                for _, attach in self._attach.get(topic, ()):
+                    attach(False)
 
     def remove_node(self, subs: list[Any], publishers: list[Any]) -> None:
-        """Forget a stopped node's subscriptions and latched publishers."""
+        """Forget a stopped node's subscriptions and publishers; a topic no longer published
+        here has its subscriptions here hold the transport again."""
         gone = {id(s) for s in subs}
         with self._lock:
             for topic, targets in list(self._routes.items()):
@@ -92,10 +119,14 @@ class IntraBus:
                     self._routes[topic] = kept
                 else:
                     del self._routes[topic]
-            for topic, pubs in list(self._latched.items()):
+            for holds in self._attach.values():
+                holds[:] = [h for h in holds if id(h[0]) not in gone]
+            for topic, pubs in list(self._publishers.items()):
                 pubs[:] = [p for p in pubs if p not in publishers]
                 if not pubs:
-                    del self._latched[topic]
+                    del self._publishers[topic]
+                    for _, attach in self._attach.get(topic, ()):
+                        attach(True)
 
 
 def compose(url: str) -> IntraBus:

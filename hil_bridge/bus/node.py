@@ -22,6 +22,7 @@ own parameters; a subclass's own threads report to the same :attr:`Node.faults`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import os
 import re
@@ -147,8 +148,8 @@ class Node:
             self._publishers.append(pub)
             if profile.reliable:
                 self._ack_targets[topic] = pub
-        if self.intra is not None and profile.latched:
-            self.intra.add_latched(topic, pub)
+        if self.intra is not None:
+            self.intra.add_publisher(topic, pub)
         if profile.reliable:
             self._add_subscription(CmdAck, f"{topic}/ack", self._on_ack, SENSOR, False, True,
                                    inline=True)
@@ -204,10 +205,22 @@ class Node:
                            inline)
         frame = topic.encode() + b"\0"
         self._executor.add_subscription(frame, sub)
-        self.transport.subscribe(frame, lane=None if lane is None else f"lane:{lane}")
-        if self.intra is not None:
-            self.intra.add_subscription(topic, self._executor.deliver_local, sub)
+        lane_key = None if lane is None else f"lane:{lane}"
+        if self.intra is None:
+            self.transport.subscribe(frame, lane=lane_key)
+        else:
+            self.intra.add_subscription(topic, self._executor.deliver_local, sub,
+                                        functools.partial(self._hold, frame, lane_key, [False]))
         return sub
+
+    def _hold(self, frame: bytes, lane: str | None, held: list[bool], on: bool) -> None:
+        """A composed subscription's hold on the transport (:mod:`hil_bridge.bus.intra`)."""
+        if on != held[0] and not self.transport.closed:
+            held[0] = on
+            if on:
+                self.transport.subscribe(frame, lane=lane)
+            else:
+                self.transport.unsubscribe(frame)
 
     def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
         """Call ``callback()`` every ``period_s`` seconds of the node's sim clock."""
