@@ -205,7 +205,8 @@ class Fleet:
                 i = self._sindex.get(vid)
                 if i is not None:
                     self._surfaces[i] = u
-            self.sixdof.step(dt, self._surfaces, self._updraft)
+            # no swarm, no thermals: still air, and no positions to compute for it
+            self.sixdof.step(dt, self._surfaces, None if self.swarm is None else self._updraft)
         if self.swarm is not None:
             self._external = self._swarm_commands(commands)
             self.swarm.advance(dt, substeps=self.substeps, external=self._external)

@@ -224,11 +224,12 @@ class SixDofGliders:
     def __len__(self) -> int:
         return len(self._fdm)
 
-    def step(self, dt: float, controls: F8, updraft: Callable[[F8], F8],
+    def step(self, dt: float, controls: F8, updraft: Callable[[F8], F8] | None,
              active: NDArray[np.bool_] | None = None) -> None:
         """Fly every vehicle (or those ``active``) ``dt`` s on ``controls`` (N, 4)
         (:data:`CONTROLS`, clipped to their ranges), in JSBSim steps of at most each spec's
-        ``dt_max_s``; ``updraft(xy (2, N)) → (N,)`` m/s is asked once per step."""
+        ``dt_max_s``; ``updraft(xy (2, N)) → (N,)`` m/s is asked once per step (None: the air
+        keeps the vertical wind it has, still air from a start without updraft)."""
         u = np.asarray(controls, dtype=np.float64).reshape(len(self), len(CONTROLS))
         # NaN flies neutral, ±inf the range's ends (np.clip(np.nan_to_num(u)) at a fifth of
         # its cost on a tick's few vehicles)
@@ -247,11 +248,12 @@ class SixDofGliders:
                 if fdm.get_propulsion().get_num_engines():
                     fdm["fcs/throttle-cmd-norm"] = t
         for _ in range(n):
-            xy = self._positions()[:, :2].T
-            w = np.asarray(updraft(xy), dtype=np.float64)
+            w = None if updraft is None else np.asarray(
+                updraft(self._positions()[:, :2].T), dtype=np.float64)
             for k, fdm in enumerate(self._fdm):
                 if on[k]:
-                    fdm["atmosphere/wind-down-fps"] = -float(w[k]) / _FT
+                    if w is not None:
+                        fdm["atmosphere/wind-down-fps"] = -float(w[k]) / _FT
                     fdm.run()
 
     def mass_area_density(self) -> F8:
