@@ -5,13 +5,40 @@ Public API: :class:`EchoParams`, :class:`Beam`, :class:`Ear`, :class:`Call`, :cl
 docs/sonar.md.
 """
 
-from sim_core.sonar.api import FIDELITIES, synthesize
-from sim_core.sonar.baseband import from_baseband, to_baseband
-from sim_core.sonar.fast import Fast, Realtime
-from sim_core.sonar.model import LeafSource
-from sim_core.sonar.params import Beam, Call, Ear, Echo, EchoParams
-from sim_core.sonar.reference import Fidelity, Reference
-from sim_core.sonar.workspace import Workspace
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from sim_core.sonar.api import FIDELITIES, synthesize
+    from sim_core.sonar.baseband import from_baseband, to_baseband
+    from sim_core.sonar.fast import Fast, Realtime
+    from sim_core.sonar.model import LeafSource
+    from sim_core.sonar.params import Beam, Call, Ear, Echo, EchoParams
+    from sim_core.sonar.reference import Fidelity, Reference
+    from sim_core.sonar.workspace import Workspace
+
+#: where each public name lives: imported when first asked for (PEP 562), so a process that
+#: only converts to baseband (the serial adapter) does not import the echo simulator, its
+#: scipy.spatial and its numba kernels (0.4 s a process)
+_HOME = {
+    "FIDELITIES": "api", "synthesize": "api", "from_baseband": "baseband",
+    "to_baseband": "baseband", "Fast": "fast", "Realtime": "fast", "LeafSource": "model",
+    "Beam": "params", "Call": "params", "Ear": "params", "Echo": "params",
+    "EchoParams": "params", "Fidelity": "reference", "Reference": "reference",
+    "Workspace": "workspace",
+}
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOME.get(name)
+    if home is None:
+        raise AttributeError(f"module 'sim_core.sonar' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"sim_core.sonar.{home}"), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "FIDELITIES",

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
-from scipy.stats import gaussian_kde
 
 __all__ = [
     "Homogeneous",
@@ -127,6 +126,8 @@ class KDEIntensity(Intensity):
             raise ValueError(f"scale must be a finite number >= 0, got {scale}")
         self.points = pts
         self.scale = float(scale)
+        from scipy.stats import gaussian_kde  # here: scipy.stats costs every server 0.4 s
+
         cov = np.atleast_2d(gaussian_kde(pts.T, bw_method=bandwidth).covariance)
         self._inv = np.linalg.inv(cov)
         self._peak = 1.0 / (2.0 * np.pi * np.sqrt(np.linalg.det(cov)))
