@@ -7,7 +7,6 @@ docs/sonar.md.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -33,9 +32,23 @@ _HOME = {
 
 def __getattr__(name: str) -> Any:
     home = _HOME.get(name)
-    if home is None:
+    module: Any
+    if home == "baseband":
+        from sim_core.sonar import baseband
+
+        module = baseband
+    elif home == "params":
+        from sim_core.sonar import params
+
+        module = params
+    elif home is not None:  # the echo simulator itself
+        from sim_core.sonar import api, fast, model, reference, workspace
+
+        module = {"api": api, "fast": fast, "model": model, "reference": reference,
+                  "workspace": workspace}[home]
+    else:
         raise AttributeError(f"module 'sim_core.sonar' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"sim_core.sonar.{home}"), name)
+    value = getattr(module, name)
     globals()[name] = value
     return value
 
