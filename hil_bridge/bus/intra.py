@@ -15,12 +15,15 @@ and each of its publishers:
    to a lockstep frame leaves from the thread that ticked), else the delivery queues with the
    QoS of the subscription (keep-last depth, ``max_age_s``, acknowledgement of ``COMMAND``).
 
-**A topic published in the process is heard from the process only**: while a node of the
-process publishes it, the process's subscriptions of it hold no transport subscription, so the
-copy of what they were handed does not come back to them (and what another process publishes
-on that topic is not heard here; a topic has one publisher in every launch echoloop ships, and
-``/diagnostics``, which every node publishes, has no subscriber in a node). A copy that comes
-back anyway (in flight while the subscription went, a re-send) is dropped before it is decoded:
+**A topic an exclusive publisher of the process publishes is heard from the process only**: a
+publisher made ``exclusive=True`` says it is the topic's only one on the bus (the server's
+``/clock``, states, 6-DoF states and neighbour lists; every node's acknowledgements, each
+message being acknowledged once), and while it lives the process's subscriptions of its topic
+hold no transport subscription, so the copy of what they were handed does not come back to wake
+them. Any other topic is heard from everywhere: a composed server hears the control surfaces of
+the SITL node beside it and those a DroneCAN node sends from its own process. A copy that
+comes back (any topic a node here publishes without owning it; one in flight while a
+subscription let go) is dropped before it is decoded:
 a composed node's ``src`` carries this process's tag (:func:`own_tag`) and its executor skips
 frames whose header holds it (counted as ``loopback``). A latched publisher's last message is
 handed to a subscription made after it, in this process, as the transport re-sends it to a
@@ -74,43 +77,44 @@ class IntraBus:
         self._attach: dict[str, list[tuple[Any, Attach]]] = {}
         #: topic -> its publishers here (a latched one's ``last_local()`` goes to late joiners)
         self._publishers: dict[str, list[Any]] = {}
+        #: topic -> its exclusive publishers here (the topic's only ones on the bus)
+        self._exclusive: dict[str, list[Any]] = {}
 
     def route(self, topic: str) -> tuple[tuple[Deliver, Any], ...]:
         """Where a message on ``topic`` goes in this process (empty: nowhere)."""
         return self._routes.get(topic, ())
 
-    def published_here(self, topic: str) -> bool:
-        """Whether a node of this process publishes ``topic``."""
-        return bool(self._publishers.get(topic))
-
     def add_subscription(self, topic: str, deliver: Deliver, sub: Any, attach: Attach) -> None:
         """Route ``topic`` to ``sub`` too, and hold the transport for it (``attach(True)``)
-        unless the topic is published here; a latched publisher's last message is handed to
-        it."""
+        unless an exclusive publisher of it is here; a latched publisher's last message is
+        handed to it."""
         with self._lock:
             self._routes[topic] = (*self._routes.get(topic, ()), (deliver, sub))
             self._attach.setdefault(topic, []).append((sub, attach))
             pubs = list(self._publishers.get(topic, ()))
-            if not pubs:
+            if not self._exclusive.get(topic):
                 attach(True)
         for pub in pubs:
             item = pub.last_local() if pub.qos.latched else None
             if item is not None:
                 deliver(sub, *item)
 
-    def add_publisher(self, topic: str, publisher: Any) -> None:
-        """A publisher of ``topic`` here: the first lets the transport go for the topic's
-        subscriptions here (what they hear of it comes in-process)."""
+    def add_publisher(self, topic: str, publisher: Any, *, exclusive: bool = False) -> None:
+        """A publisher of ``topic`` here; the first ``exclusive`` one (the topic's only
+        publisher on the bus) lets the transport go for the topic's subscriptions here: what
+        they hear of it comes in-process."""
         with self._lock:
-            pubs = self._publishers.setdefault(topic, [])
-            pubs.append(publisher)
-            if len(pubs) == 1:
-                for _, attach in self._attach.get(topic, ()):
-                    attach(False)
+            self._publishers.setdefault(topic, []).append(publisher)
+            if exclusive:
+                owners = self._exclusive.setdefault(topic, [])
+                owners.append(publisher)
+                if len(owners) == 1:
+                    for _, attach in self._attach.get(topic, ()):
+                        attach(False)
 
     def remove_node(self, subs: list[Any], publishers: list[Any]) -> None:
-        """Forget a stopped node's subscriptions and publishers; a topic no longer published
-        here has its subscriptions here hold the transport again."""
+        """Forget a stopped node's subscriptions and publishers; a topic whose exclusive
+        publisher here went has its subscriptions here hold the transport again."""
         gone = {id(s) for s in subs}
         with self._lock:
             for topic, targets in list(self._routes.items()):
@@ -125,6 +129,10 @@ class IntraBus:
                 pubs[:] = [p for p in pubs if p not in publishers]
                 if not pubs:
                     del self._publishers[topic]
+            for topic, owners in list(self._exclusive.items()):
+                owners[:] = [p for p in owners if p not in publishers]
+                if not owners:
+                    del self._exclusive[topic]
                     for _, attach in self._attach.get(topic, ()):
                         attach(True)
 

@@ -138,8 +138,12 @@ class Node:
         qos: QoSProfile | str = SENSOR,
         *,
         frame_id: str = "",
+        exclusive: bool = False,
     ) -> Publisher[M]:
-        """A publisher of ``msg_type`` on ``topic`` with ``qos`` (SENSOR, COMMAND or LATCHED)."""
+        """A publisher of ``msg_type`` on ``topic`` with ``qos`` (SENSOR, COMMAND or LATCHED).
+        ``exclusive=True`` says it is the topic's only publisher on the bus: on a composed bus
+        the topic is then heard in this process from this process only
+        (:mod:`hil_bridge.bus.intra`)."""
         self._check_type(msg_type)
         validate_topic(topic)
         profile = qos_profile(qos)
@@ -149,7 +153,7 @@ class Node:
             if profile.reliable:
                 self._ack_targets[topic] = pub
         if self.intra is not None:
-            self.intra.add_publisher(topic, pub)
+            self.intra.add_publisher(topic, pub, exclusive=exclusive)
         if profile.reliable:
             self._add_subscription(CmdAck, f"{topic}/ack", self._on_ack, SENSOR, False, True,
                                    inline=True)
@@ -185,7 +189,10 @@ class Node:
         if profile.reliable:
             with self._lock:
                 if topic not in self._ack_pubs:
-                    self._ack_pubs[topic] = self.create_publisher(CmdAck, f"{topic}/ack")
+                    # exclusive: a message is acknowledged once; the acks of this process's
+                    # subscriptions reach its publishers here (hil_bridge.bus.intra)
+                    self._ack_pubs[topic] = self.create_publisher(CmdAck, f"{topic}/ack",
+                                                                  exclusive=True)
         return self._add_subscription(msg_type, topic, callback, profile, envelope, priority,
                                       lane, inline)
 

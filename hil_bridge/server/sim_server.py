@@ -294,7 +294,7 @@ class SimServer:
         self._node = Node(self.name, bus=self.bus, clock=self.clock, diagnostics_period_s=0,
                           faults=self.faults)
         node = self._node
-        self._pubs["/clock"] = node.create_publisher(Clock, "/clock", qos=SENSOR)
+        self._pubs["/clock"] = node.create_publisher(Clock, "/clock", SENSOR, exclusive=True)
         self._pubs["/diagnostics"] = node.create_publisher(Diagnostics, "/diagnostics", qos=SENSOR)
         if self.scene.spec.swarm is not None and self.params.publish_thermals:
             self._pubs["/thermals"] = node.create_publisher(
@@ -302,7 +302,7 @@ class SimServer:
             )
         for gid in self.fleet.ids:
             self._pubs[f"/glider/{gid}/state"] = node.create_publisher(
-                GliderState, f"/glider/{gid}/state", qos=SENSOR
+                GliderState, f"/glider/{gid}/state", qos=SENSOR, exclusive=True
             )
             node.create_subscription(
                 GliderCmd, f"/glider/{gid}/cmd", functools.partial(self._on_cmd, gid),
@@ -310,7 +310,7 @@ class SimServer:
             )
         for gid in self.fleet.sixdof_ids:
             self._pubs[f"/glider/{gid}/fdm"] = node.create_publisher(
-                FdmState, f"/glider/{gid}/fdm", qos=SENSOR
+                FdmState, f"/glider/{gid}/fdm", qos=SENSOR, exclusive=True
             )
             node.create_subscription(
                 SurfaceCmd, f"/glider/{gid}/surfaces", functools.partial(self._on_surfaces, gid),
@@ -318,7 +318,7 @@ class SimServer:
             )
         for gid in self._glider_index:
             self._pubs[f"/glider/{gid}/neighbors"] = node.create_publisher(
-                GliderNeighbors, f"/glider/{gid}/neighbors", qos=SENSOR
+                GliderNeighbors, f"/glider/{gid}/neighbors", qos=SENSOR, exclusive=True
             )
         if self.fleet.flies:
             # the flight kernels loaded now, not on the tick that first flies a vehicle

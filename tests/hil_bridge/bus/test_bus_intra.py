@@ -13,7 +13,7 @@ from collections.abc import Iterator
 import pytest
 
 from hil_bridge.bus import intra
-from hil_bridge.bus.codec import Envelope, decode_header
+from hil_bridge.bus.codec import Envelope, decode_header, encode
 from hil_bridge.bus.messages import Clock, GliderState
 from hil_bridge.bus.node import Node
 from hil_bridge.bus.proxy import Proxy
@@ -63,7 +63,7 @@ def test_handed_over_in_process_and_the_same_frames_for_everyone_else(composed: 
         log.create_subscription(GliderState, "/glider/1/state",
                                 lambda m: queued.append(threading.get_ident()),
                                 dataclasses.replace(SENSOR, depth=N))  # keeps all N
-        pub = srv.create_publisher(GliderState, "/glider/1/state")
+        pub = srv.create_publisher(GliderState, "/glider/1/state", exclusive=True)
         assert srv.transport.wait_for_subscriber("/glider/1/state", WAIT)  # the outside's
         for i in range(N):
             pub.publish(_state(i))
@@ -80,9 +80,28 @@ def test_handed_over_in_process_and_the_same_frames_for_everyone_else(composed: 
     assert [decode_header(f[1]) for f in frames if f is not None] == [e.header for e, _ in got]
     topic = fw.stats()["topics"]["/glider/1/state"]
     assert topic["received"] == topic["local"] == N and topic["decode_errors"] == 0
-    # published here: heard from here only (no transport subscription, nothing came back)
+    # owned here (exclusive): heard from here only (no transport subscription, nothing back)
     assert fw.stats()["loopback"] == log.stats()["loopback"] == 0
     assert fw.transport.stats()["received"] == 0
+
+
+def test_a_topic_not_owned_here_is_heard_from_everywhere_and_its_copies_skipped(
+        composed: str) -> None:
+    got: list[GliderState] = []
+    with Node("server", bus=composed, diagnostics_period_s=0) as srv, \
+            Node("sitl", bus=composed, diagnostics_period_s=0) as sitl, \
+            open_transport(composed) as elsewhere:
+        srv.start()
+        sitl.start()
+        srv.create_subscription(GliderState, "/glider/1/state", got.append, SENSOR)
+        here = sitl.create_publisher(GliderState, "/glider/1/state")
+        assert elsewhere.wait_for_subscriber("/glider/1/state", WAIT)
+        here.publish(_state(1))
+        elsewhere.publish(encode("/glider/1/state", _state(2), seq=0, pub_ns=0, src="dronecan#1"))
+        assert poll_until(lambda: len(got) == 2 and srv.stats()["loopback"] == 1)
+    assert sorted(m.x for m in got) == [1.0, 2.0]
+    topic = srv.stats()["topics"]["/glider/1/state"]
+    assert topic["local"] == 1 and topic["received"] == 2
 
 
 def test_a_late_subscription_gets_the_latched_message_in_process(composed: str) -> None:

@@ -119,7 +119,8 @@ def test_forged_seq_on_the_bus_does_not_freeze_a_subscription(
 ) -> None:
     """A spoofed message with the real publisher's ``src`` and a forged ``seq``: the stream
     continues within one message (the next real one is delivered). On a composed bus the
-    topic is published in this process and heard from it only: the spoof is never read."""
+    spoof claims a publisher of this process, whose messages come in-process: it is never
+    delivered (skipped unread as ``loopback`` when it arrives)."""
     if kind == "state":
         topic, cls, qos, make = "/glider/0/state", GliderState, SENSOR, _state
     else:
