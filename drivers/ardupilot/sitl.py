@@ -205,7 +205,10 @@ class ArduPilotSitl:
         for ln in self._links:
             vid = ln.spec.vehicle_id
             self._pubs[vid] = self._node.create_publisher(
-                SurfaceCmd, f"/glider/{vid}/surfaces", qos=COMMAND)
+                # flying SITL's PWM it is the vehicle's one source of surfaces (exclusive:
+                # hil_bridge.bus.intra); holding, the surfaces come by another wire
+                SurfaceCmd, f"/glider/{vid}/surfaces", qos=COMMAND,
+                exclusive=self.params.surfaces == "pwm")
             self._node.create_subscription(
                 FdmState, f"/glider/{vid}/fdm", self._on_state_for(ln), qos=SENSOR,
                 priority=True, inline=True)

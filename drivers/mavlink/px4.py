@@ -208,7 +208,7 @@ class Px4Hil:
         self._link = open_mavlink(self.url, system=p.system, component=p.component)
         self._node = Node(self.name, bus=self.bus, faults=self.faults)
         self._pub = self._node.create_publisher(SurfaceCmd, f"/glider/{p.vehicle_id}/surfaces",
-                                                qos=COMMAND)
+                                                qos=COMMAND, exclusive=True)  # PX4 flies it
         self._node.create_subscription(FdmState, f"/glider/{p.vehicle_id}/fdm", self._on_state,
                                        qos=SENSOR, priority=True, inline=True)
         if self._ranges is not None:

@@ -17,18 +17,19 @@ and each of its publishers:
 
 **A topic an exclusive publisher of the process publishes is heard from the process only**: a
 publisher made ``exclusive=True`` says it is the topic's only one on the bus (the server's
-``/clock``, states, 6-DoF states and neighbour lists; every node's acknowledgements, each
-message being acknowledged once), and while it lives the process's subscriptions of its topic
-hold no transport subscription, so the copy of what they were handed does not come back to wake
-them. Any other topic is heard from everywhere: a composed server hears the control surfaces of
-the SITL node beside it and those a DroneCAN node sends from its own process. A copy that
-comes back (any topic a node here publishes without owning it; one in flight while a
-subscription let go) is dropped before it is decoded:
-a composed node's ``src`` carries this process's tag (:func:`own_tag`) and its executor skips
-frames whose header holds it (counted as ``loopback``). A latched publisher's last message is
-handed to a subscription made after it, in this process, as the transport re-sends it to a
-remote one. Messages handed over are shared, not copied: subscribers treat them (and their
-arrays) as read-only, as every callback already must with a keep-last queue.
+``/clock``, states, 6-DoF states and neighbour lists; the surfaces of a firmware node that
+flies its vehicle, the ArduPilot node on SITL's PWM and the PX4 node; every node's
+acknowledgements, each message being acknowledged once), and while it lives the process's
+subscriptions of its topic hold no transport subscription, so the copy of what they were
+handed does not come back to wake them. Any other topic is heard from everywhere: a composed
+server hears the hold surfaces of the SITL node beside it and those a DroneCAN node sends from
+its own process. A copy that comes back (any topic a node here publishes without owning it;
+one in flight while a subscription let go) is dropped before it is decoded: a composed node's
+``src`` carries this process's tag (:func:`own_tag`) and its executor skips frames whose
+header holds it (counted as ``loopback``). A latched publisher's last message is handed to a
+subscription made after it, in this process, as the transport re-sends it to a remote one.
+Messages handed over are shared, not copied: subscribers treat them (and their arrays) as
+read-only, as every callback already must with a keep-last queue.
 
 This module imports nothing of the bus; the node and its publishers use it.
 """
