@@ -6,6 +6,7 @@ leaves a ZeroMQ socket or a ``mem://`` endpoint open."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 from collections.abc import Iterator
 
@@ -19,15 +20,15 @@ from hil_bridge.bus.transport import mem
 _names = itertools.count()
 
 
-@pytest.fixture(params=["mem", "zmq", "composed"])
-def bus_url(request: pytest.FixtureRequest) -> Iterator[str]:
-    """A bus URL: an unused ``mem://`` channel, or a proxy on free loopback ports (composed in
-    this process for ``composed``)."""
-    if request.param == "mem":
+@contextlib.contextmanager
+def open_bus(kind: str) -> Iterator[str]:
+    """A bus URL of ``kind``: an unused ``mem://`` channel, or a proxy on free loopback ports
+    (composed in this process for ``composed``)."""
+    if kind == "mem":
         yield f"mem://test{next(_names)}"
         return
     with Proxy("tcp://127.0.0.1:0", "tcp://127.0.0.1:0") as proxy:
-        if request.param == "zmq":
+        if kind == "zmq":
             yield proxy.url
             return
         intra.compose(proxy.url)
@@ -35,6 +36,13 @@ def bus_url(request: pytest.FixtureRequest) -> Iterator[str]:
             yield proxy.url
         finally:
             intra.release(proxy.url)
+
+
+@pytest.fixture(params=["mem", "zmq", "composed"])
+def bus_url(request: pytest.FixtureRequest) -> Iterator[str]:
+    """A bus URL of each kind (:func:`open_bus`)."""
+    with open_bus(request.param) as url:
+        yield url
 
 
 @pytest.fixture(autouse=True)

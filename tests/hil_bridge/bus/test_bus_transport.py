@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -15,6 +16,14 @@ from hil_bridge.bus.proxy import Proxy, proxy_for
 from hil_bridge.bus.transport import BACKENDS, open_transport
 from hil_bridge.bus.transport.zmq import parse_zmq_url
 from hil_bridge.errors import TransportClosed
+from tests.hil_bridge.busfixtures import open_bus
+
+
+@pytest.fixture(params=["mem", "zmq"])
+def bus_url(request: pytest.FixtureRequest) -> Iterator[str]:
+    """The backends (composition is a node's: a composed bus's transport is the zmq one)."""
+    with open_bus(request.param) as url:
+        yield url
 
 
 def _clock(topic: str, seq: int) -> list[bytes]:
