@@ -25,33 +25,10 @@ FRAMES = 1500
 
 
 def test_the_glider_launch_flies_a_double_in_lockstep(domain: Domain) -> None:
-    assert domain.number is not None
-    cmd = [sys.executable, "-m", "hil_bridge.cli", "launch", str(LAUNCH), "--domain",
-           str(domain.number), "--duration", "300", "--json"]
-    launch = subprocess.Popen(cmd, cwd=ROOT, text=True, stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, env=dict(os.environ, PYTHONUNBUFFERED="1"))
-    try:
-        assert launch.stderr is not None
-        for line in launch.stderr:
-            if "echoloop launch: running" in line:
-                break
-        else:
-            pytest.fail("the launch never ran")
-        double = SitlDouble(port=9002 + 10 * domain.number, timeout_s=60.0)
-        try:
-            answers = double.fly(FRAMES, WingLeveler(bank_deg=15.0))
-        finally:
-            double.close()
-        launch.send_signal(signal.SIGTERM)
-        out, err = launch.communicate(timeout=120)
-    finally:
-        if launch.poll() is None:
-            launch.kill()
-            launch.communicate()
-    assert launch.returncode == 0, err[-3000:]
+    answers, summary = _fly(domain, LAUNCH, frames=FRAMES, bank_deg=15.0)
     stamps = np.array([a["timestamp"] for a in answers])
     np.testing.assert_allclose(np.diff(stamps), 1 / 250, rtol=0, atol=1e-9)
-    nodes = json.loads(out)["nodes"]
+    nodes = summary["nodes"]
     sitl, server, pinger = nodes["sitl"], nodes["server"], nodes["pinger"]
     assert sitl["vehicles"]["7"]["instance"] == domain.number
     assert sitl["frames"] == sitl["replies"] == FRAMES
@@ -76,7 +53,10 @@ SHORT = {"description": "one 6-DoF glider and the SITL node, lockstep at 250 Hz"
 ]}
 
 
-def _fly(domain: Domain, launch: Path, *args: str, frames: int) -> tuple[list[dict], dict]:
+def _fly(domain: Domain, launch: Path, *args: str, frames: int, bank_deg: float = 20.0
+         ) -> tuple[list[dict], dict]:
+    """Launch ``launch`` (with ``args``) in ``domain``, fly ``frames`` frames of the double
+    holding ``bank_deg``: its answers and the launch's JSON summary (exit 0 asserted)."""
     assert domain.number is not None
     proc = subprocess.Popen(
         [sys.executable, "-m", "hil_bridge.cli", "launch", str(launch), "--domain",
@@ -87,9 +67,11 @@ def _fly(domain: Domain, launch: Path, *args: str, frames: int) -> tuple[list[di
         for line in proc.stderr:
             if "echoloop launch: running" in line:
                 break
+        else:
+            pytest.fail("the launch never ran")
         double = SitlDouble(port=9002 + 10 * domain.number, timeout_s=60.0)
         try:
-            answers = double.fly(frames, WingLeveler(bank_deg=20.0))
+            answers = double.fly(frames, WingLeveler(bank_deg=bank_deg))
         finally:
             double.close()
         proc.send_signal(signal.SIGTERM)
