@@ -168,13 +168,14 @@ def _start(made: dict[str, Any], sync: str | None) -> str | None:
 def _start_realtime(priority: int) -> str:
     """Have the threads the nodes start run under ``SCHED_FIFO`` at ``priority`` (the launch
     file's ``realtime``), with the bus's I/O thread (:func:`hil_bridge.priority.realtime_io`,
-    before construction); one line says what they got."""
+    before construction); one line says what they got (where the OS refuses, the launcher has
+    warned once for the run, and this host's stats say why)."""
     got = realtime(priority, inherit=True)
     if got.startswith("fifo"):
         log.info("realtime: the nodes' threads run SCHED_FIFO at priority %d", priority)
     else:
-        log.warning("realtime %d: %s; the nodes run at normal priority (docs/launch.md, "
-                    "Real time)", priority, got)
+        log.debug("realtime %d: %s; the nodes run at normal priority (the launcher warned)",
+                  priority, got)
     return got
 
 

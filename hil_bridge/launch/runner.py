@@ -85,7 +85,7 @@ from hil_bridge.launch.summary import (
     collect_links,
     judge,
 )
-from hil_bridge.priority import RunThreads
+from hil_bridge.priority import RunThreads, can_realtime
 from sim_core.config import ConfigError
 
 __all__ = [
@@ -330,6 +330,21 @@ def processes_for(bus: str, domain: Domain) -> bool:
     return not bus.startswith("mem://") and domain.number is not None
 
 
+
+def _warn_no_realtime(spec: LaunchSpec) -> None:
+    """One line for the run when the OS refuses ``SCHED_FIFO`` (each node host then notes it
+    in its own log only, and its stats' ``scheduling`` says why)."""
+    asked = ", ".join(f"{n.name} ({n.realtime})" for n in spec.nodes if n.realtime)
+    log.warning("realtime: SCHED_FIFO %d not permitted (ulimit -r %d, no CAP_SYS_NICE): %s run "
+                "at normal priority (docs/launch.md, Real time)", spec.realtime, _rtprio_limit(),
+                asked)
+
+
+def _rtprio_limit() -> int:
+    import resource
+
+    return int(resource.getrlimit(resource.RLIMIT_RTPRIO)[0])
+
 def run(
     path: str | Path | Mapping[str, Any] | LaunchSpec,
     *,
@@ -429,6 +444,8 @@ def run(
     held = contextlib.ExitStack()
     held.enter_context(dom.claim())
     rt = spec.realtime if in_processes else 0  # the proxy and monitor of real-time nodes
+    if rt and not can_realtime(rt):
+        _warn_no_realtime(spec)
     proxy = proxy_for(bus_url, realtime=rt) if launch_proxy(spec) else None
     try:
         with use(dom):
