@@ -1,29 +1,30 @@
 """The process model's cost: the demo with every node a process against every node a thread.
 
-``echoloop launch launch/demo.yaml --duration RUN_S --json`` runs as a child of this benchmark in
-a free domain (its own loopback ZeroMQ bus), once with each node in its own process (the
-default) and once with ``--threads``, interleaved ``REPEAT`` times. Measured per run: start-up
-(command start -> every node running, the "running" line), stop (the end of the duration ->
-the command's exit), the resident memory of each process halfway through the run
-(``/proc/PID/status`` VmRSS: per node host, and the launcher), the CPU seconds of the command
-and all its processes (``RUSAGE_CHILDREN``) per sim second, and what the loop delivered: sim
-seconds, echoes, ping -> echo and state latency percentiles from the launch's monitor (in the
-launcher: ``SCHED_FIFO`` 1, below the real-time nodes, when the launch has some, as the demo
-has; else nice +5, and its receive times include its wait for a core), the state
-latency p99 at the CAN adapter ``autopilot`` (its ``state_latency_ms``: bus publish -> its state
-callback, the consumer the states are for), and the largest gap between consecutive publishes
-of a glider's state (the monitor's ``state_gap_ms``, from the headers' publish times). A third
-mode runs the processes with the server's states at 250 Hz (``--param
-server.scene.state_rate_hz=250``; issue 19 asks for gaps ≤ 10 ms and a publish → receive p99
-≤ 3 ms there), and a fourth the same with every node at normal scheduling (``--no-realtime``:
-the demo's server and CAN adapter otherwise run their threads ``SCHED_FIFO``, its ``realtime``
-keys; the tick thread then asks for nice -10, as before real time), the baseline of real time;
-"late ticks" is the server's ``late_ticks`` (a tick published more than a period after its
-wall-clock due time) per tick, "tick thread" its ``tick_priority``. Beside every run, a stall
-probe (``bench._util.StallProbe``: one thread at ``SCHED_FIFO`` 95, above every node, waking
-every 1 ms) records how late the platform itself lets a thread run: a stall it sees held every
-process of the run, so no gap or latency of that run can be shorter; and once alone, before the
-runs, with nothing of ours running.
+``echoloop launch launch/demo.yaml --duration RUN_S --json`` runs as a child of this benchmark in a
+free domain (its own loopback ZeroMQ bus), once with each node in its own process (the default) and
+once with ``--threads``, interleaved ``REPEAT`` times. Measured per run: start-up (command start ->
+every node running, the "running" line), stop (the end of the duration -> the command's exit), the
+resident memory of each process halfway through the run (``/proc/PID/status`` VmRSS: per node host,
+and the launcher), the CPU seconds of the command and all its processes (``RUSAGE_CHILDREN``) per
+sim second, and what the loop delivered: sim seconds, echoes, ping -> echo and state latency
+percentiles from the launch's monitor (in the launcher: ``SCHED_FIFO`` 1, below the real-time
+nodes, when the launch has some, as the demo has; else nice +5, and its receive times include its
+wait for a core), the state latency p99 at the CAN adapter ``autopilot`` (its ``state_latency_ms``:
+bus publish -> its state callback, the consumer the states are for), and the largest gap between
+consecutive publishes of a glider's state (the monitor's ``state_gap_ms``, from the headers'
+publish times). A third mode runs the processes with the server's states at 250 Hz (``--param
+server.scene.state_rate_hz=250``; issue 19 asks for gaps ≤ 10 ms and a publish → receive p99 ≤ 3 ms
+there), and a fourth the same with every node at normal scheduling (``--no-realtime``: the demo's
+server and CAN adapter otherwise run their threads ``SCHED_FIFO``, its ``realtime`` keys; the tick
+thread then asks for nice -10, as before real time), the baseline of real time. Two more modes run
+those two beside ``HOGS`` processes that each burn a core at normal priority (``while True: pass``:
+a lab PC's ground station and compiler; issue 43 asks, under two hogs with real time, for a largest
+gap ≤ 10 ms and a state p99 ≤ 3 ms). "late ticks" is the server's ``late_ticks`` (a tick published
+more than a period after its wall-clock due time) per tick, "tick thread" its ``tick_priority``.
+Beside every run, a stall probe (``bench._util.StallProbe``: one thread at ``SCHED_FIFO`` 95, above
+every node, waking every 1 ms) records how late the platform itself lets a thread run: a stall it
+sees held every process of the run, so no gap or latency of that run can be shorter; and once
+alone, before the runs, with nothing of ours running.
 
 A full garbage collection in a node's process: in a fresh interpreter, one of the demo's nodes
 is built as its node host builds it (its entry imported, constructed with the launch file's
@@ -35,12 +36,14 @@ once built and once started).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import resource
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -52,11 +55,17 @@ TITLE = "Nodes as processes: start-up, memory and CPU against threads"
 ROOT = Path(__file__).resolve().parent.parent
 RUN_S = 10.0
 REPEAT = 3
-MODES: dict[str, list[str]] = {
-    "threads": ["--threads"], "processes": [],
-    "processes, states at 250 Hz": ["--param", "server.scene.state_rate_hz=250"],
-    "processes, states at 250 Hz, no real time": [
-        "--param", "server.scene.state_rate_hz=250", "--no-realtime"]}
+#: competing processes in the loaded modes: one busy loop per core, at normal priority
+HOGS = 2
+_250HZ = ["--param", "server.scene.state_rate_hz=250"]
+#: mode -> the launch's extra arguments and how many CPU hogs run beside it
+MODES: dict[str, tuple[list[str], int]] = {
+    "threads": (["--threads"], 0), "processes": ([], 0),
+    "processes, states at 250 Hz": (_250HZ, 0),
+    "processes, states at 250 Hz, no real time": ([*_250HZ, "--no-realtime"], 0),
+    "processes, states at 250 Hz, two CPU hogs": (_250HZ, HOGS),
+    "processes, states at 250 Hz, two CPU hogs, no real time": (
+        [*_250HZ, "--no-realtime"], HOGS)}
 
 
 def _rss_mb(pid: int) -> float:
@@ -81,8 +90,21 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+@contextlib.contextmanager
+def _hogs(n: int) -> Iterator[None]:
+    """``n`` processes that burn a core each (a ground station, a compiler: a lab PC's load)
+    at normal priority while the block runs."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
 def _once(mode: str, domain: int) -> dict[str, Any]:
-    with StallProbe() as probe:
+    with _hogs(MODES[mode][1]), StallProbe() as probe:
         result = _launch(mode, domain)
     return result | {"probe": probe.result}
 
@@ -92,7 +114,7 @@ def _launch(mode: str, domain: int) -> dict[str, Any]:
     t0 = time.monotonic()
     proc = subprocess.Popen(
         [sys.executable, "-m", "hil_bridge.cli", "launch", str(ROOT / "launch" / "demo.yaml"),
-         "--domain", str(domain), "--duration", str(RUN_S), "--json", *MODES[mode]],
+         "--domain", str(domain), "--duration", str(RUN_S), "--json", *MODES[mode][0]],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stderr is not None and proc.stdout is not None
     started = float("nan")
