@@ -39,8 +39,10 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar, Literal
 
+from drivers.ardupilot.firmware import FirmwareProcess, FirmwareSpec, resolve_binary
 from drivers.ardupilot.json_frames import (
     ChannelMap,
     FrameError,
@@ -65,11 +67,14 @@ BASE_PORT = 9002
 @dataclass(frozen=True, slots=True)
 class SitlInstance:
     """One SITL: the scene's 6-DoF ``vehicle_id`` it flies, its ``instance`` number (``-I``;
-    None: the domain's) and the UDP ``port`` to serve (default 9002 + 10·instance)."""
+    None: the domain's), the UDP ``port`` to serve (default 9002 + 10·instance) and, when the
+    node starts the firmware itself (:class:`SitlParams` ``binary``), how
+    (:class:`~drivers.ardupilot.firmware.FirmwareSpec`)."""
 
     vehicle_id: int
     instance: int | None = None
     port: int | None = None
+    firmware: FirmwareSpec = field(default_factory=FirmwareSpec)
 
     def __post_init__(self) -> None:
         if self.vehicle_id < 0:
@@ -88,7 +93,10 @@ class SitlParams:
     model then reads the truth exactly, and the node sends the state's own rates and specific
     force without sampling it (off the frame's path). ``surfaces``: ``pwm`` flies SITL's servo
     PWM; ``hold`` answers each frame's step and changes no surface, for a firmware that drives
-    its servos by another wire (DroneCAN: ``drivers.dronecan``)."""
+    its servos by another wire (DroneCAN: ``drivers.dronecan``). ``binary``: an ArduPilot SITL
+    executable the node runs for each instance, started once its port is bound and stopped
+    before it closes (:mod:`drivers.ardupilot.firmware`; empty: SITL is started by someone
+    else), in ``firmware_dir``/sitlN, kept (empty: the domain's directory, removed)."""
 
     instances: tuple[SitlInstance, ...]
     host: str = "127.0.0.1"
@@ -97,6 +105,8 @@ class SitlParams:
     sensors: SensorSpec = field(default_factory=lambda: SensorSpec(noise=False))
     seed: int = 0
     surfaces: Literal["pwm", "hold"] = "pwm"
+    binary: str = ""
+    firmware_dir: str = ""
 
     def __post_init__(self) -> None:
         if not self.instances:
@@ -175,12 +185,37 @@ class ArduPilotSitl:
             raise ConfigError(f"{name}.params.instances: vehicle(s) {missing}: only the first "
                               "SITL takes the domain's instance; give the others 'instance' "
                               "or 'port'")
+        self._firmware = self._firmware_for(name) if self.params.binary else {}
         self.faults = Faults(name)
         self._stop = threading.Event()
         self._links: list[_Link] = []
         self._threads: list[threading.Thread] = []
         self._node: Any = None
         self._pubs: dict[int, Any] = {}
+
+    def _firmware_for(self, name: str) -> dict[int, FirmwareProcess]:
+        """vehicle id -> the firmware the node runs for it (``binary``), checked now."""
+        where = f"{name}.params"
+        try:
+            binary = resolve_binary(self.params.binary, f"{where}.binary")
+            out = {}
+            for k, (spec, inst) in enumerate(zip(self.params.instances, self._instances,
+                                                 strict=True)):
+                at = f"{where}.instances[{k}]"
+                if inst is None:
+                    raise ValueError(f"{at}.instance: the firmware the node starts needs an "
+                                     "instance number (-I; its port is 9002 + 10·instance)")
+                if spec.port is not None and spec.port != BASE_PORT + 10 * inst:
+                    raise ValueError(f"{at}.port: {spec.port} is not instance {inst}'s JSON "
+                                     f"port ({BASE_PORT + 10 * inst}), where its firmware sends")
+                out[spec.vehicle_id] = FirmwareProcess(
+                    binary, spec.firmware, instance=inst, host=self.params.host,
+                    workdir=Path(self.params.firmware_dir) / f"sitl{inst}"
+                    if self.params.firmware_dir else current_domain().path(f"sitl{inst}"),
+                    keep=bool(self.params.firmware_dir), where=at)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        return out
 
     @property
     def ports(self) -> dict[int, int]:
@@ -221,8 +256,14 @@ class ArduPilotSitl:
             t.start()
         log.info("%s: serving SITL JSON on %s", self.name,
                  ", ".join(f"{self.params.host}:{p} (vehicle {v})" for v, p in self.ports.items()))
+        for vid, fw in self._firmware.items():
+            fw.start()
+            log.info("%s: vehicle %d's firmware runs in %s (pid %s): %s", self.name, vid,
+                     fw.workdir, fw.pid, " ".join(fw.command))
 
     def stop(self) -> None:
+        for fw in self._firmware.values():  # before its port closes: it stops as it flies
+            fw.stop()
         self._stop.set()
         for ln in self._links:
             with ln.cond:
@@ -249,13 +290,19 @@ class ArduPilotSitl:
             for k, v in c.items():
                 out[k] += v
             per[str(ln.spec.vehicle_id)] = {"instance": ln.instance, "port": ln.port, **c}
+            fw = self._firmware.get(ln.spec.vehicle_id)
+            if fw is not None:
+                per[str(ln.spec.vehicle_id)]["firmware"] = {
+                    "pid": fw.pid, "workdir": str(fw.workdir), "command": fw.command}
         out["added_latency_us"] = percentiles(lat)
         out["vehicles"] = per
         return out
 
     def failure(self, *, final: bool = False) -> str | None:
-        """Why the node failed (a SITL thread or a bus callback raised), or None."""
-        return self.faults.failure(final=final)
+        """Why the node failed (a SITL thread or a bus callback raised, a firmware it runs
+        exited by itself), or None."""
+        gone = next((why for fw in self._firmware.values() if (why := fw.failure())), None)
+        return gone or self.faults.failure(final=final)
 
     # ------------------------------------------------------------------ bus thread
 

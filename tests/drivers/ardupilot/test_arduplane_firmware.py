@@ -1,9 +1,10 @@
 """Real firmware: ArduPlane SITL flies ``launch/ardupilot_glider.yaml``'s glider into the thermal.
 
 Runs only where ``ECHOLOOP_ARDUPILOT_SITL`` names an ``arduplane`` binary (built by the user from
-ArduPilot, outside this repository). The launch serves SITL instance N (the claimed domain);
-``arduplane -I N --model JSON:127.0.0.1`` boots with ``launch/data/ardupilot/echoloop-sgs126.parm``
-while the glider glides; once its EKF uses GPS, the test sets home to the scene's origin,
+ArduPilot, outside this repository). The launch serves SITL instance N (the claimed domain) and
+runs the firmware itself (``--param sitl.binary=...``: ``arduplane -I N --model JSON:127.0.0.1``
+with the launch's parameter files, in the domain's directory), which boots while the glider
+glides; once its EKF uses GPS, the test sets home to the scene's origin,
 uploads ``launch/data/ardupilot/echoloop-thermal.waypoints`` (a mission east through the 4 m/s
 thermal) and flies it in AUTO: the firmware's soaring code must switch to THERMAL and the glider
 must climb 30 m above where it entered the thermal.
@@ -29,11 +30,10 @@ pytestmark = [
 
 ROOT = Path(__file__).resolve().parents[3]
 LAUNCH = ROOT / "launch" / "ardupilot_glider.yaml"
-PARM = ROOT / "launch" / "data" / "ardupilot" / "echoloop-sgs126.parm"
 MISSION = ROOT / "launch" / "data" / "ardupilot" / "echoloop-thermal.waypoints"
 AUTO, THERMAL = 10, 24  # ArduPlane's mode numbers
 CLIMB_M = 30.0
-ORIGIN = (47.0, 8.0, 0.0)  # the launch's sixdof origin: SITL's --home and the mission's home
+ORIGIN = (47.0, 8.0, 0.0)  # the launch's sixdof origin: its firmware's --home, the mission's home
 
 
 def _upload_mission(mav: Any, mavutil: Any) -> None:
@@ -58,15 +58,11 @@ def test_arduplane_enters_thermal_and_climbs(domain: Domain, tmp_path: Path) -> 
 
     n = domain.number
     assert n is not None
-    launch = subprocess.Popen(
+    log_file = (tmp_path / "launch.log").open("w")
+    launch = subprocess.Popen(  # the launch runs the firmware (its sitl node's firmware block)
         [sys.executable, "-m", "hil_bridge.cli", "launch", str(LAUNCH), "--domain", str(n),
-         "--duration", "1800"], cwd=ROOT, text=True, stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL)
-    home = ",".join(f"{v:g}" for v in ORIGIN)
-    firmware = subprocess.Popen(
-        [SITL, "--model", "JSON:127.0.0.1", "-I", str(n), "-w", "--home", f"{home},90",
-         "--defaults", str(PARM)], cwd=tmp_path, text=True, stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL)
+         "--duration", "1800", "--param", f"sitl.binary={SITL}"], cwd=ROOT, text=True,
+        stdout=subprocess.DEVNULL, stderr=log_file)
     try:
         mav = mavutil.mavlink_connection(f"tcp:127.0.0.1:{5760 + 10 * n}", retries=120)
         assert mav.wait_heartbeat(timeout=120) is not None, "no heartbeat from SITL"
@@ -112,5 +108,7 @@ def test_arduplane_enters_thermal_and_climbs(domain: Domain, tmp_path: Path) -> 
         assert best - entered >= CLIMB_M, (
             f"in THERMAL from {entered:.0f} m the glider reached only {best:.0f} m")
     finally:
-        stop(firmware)
         stop(launch)
+        log_file.close()
+    assert launch.returncode == 0, (tmp_path / "launch.log").read_text()
+    assert not domain.path(f"sitl{n}").exists()  # the firmware's directory went with it
