@@ -30,9 +30,12 @@ def pytest_report_header() -> str:
 
 
 #: tests that hold no float result numpy's SIMD path could change (lifecycle, framing, the bus,
-#: the repository's own checks): marked ``no_simd_float``, so the AVX-512-off pass of ``.ci/run``
+#: bad files' one-line errors, the recorder's failures and recovery, the repository's own checks): marked ``no_simd_float``, so the AVX-512-off pass of ``.ci/run``
 #: leaves them out, as it leaves out the ``processes`` tests
 NO_SIMD_FLOAT = ("hil_bridge/launch/", "hil_bridge/bus/", "hil_bridge/tools/", "drivers/serial/",
+                 "hil_bridge/cli/test_cli_bad_inputs.py", "hil_bridge/cli/test_cli_dispatch.py",
+                 "hil_bridge/recording/test_bag_recorder.py",
+                 "hil_bridge/recording/test_bag_recover.py",
                  "test_plugin.py", "test_leak_guard.py", "test_self_contained.py",
                  "test_architecture.py", "test_docs_figures.py")
 
