@@ -38,6 +38,14 @@ The control path has priority on the node's executor: state and ``/clock`` callb
 neighbour lists, and malformed bus messages are dropped and counted before they queue
 (:mod:`hil_bridge.bus.node`), so a flood on one topic cannot hold states back.
 
+**One unit on the wire at a time.** Two threads send: the CAN transmit thread (the periodic
+samples, the heartbeats) and the node's executor (lockstep samples). A lock is held for the
+whole of each unit (a sample with its neighbour list, a heartbeat), sample counter included, so
+at any switch of ``/clock`` between free-running and lockstep every sample's frames go out
+together and in counter order (without it, a switch could send one sample's frames inside
+another's, which the autopilot tears, docs/can.md); no free-running sample goes out once
+lockstep has begun. :class:`~drivers.can.bus.CanLink` then sees one sender at a time.
+
 Bus errors are absorbed by :class:`drivers.can.bus.CanLink` (retry with back-off, bus-off
 recovery, re-open); no exception leaves the adapter's CAN threads
 (:class:`drivers.can.endpoint.CanEndpoint`): anything unexpected is counted as ``loop_errors``
@@ -230,6 +238,9 @@ class AutopilotAdapter(Node):
         self._slots_sent = 0
         self._by_node = {g.node: g for g in self._glider.values()}
         self._glock = threading.Lock()
+        #: held for all the frames of one unit on the wire (module docstring); taken before
+        #: ``_glock``, never while holding it
+        self._tx_lock = threading.Lock()
         self._c: Counter[str] = Counter()
         #: its CAN side: codec, link, receive and transmit threads
         self.can = CanEndpoint(self.name, self.bus_config, faults=self.faults, count=self._inc,
@@ -383,6 +394,10 @@ class AutopilotAdapter(Node):
 
     def _send_lockstep_sample(self, g: _Glider, st: GliderState) -> None:
         """One lockstep sample: POS (lockstep = 1), the neighbour list, attitude, MOTION."""
+        with self._tx_lock:
+            self._send_lockstep_unit(g, st)
+
+    def _send_lockstep_unit(self, g: _Glider, st: GliderState) -> None:
         with self._glock:
             nbs = g.neighbours
             if nbs is not None and nbs.step != st.step:
@@ -415,10 +430,14 @@ class AutopilotAdapter(Node):
 
     def _send_sample(self, g: _Glider, now: float) -> None:
         """Glider ``g``'s latest state (if fresh) as a sample, then its neighbour list if a new
-        one is due."""
+        one is due; nothing once lockstep has begun."""
+        with self._tx_lock:
+            self._send_sample_unit(g, now)
+
+    def _send_sample_unit(self, g: _Glider, now: float) -> None:
         with self._glock:
             st = g.state
-            if st is None or now - g.state_wall > self.state_timeout_s:
+            if self._lockstep or st is None or now - g.state_wall > self.state_timeout_s:
                 return
             g.state_counter = (g.state_counter + 1) % 16
             counter = g.state_counter
@@ -451,7 +470,8 @@ class AutopilotAdapter(Node):
                 has_state = g.state is not None
                 sim_ms = (g.state.stamp_ns // 1_000_000) % (1 << 32) if g.state is not None else 0
             mode = bridge_mode(has_state, link_state)
-            ok = self._send_frames(g.node, [heartbeat_frame(counter, mode, state, sim_ms)])
+            with self._tx_lock:
+                ok = self._send_frames(g.node, [heartbeat_frame(counter, mode, state, sim_ms)])
             self._inc("heartbeats_sent" if ok else "heartbeats_dropped")
 
     # -- command supervision ------------------------------------------------------------------
