@@ -116,8 +116,12 @@ class Trajectory:
     ) -> Trajectory:
         """Time a geometric path (K, 3) at constant ``speed_mps`` (arc length / speed).
 
-        ``heading`` None: the direction of travel of each segment (last repeats). Bank is the
-        coordinated-turn bank ``atan(v * dpsi/dt / g)`` of the timed path.
+        ``heading`` None: the direction of travel of each segment (the last sample repeats the
+        last segment's; on a ``loop``, whose last sample is the instant it wraps to the first,
+        the first segment's). Bank is the coordinated-turn bank ``atan(v * dpsi/dt / g)`` of
+        the timed path, the heading rate a central difference; on a ``loop`` the neighbours
+        are periodic (before the first sample comes the last but one, after the last the
+        second), so the join banks as any other sample does.
         """
         p = np.asarray(xyz, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] < 2:
@@ -132,10 +136,16 @@ class Trajectory:
         if heading is None:
             d = np.diff(p[:, :2], axis=0)
             h = np.arctan2(d[:, 1], d[:, 0])
-            hdg = np.concatenate([h, h[-1:]])
+            hdg = np.concatenate([h, h[:1] if loop else h[-1:]])
         else:
             hdg = np.asarray(heading, dtype=np.float64)[keep]
-        rate = np.gradient(np.unwrap(hdg), t)
+        psi = np.unwrap(hdg)
+        if loop:
+            turn, period = psi[-1] - psi[0], t[-1] - t[0]
+            rate = np.gradient(np.concatenate([[psi[-2] - turn], psi, [psi[1] + turn]]),
+                               np.concatenate([[t[-2] - period], t, [t[1] + period]]))[1:-1]
+        else:
+            rate = np.gradient(psi, t)
         bank = np.arctan(speed_mps * rate / 9.81)
         return cls(t, p, hdg, bank, np.full(t.shape, float(speed_mps)), loop=loop)
 

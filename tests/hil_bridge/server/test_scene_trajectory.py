@@ -67,6 +67,65 @@ def test_from_path_times_by_arc_length_and_banks_on_turns() -> None:
     np.testing.assert_allclose(traj.bank[10:-10], np.arctan(v * v / (9.81 * r)), rtol=1e-3)
 
 
+def _ring(n: int, r: float, *, turns: float = 1.0) -> np.ndarray:
+    """``n`` chords of a circle of radius ``r`` at 3 m, closed (the last point is the first)."""
+    a = np.linspace(0.0, 2 * np.pi * turns, n + 1)
+    xyz = np.stack([r * np.cos(a), r * np.sin(a), np.full_like(a, 3.0)], axis=1)
+    xyz[-1] = xyz[0]
+    return xyz
+
+
+def test_a_looped_circle_banks_atan_v2_over_rg_everywhere_and_at_its_join() -> None:
+    """Coordinated turn, tan(bank) = V^2 / (R g), at every sample, the join's two included (the
+    loop's neighbours are periodic); across the wrap the bank moves less than the flight
+    model's roll-rate limit allows in that time. Tolerance: a chord polygon's heading rate is
+    V/R (1 + (pi/n)^2 / 6 + ...), 1.3e-5 relative at n = 360."""
+    from sim_core.flight import FlightParams
+
+    r, v = 20.0, 5.0
+    traj = Trajectory.from_path(_ring(360, r), None, speed_mps=v, loop=True)
+    np.testing.assert_allclose(traj.bank, np.arctan(v * v / (9.81 * r)), rtol=1e-4)
+    dt = float(traj.t[1] - traj.t[0])
+    end = traj.t[-1]
+    across = traj.sample(np.array([end - dt / 2, end, end + dt / 2]))
+    assert np.all(np.abs(np.diff(across["bank"])) <= FlightParams().bank_rate_max * dt / 2)
+    heading_step = np.abs(np.angle(np.exp(1j * np.diff(across["heading"]))))
+    assert np.all(heading_step <= v / r * dt / 2 * (1 + 1e-4))
+
+
+def test_a_looped_square_banks_at_its_join_as_at_its_other_corners() -> None:
+    """A square of 0.5 m steps (as a ``points`` path is densified): each corner banks the two
+    samples around it (a central difference over one 90-degree turn); the join is a corner like
+    the others, not a one-sample glitch, so its bank equals the bank one sample away there."""
+    from sim_core.scene.runtime import _densify
+
+    side = 10.0
+    corners = np.array([[0, 0, 3], [side, 0, 3], [side, side, 3], [0, side, 3], [0, 0, 3]],
+                       dtype=float)
+    traj = Trajectory.from_path(_densify(corners, 0.5), None, speed_mps=3.0, loop=True)
+    per_side = int(side / 0.5)
+    assert len(traj) == 4 * per_side + 1
+    dt = 0.5 / 3.0
+    corner_bank = np.arctan(3.0 * (np.pi / 2) / (2 * dt) / 9.81)
+    bank = traj.bank
+    for k in range(1, 4):  # the corners inside the path: samples k * per_side - 1 and k * per_side
+        np.testing.assert_allclose(bank[k * per_side - 1:k * per_side + 1], corner_bank,
+                                   rtol=1e-9)
+    np.testing.assert_allclose(bank[[-2, -1, 0]], corner_bank, rtol=1e-9)  # the join
+    straight = np.ones(len(traj), dtype=bool)
+    straight[[k * per_side + d for k in range(5) for d in (-1, 0) if 0 <= k * per_side + d]] = 0
+    np.testing.assert_allclose(bank[straight], 0.0, atol=1e-12)
+
+
+def test_an_open_path_keeps_its_one_sided_ends() -> None:
+    """Without ``loop`` the ends are ends: the last sample repeats the last segment's heading and
+    the heading rate there is one-sided (np.gradient's), as before loops were periodic."""
+    xyz = _ring(360, 20.0, turns=0.5)[:-1]
+    traj = Trajectory.from_path(xyz, None, speed_mps=5.0, loop=False)
+    assert traj.heading[-1] == traj.heading[-2]
+    assert traj.bank[-1] == pytest.approx(0.0, abs=1e-12)
+
+
 def test_csv_single_and_multi_vehicle(tmp_path: Path) -> None:
     single = tmp_path / "one.csv"
     single.write_text(

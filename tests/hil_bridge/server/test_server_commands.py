@@ -112,7 +112,8 @@ def test_unknown_autopilot_id_and_bad_params_fail_at_construction() -> None:
 
 def test_commanded_vehicle_leaves_its_path_and_turns_at_the_coordinated_rate() -> None:
     bus = "mem://vehicle_cmd"
-    path = {"kind": "points", "points": [[0.0, 0.0, 3.0], [100.0, 0.0, 3.0]]}
+    # from level flight: looped, the path would start in its U-turn back from the far end
+    path = {"kind": "points", "points": [[0.0, 0.0, 3.0], [100.0, 0.0, 3.0]], "loop": False}
     scene = {
         "vehicles": [{"id": 100, "path": path, "commanded": True},
                      {"id": 101, "path": path}],

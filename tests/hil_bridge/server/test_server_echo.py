@@ -22,7 +22,9 @@ def _scene(mode: str) -> dict[str, Any]:
     return {
         "forest": {"preset": "seed000-fig5d", "query_radius_m": 4.0},
         "sonars": [{"id": 3, "mount": 100, "echo": ECHO}],
-        "vehicles": [{"id": 100, "path": {"kind": "points",
+        # level flight (the beam below has no roll): looped, the path would start in its
+        # U-turn back from the far end
+        "vehicles": [{"id": 100, "path": {"kind": "points", "loop": False,
                                           "points": [[2.0, 5.0, 2.0], [18.0, 5.0, 2.0]]}}],
         "state_rate_hz": 20,
         "clock": {"mode": mode},

@@ -98,7 +98,8 @@ def test_a_ninety_degree_yaw_mount_looks_sideways() -> None:
         "forest": FOREST, "state_rate_hz": 50, "clock": {"mode": "fast"},
         "sonars": [{"id": 0, "mount": 7, "echo": ECHO, "mount_offset_m": [0.2, 0.0, -0.1],
                     "mount_rpy_rad": [0.0, 0.0, math.pi / 2]}],
-        "vehicles": [{"id": 7, "path": {"kind": "points", "speed_mps": 2.0,
+        # level flight: looped, the path would start in its U-turn back from the far end
+        "vehicles": [{"id": 7, "path": {"kind": "points", "speed_mps": 2.0, "loop": False,
                                         "points": [[2.0, 5.0, 2.0], [18.0, 5.0, 2.0]]}}],
     }
     ping = SonarPing(stamp_ns=100_000_000, ping_seq=1, az=0.0, el=0.0, beamwidth=0.5)
