@@ -9,7 +9,9 @@ its workers (:mod:`hil_bridge.server.echo_pool`).
 pitches with the vehicle), the sonar's ears turned the same way, the leaves around the sonar
 and :func:`sim_core.sonar.synthesize`. :func:`answer_echo` computes it within a deadline,
 planned by a :class:`DeadlinePlanner` (degraded to ``realtime`` or dropped when the scene's
-fidelity does not fit). :func:`compute_points` gathers the leaves of ``/forest/points``.
+fidelity does not fit); what synthesises the echo is a :data:`Synthesize` it may be given (the
+seam through which a test makes an echo take a known time). :func:`compute_points` gathers the
+leaves of ``/forest/points``.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import math
 import statistics
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,6 +42,7 @@ __all__ = [
     "EchoResult",
     "Region",
     "SonarPose",
+    "Synthesize",
     "answer_echo",
     "compute_echo",
     "compute_points",
@@ -55,6 +58,9 @@ MAX_POINT_TILES = 64
 PUBLISH_MARGIN_S = 1e-3
 #: echoes a deadline planner gives up in a row before it tries one on the cost model alone
 PROBE_AFTER = 4
+#: ``synthesize(leaves, beam, params, fidelity=name) -> echo``: the signature of
+#: :func:`sim_core.sonar.synthesize`, which computes an echo unless another is given
+Synthesize = Callable[..., Any]
 
 
 @dataclass(frozen=True, slots=True)
@@ -175,14 +181,19 @@ class DeadlinePlanner:
 
 
 def answer_echo(
-    scene: Scene, job: EchoJob, planner: DeadlinePlanner | None = None
+    scene: Scene, job: EchoJob, planner: DeadlinePlanner | None = None, *,
+    synthesize: Synthesize | None = None,
 ) -> EchoResult | None:
     """The echo of ``job`` (see :func:`compute_echo`), within its deadline: at the sonar's
     fidelity if the predicted time fits, else degraded to ``realtime`` (without Doppler) with
     the time left as its budget, else None (the time is up). An echo model with ``doppler``
-    is given the job's ``velocity`` as its ``platform_velocity``. ValueError when the scene
-    refuses the ping."""
-    from sim_core.sonar import synthesize
+    is given the job's ``velocity`` as its ``platform_velocity``. ``synthesize``: what
+    computes the echo (None: :func:`sim_core.sonar.synthesize`); the planner measures its
+    time. ValueError when the scene refuses the ping."""
+    if synthesize is None:
+        from sim_core.sonar import synthesize as default_synthesize
+
+        synthesize = default_synthesize
     from sim_core.sonar.model import precull_half_angle
     from sim_core.sonar.mount import ears_for_ping, ping_beam
 

@@ -53,6 +53,7 @@ from hil_bridge.server.echo_compute import (
     EchoJob,
     EchoRequest,
     Region,
+    Synthesize,
     answer_echo,
     compute_points,
 )
@@ -86,11 +87,14 @@ def usable_cores() -> int:
 
 
 class ThreadWorker:
-    """The scheduler thread itself computes, one job per :meth:`poll` round."""
+    """The scheduler thread itself computes, one job per :meth:`poll` round (its echoes by
+    ``synthesize``, None: :func:`sim_core.sonar.synthesize`)."""
 
-    def __init__(self, scene: Scene, cost: EchoCost = COST) -> None:
+    def __init__(self, scene: Scene, cost: EchoCost = COST,
+                 synthesize: Synthesize | None = None) -> None:
         self.scene = scene
         self.planner = DeadlinePlanner(cost)
+        self.synthesize = synthesize
         self._replies: list[Reply] = []
         self._wake = threading.Event()
 
@@ -112,7 +116,8 @@ class ThreadWorker:
 
     def echo(self, request: EchoRequest, job: EchoJob) -> None:
         try:
-            self._replies.append(("echo", request, answer_echo(self.scene, job, self.planner), ""))
+            echo = answer_echo(self.scene, job, self.planner, synthesize=self.synthesize)
+            self._replies.append(("echo", request, echo, ""))
         except ValueError as exc:
             self._replies.append(("echo", request, None, str(exc)))
 
@@ -142,10 +147,10 @@ class ThreadWorker:
 
 
 def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
-                 cost: EchoCost, parent_pid: int) -> None:
+                 cost: EchoCost, parent_pid: int, synthesize: Synthesize | None) -> None:
     """Body of a worker process: its own Scene, tiles through the shared store, one job at a
-    time; exits on ``None``, when the server's end of the pipe closes, or with the server's
-    process."""
+    time, echoes by ``synthesize`` (a module-level function: it is pickled by name); exits on
+    ``None``, when the server's end of the pipe closes, or with the server's process."""
     die_with_parent(parent_pid, signal.SIGKILL)
     from hil_bridge.files.scene import load_scene
     from hil_bridge.recording.logs import load_trajectory
@@ -182,7 +187,7 @@ def _worker_main(spec: Any, store_dir: str | None, conn: Connection, nice: int,
         error = ""
         try:
             if kind == "echo":
-                out = answer_echo(scene, args, planner)
+                out = answer_echo(scene, args, planner, synthesize=synthesize)
             elif kind == "points":
                 out = compute_points(scene, *args)
             elif kind == "build" and forest is not None:
@@ -208,10 +213,12 @@ class _Slot:
 
 
 class ProcessPool:
-    """``n`` worker processes sharing forest tiles (module docstring)."""
+    """``n`` worker processes sharing forest tiles (module docstring); ``synthesize`` computes
+    their echoes (a module-level function; None: :func:`sim_core.sonar.synthesize`)."""
 
     def __init__(self, scene: Scene, n: int, stop: threading.Event, *, domain: Any = None,
-                 cost: EchoCost = COST, faults: Faults | None = None) -> None:
+                 cost: EchoCost = COST, faults: Faults | None = None,
+                 synthesize: Synthesize | None = None) -> None:
         from hil_bridge.bus.domain import current
         from hil_bridge.server.shared_tiles import SharedTiles
         from sim_core.world import TiledForest
@@ -219,6 +226,7 @@ class ProcessPool:
         self.scene = scene
         self.n = n
         self.cost = cost
+        self.synthesize = synthesize
         self.faults = faults if faults is not None else Faults("echo_pool")
         self._stop = stop
         self._ctx = multiprocessing.get_context("spawn")
@@ -257,7 +265,7 @@ class ProcessPool:
         proc = self._ctx.Process(
             target=_worker_main,
             args=(self.scene.spec, None if self.store is None else str(self.store.directory),
-                  theirs, WORKER_NICE, self.cost, os.getpid()),
+                  theirs, WORKER_NICE, self.cost, os.getpid(), self.synthesize),
             name=WORKER_NAME, daemon=True,
         )
         with normal_children():  # a real-time server's workers compute: never real time

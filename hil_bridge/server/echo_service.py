@@ -68,6 +68,7 @@ from hil_bridge.server.echo_compute import (
     EchoRequest,
     EchoResult,
     Region,
+    Synthesize,
     region_tiles,
 )
 from hil_bridge.server.echo_pool import ProcessPool, ThreadWorker, usable_cores
@@ -98,9 +99,11 @@ class EchoService:
 
     ``EchoService(scene, *, worker="thread", workers=None, queue_size=4, deadlines=True,
     budget_s=None, on_echo, on_error, on_drop=None, points=None, on_points=None, lookahead=None,
-    domain=None, cost=COST)``: ``on_drop(request)`` for every ping dropped unanswered (full queue or
-    deadline); ``lookahead() -> regions`` the sonars will reach; ``domain`` names the pool's shared
-    memory (default: the current one); ``cost`` the cost model the deadlines are planned with;
+    domain=None, cost=COST, synthesize=None)``: ``on_drop(request)`` for every ping dropped
+    unanswered (full queue or deadline); ``lookahead() -> regions`` the sonars will reach;
+    ``domain`` names the pool's shared memory (default: the current one); ``cost`` the cost
+    model the deadlines are planned with; ``synthesize`` what computes each echo (a
+    module-level function for a pool; None: :func:`sim_core.sonar.synthesize`);
     ``faults`` where a scheduler thread or a worker process that dies is reported (the server's;
     default a record of its own). ``start()`` starts the workers; ``close()`` (idempotent) stops
     them and removes their shared memory.
@@ -124,6 +127,7 @@ class EchoService:
         domain: Any = None,
         cost: EchoCost = COST,
         faults: Faults | None = None,
+        synthesize: Synthesize | None = None,
     ) -> None:
         if queue_size < 1:
             raise ValueError(f"queue_size: expected >= 1, got {queue_size}")
@@ -145,6 +149,7 @@ class EchoService:
         self._lookahead = lookahead
         self._domain = domain
         self.cost = cost
+        self.synthesize = synthesize
         self.faults = faults if faults is not None else Faults("echo_service")
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -314,11 +319,11 @@ class EchoService:
 
                 ball.warm_up()  # the leaf gather and the pre-cull compiled (or loaded) before
                 precull.warm_up()  # the first ping
-                self._serve(ThreadWorker(self.scene, self.cost))
+                self._serve(ThreadWorker(self.scene, self.cost, self.synthesize))
             else:
                 self._pool = ProcessPool(self.scene, self.n_workers, self._stop,
                                          domain=self._domain, cost=self.cost,
-                                         faults=self.faults)
+                                         faults=self.faults, synthesize=self.synthesize)
                 try:
                     self._serve(self._pool)
                 finally:

@@ -234,39 +234,59 @@ def test_without_deadlines_each_sonar_keeps_its_own_bounded_queue() -> None:
     svc.close()
 
 
-def test_a_realtime_server_degrades_what_its_deadlines_cannot_hold_and_accounts_for_every_ping(
-) -> None:
-    from hil_bridge.bus.node import Node
-    from hil_bridge.server.sim_server import SimServer
+#: how long the injected reference echo takes at least, s
+SLOW_S = 0.8
+#: when the ping after it is due, s after it arrives: less than SLOW_S, and far more than
+#: planning it takes
+DUE_S = 0.4
 
-    # a 'reference' sonar at 10 Hz: its echo (hundreds of ms) can never be ready before the
-    # next ping, so after the first (late) one the worker learns it and degrades to realtime
-    scene = {**SCENE, "sonars": [{"id": 0, "mount": 1, "fidelity": "reference",
-                                  "echo": {"samples": 24000}}],
-             "forest": {**SCENE["forest"], "query_radius_m": 10.0}, "state_rate_hz": 50}
-    bus = "mem://echo_deadlines"
-    srv = SimServer("server", bus=bus, scene=scene, stop_after_s=600.0)
-    head = Node("head", bus=bus)
-    pub = head.create_publisher(SonarPing, "/sonar/0/ping")
-    head.start()
-    srv.start()
+
+def _slow_reference(leaves: Any, beam: Any, params: Any, *, fidelity: str) -> Any:
+    """:func:`sim_core.sonar.synthesize`, but a ``reference`` echo takes SLOW_S longer."""
+    from sim_core.sonar import synthesize
+
+    if fidelity == "reference":
+        time.sleep(SLOW_S)
+    return synthesize(leaves, beam, params, fidelity=fidelity)
+
+
+@pytest.mark.parametrize("worker", ["thread", "pool"])
+def test_after_a_slow_echo_the_next_is_degraded_by_the_measured_ratio_or_dropped(
+    worker: str,
+) -> None:
+    """The planner's rule (DeadlinePlanner): an echo is predicted to take the cost model's
+    time times the measured / predicted ratio of the worker's echoes, and is degraded to
+    ``realtime`` within the time left when that does not fit. The injected reference echo
+    takes SLOW_S: the first ping (no deadline yet) is answered at ``reference`` and teaches
+    the worker the ratio, so the next, due DUE_S < SLOW_S after it arrives, is predicted not
+    to fit and is degraded; a ping whose time is up before it starts is dropped. How long a
+    real echo takes on this machine, however loaded, decides none of it."""
+    sink = _Sink()
+    svc = sink.service(load_scene(SCENE), worker=worker, workers=1, deadlines=True,
+                       synthesize=_slow_reference)
+    first, second, third = _requests(3, 1)
+    svc.start()
     try:
-        for k in range(25):
-            pub.publish(SonarPing(stamp_ns=0, ping_seq=k, az=0.0, el=-0.2, beamwidth=1.0))
-            time.sleep(0.1)
+        assert svc.wait_ready(60.0)
+        svc.submit(first)
+        slow = sink.take(1)[(1, 0)]
+        now = time.monotonic()
+        svc.submit(dataclasses.replace(second, received=now, deadline=now + DUE_S))
+        degraded = sink.take(1)[(1, 1)]
+        expired = dataclasses.replace(third, deadline=time.monotonic() - 1.0)
+        svc.submit(expired)
         deadline = time.monotonic() + 30.0
-        while time.monotonic() < deadline and srv.stats()["echoes_degraded"] == 0:
-            time.sleep(0.05)
-        time.sleep(0.5)
-        st = srv.stats()
+        while svc.stats()["expired"] == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
     finally:
-        srv.stop()
-        head.stop()
-    assert st["pings_received"] == 25
-    assert st["echoes_degraded"] >= 1
-    answered = st["echoes_published"] + st["pings_dropped_deadline"] + st["pings_dropped"]
-    assert 24 <= answered + st["echo_errors"] <= 25  # at most the last ping still computing
-    assert st["echo_workers"] == 0
+        svc.close()
+    assert slow.fidelity == "reference" and not slow.degraded
+    assert slow.compute_ns >= SLOW_S * 1e9
+    assert degraded.degraded and degraded.fidelity == "realtime"
+    assert np.isfinite(degraded.error_bound)
+    assert sink.dropped == [expired] and sink.errors == []
+    st = svc.stats()
+    assert (st["requests"], st["answered"], st["degraded"], st["expired"]) == (3, 2, 1, 1)
 
 
 def _leaks() -> tuple[list[Any], list[Path]]:
