@@ -48,7 +48,7 @@ from sim_core.soaring.thermals import spawn_thermals, updraft
 TITLE = "Continuous flight: error vs dt, seed law discrete vs continuous"
 
 #: The baseline of the step's cost: the last commit whose flight step was numpy, before the
-#: compiled right-hand side and RK4 sub-step (sim_core/soaring/kernels.py, ``flight_*``).
+#: compiled right-hand side and RK4 sub-step (sim_core/soaring/kernels/continuous.py, ``flight_*``).
 BASELINE_COMMIT = "e35bd35"
 #: probe runs per tree, alternating between the two trees
 ROUNDS = 3

@@ -86,7 +86,7 @@ def _cost(lines: list[str]) -> None:
         warm = python_json(_COLD, env=env)
     lines.append(
         "One run = 40 gliders × 7200 s at dt 0.5 (14,400 steps), the packaged seed law, flown by "
-        "the compiled kernel (`sim_core/soaring/kernels.py`, numba). Baseline, measured in the "
+        "the compiled kernels (`sim_core/soaring/kernels/`, numba). Baseline, measured in the "
         f"same run by the same probe in a subprocess: the numpy step of commit "
         f"{BASELINE_COMMIT} (`git archive {BASELINE_COMMIT} sim_core`), ~150 numpy calls per "
         "step. CPU seconds (`time.process_time`), because the machine is shared; lone run: "

@@ -49,8 +49,9 @@ def test_data_tests_pass_in_a_copy_with_nothing_beside_it(tmp_path: Path) -> Non
     assert not (repo.parent / "shared").exists()
     # same source and file stamps in the copy, so numba's on-disk cache of the soaring kernels
     # is valid there: the copy loads them instead of compiling them again
-    for cached in (ROOT / "sim_core" / "soaring" / "__pycache__").glob("kernels.*.nb[ic]"):
-        dest = repo / "sim_core" / "soaring" / "__pycache__" / cached.name
+    kernels = Path("sim_core", "soaring", "kernels", "__pycache__")
+    for cached in (ROOT / kernels).glob("*.nb[ic]"):
+        dest = repo / kernels / cached.name
         dest.parent.mkdir(exist_ok=True)
         shutil.copy2(cached, dest)
     proc = subprocess.run(
