@@ -39,7 +39,8 @@ FloatArray = NDArray[np.float64]
 
 
 class TrajectoryReader(Protocol):
-    """Reads a logged path: ``reader(path, vehicle_id=, topic=, origin=) -> Trajectory``
+    """Reads a logged path: ``reader(path, vehicle_id=, topic=, origin=, max_speed_mps=,
+    segment=) -> Trajectory``
     (``hil_bridge.recording.logs.load_trajectory``); raises ``ValueError`` naming the file on bad
     input."""
 
@@ -50,6 +51,8 @@ class TrajectoryReader(Protocol):
         vehicle_id: int | None = None,
         topic: str | None = None,
         origin: tuple[float, float, float] | None = None,
+        max_speed_mps: float = 150.0,
+        segment: int | None = None,
     ) -> Trajectory: ...
 
 
@@ -299,7 +302,8 @@ class Scene:
                     "scene with trajectory_reader=hil_bridge.recording.logs.load_trajectory"
                 )
             traj = self.trajectory_reader(str(ps.file), vehicle_id=ps.id, topic=ps.topic,
-                                          origin=ps.origin)
+                                          origin=ps.origin, max_speed_mps=ps.max_speed_mps,
+                                          segment=ps.segment)
             if ps.loop:
                 traj = dataclasses.replace(traj, loop=True)
         elif ps.kind == "points":

@@ -197,10 +197,13 @@ class PathSpec:
     log read by the scene's :data:`TrajectoryReader`
     (``hil_bridge.recording.logs.load_trajectory``: CSV,
     NPZ, ULog, DataFlash, tlog, ROS 2 bags, echoloop recordings) with its options ``id``
-    (vehicle of a multi-vehicle log), ``topic`` (ROS 2 bags; DataFlash: ``POS``, ``GPS[1]``...)
-    and ``origin`` ([lat, lon, alt] of the local ENU frame for geodetic logs; default the first
-    fix); ``points`` is a list of [x, y, z] flown at ``speed_mps``. ``speed_mps`` also times the
-    figure-eight route.
+    (vehicle of a multi-vehicle log), ``topic`` (the position source by name: a ROS 2 bag's
+    topic; ULog ``vehicle_gps_position``...; tlog ``LOCAL_POSITION_NED``...; DataFlash ``POS``,
+    ``GPS[1]``...), ``origin`` ([lat, lon, alt] of the local ENU frame for geodetic logs; default
+    the first fix), ``max_speed_mps`` (a step implying a faster speed is a position jump: the
+    log is split there, never flown through) and ``segment`` (the piece between jumps to fly,
+    0-based; default the longest); ``points`` is a list of [x, y, z] flown at ``speed_mps``.
+    ``speed_mps`` also times the figure-eight route.
     """
 
     kind: Literal["figure_eight", "file", "points"]
@@ -210,12 +213,18 @@ class PathSpec:
     id: int | None = None
     topic: str | None = None
     origin: tuple[float, float, float] | None = None
+    max_speed_mps: float = 150.0
+    segment: int | None = None
     points: tuple[tuple[float, float, float], ...] = ()
     loop: bool = True
 
     def __post_init__(self) -> None:
         if not self.speed_mps > 0:
             raise ValueError(f"speed_mps: expected > 0, got {self.speed_mps}")
+        if not self.max_speed_mps > 0:
+            raise ValueError(f"max_speed_mps: expected > 0, got {self.max_speed_mps}")
+        if self.segment is not None and self.segment < 0:
+            raise ValueError(f"segment: expected >= 0, got {self.segment}")
         if self.kind == "file" and not self.file:
             raise ValueError("file: required when kind is 'file'")
         if self.kind == "points" and len(self.points) < 2:

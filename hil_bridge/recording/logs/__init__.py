@@ -7,19 +7,24 @@ Formats, chosen by the file's content first and its extension second (:func:`det
   (deg, deg, m); optional ``heading, bank, airspeed``, ``qw, qx, qy, qz`` (ENU/FLU), ``id``,
   ``alive`` (:mod:`hil_bridge.recording.logs.table`);
 - ``npz``: the same columns as arrays (a swarm trace: ``t`` (T,), the others (T, N));
-- ``ulog`` (PX4 ``.ulg``, pyulog): ``vehicle_global_position`` or ``vehicle_local_position``,
-  and ``vehicle_attitude``;
+- ``ulog`` (PX4 ``.ulg``, pyulog): ``vehicle_global_position``, ``vehicle_local_position``
+  (placed geodetically about its reference when it has one), ``vehicle_gps_position`` or
+  ``sensor_gps`` (``topic`` chooses, ``NAME[N]`` an instance), and ``vehicle_attitude``;
 - ``dataflash`` (ArduPilot ``.bin``, pymavlink): ``POS``, ``GPS`` (one receiver: the first,
   or ``topic`` ``GPS[1]``, ``GPS2``, ...) or ``AHR2``; ``ATT``/``AHR2``;
-- ``tlog`` (MAVLink ``.tlog``, pymavlink): ``GLOBAL_POSITION_INT`` or ``LOCAL_POSITION_NED``;
-  ``ATTITUDE_QUATERNION`` or ``ATTITUDE``;
+- ``tlog`` (MAVLink ``.tlog``, pymavlink): ``GLOBAL_POSITION_INT`` or ``LOCAL_POSITION_NED``
+  (``topic`` chooses); ``ATTITUDE_QUATERNION`` or ``ATTITUDE``;
 - ``ros2`` (a ROS 2 bag directory, ``.mcap`` or ``.db3``; rosbags): ``nav_msgs/Odometry``,
   ``geometry_msgs/PoseStamped`` or ``PoseWithCovarianceStamped`` (``topic`` chooses);
 - ``echoloop`` (an echoloop recording, ``.mcap`` with profile ``echoloop``):
-  ``/glider/<id>/state`` (``vehicle_id`` chooses).
+  ``/glider/<id>/state`` (``vehicle_id`` or ``topic`` chooses).
+
+Every reader honours ``topic`` (the position source by name) or refuses it (CSV/NPZ: a table
+has one position); a name the file does not have fails with one line listing those it has.
 
 Geodetic logs are converted to local ENU about the first fix or ``origin``; NED/FRD ones to
-ENU/FLU; time jumps and gaps are reported (:mod:`hil_bridge.recording.logs.track`). A file without a
+ENU/FLU; time jumps and gaps are reported, position jumps reported and never flown: the log is
+split there and one segment flown (:mod:`hil_bridge.recording.logs.track`). A file without a
 usable pose raises :class:`NoPoseError` listing what it holds.
 """
 
@@ -30,10 +35,17 @@ from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
-from hil_bridge.recording.logs.track import LogReport, NoPoseError, PoseLog, to_trajectory
+from hil_bridge.recording.logs.track import (
+    MAX_SPEED_MPS,
+    LogReport,
+    NoPoseError,
+    PoseLog,
+    to_trajectory,
+)
 from sim_core.trajectory import Trajectory
 
 __all__ = [
+    "MAX_SPEED_MPS",
     "READERS",
     "LogReport",
     "NoPoseError",
@@ -117,11 +129,13 @@ def _reader(name: str) -> Callable[..., PoseLog]:
 @lru_cache(maxsize=8)
 def _read_cached(
     path: str, stamp: tuple[int, int], vehicle_id: int | None, topic: str | None,
-    origin: tuple[float, float, float] | None, max_gap_s: float,
+    origin: tuple[float, float, float] | None, max_gap_s: float, max_speed_mps: float,
+    segment: int | None,
 ) -> tuple[Trajectory, LogReport]:
     fmt = detect_format(path)
     log = _reader(fmt)(Path(path), vehicle_id=vehicle_id, topic=topic)
-    return to_trajectory(log, path=path, origin=origin, max_gap_s=max_gap_s)
+    return to_trajectory(log, path=path, origin=origin, max_gap_s=max_gap_s,
+                         max_speed_mps=max_speed_mps, segment=segment)
 
 
 def read_log(
@@ -131,14 +145,20 @@ def read_log(
     topic: str | None = None,
     origin: tuple[float, float, float] | None = None,
     max_gap_s: float = 1.0,
+    max_speed_mps: float = MAX_SPEED_MPS,
+    segment: int | None = None,
 ) -> tuple[Trajectory, LogReport]:
     """Trajectory and :class:`LogReport` of a flight log of any format in :data:`READERS`.
 
     ``vehicle_id``: the vehicle of a multi-vehicle log (a swarm trace, a recording, a tlog
-    with several systems); ``topic``: the pose topic of a ROS 2 bag, or the position message
-    of a DataFlash log (``POS``, ``AHR2``, ``GPS[N]``; ``GPS2`` = ``GPS[1]``); ``origin``:
-    (lat deg, lon deg, alt m) of the local ENU frame for geodetic logs (default the first fix);
-    ``max_gap_s``: longer intervals between poses are reported as gaps. Raises ``ValueError``
+    with several systems); ``topic``: the position source by name (a ROS 2 bag's pose topic;
+    a ULog topic, ``NAME[N]`` for instance N; a tlog's ``GLOBAL_POSITION_INT`` or
+    ``LOCAL_POSITION_NED``; a DataFlash ``POS``, ``AHR2``, ``GPS[N]``, ``GPS2`` = ``GPS[1]``; a
+    recording's ``/glider/<id>/state``; refused by CSV/NPZ); ``origin``: (lat deg, lon deg,
+    alt m) of the local ENU frame for geodetic logs (default the first fix); ``max_gap_s``:
+    longer intervals between poses are reported as gaps; ``max_speed_mps``: a step implying a
+    faster speed is a position jump, where the log is split into segments; ``segment``: the
+    one to fly (0-based; default the longest in time). Raises ``ValueError``
     (:class:`NoPoseError` when the file has no usable pose) naming the file. Results are
     cached per file version, so the replay command, the server and an echo worker process
     that read one log parse it once each.
@@ -153,8 +173,10 @@ def read_log(
         if len(origin) != 3:
             raise ValueError(f"origin: expected (lat, lon, alt), got {origin!r}")
         org = (float(origin[0]), float(origin[1]), float(origin[2]))
+    if segment is not None and segment < 0:
+        raise ValueError(f"segment: expected an index >= 0, got {segment}")
     return _read_cached(str(p), (st.st_mtime_ns, st.st_size), vehicle_id, topic,
-                        org, float(max_gap_s))
+                        org, float(max_gap_s), float(max_speed_mps), segment)
 
 
 def load_trajectory(
@@ -163,7 +185,10 @@ def load_trajectory(
     vehicle_id: int | None = None,
     topic: str | None = None,
     origin: tuple[float, float, float] | None = None,
+    max_speed_mps: float = MAX_SPEED_MPS,
+    segment: int | None = None,
 ) -> Trajectory:
     """The trajectory of :func:`read_log` (the scene's ``kind: file`` reader)."""
-    return read_log(path, vehicle_id=vehicle_id, topic=topic, origin=origin)[0]
+    return read_log(path, vehicle_id=vehicle_id, topic=topic, origin=origin,
+                    max_speed_mps=max_speed_mps, segment=segment)[0]
 

@@ -10,7 +10,8 @@ as the ULog reader takes instance 0 of every topic) and the report lists the oth
 names the position message: ``POS``, ``AHR2``, ``GPS``, ``GPS2`` or ``GPS[N]``.
 
 tlog: position from ``GLOBAL_POSITION_INT`` (``lat``, ``lon`` 1e-7 deg, ``alt`` mm AMSL,
-``vx, vy, vz`` cm/s NED), else ``LOCAL_POSITION_NED`` (m, m/s NED); attitude from
+``vx, vy, vz`` cm/s NED), else ``LOCAL_POSITION_NED`` (m, m/s NED), or the one ``topic``
+names; attitude from
 ``ATTITUDE_QUATERNION`` (``q1..q4`` = w, x, y, z NED/FRD), else ``ATTITUDE`` (rad). Times are
 the vehicle's ``time_boot_ms`` (a reboot shows up as a time jump back). A tlog with several
 vehicles (MAVLink system ids) needs ``vehicle_id`` = the system id. Frames pymavlink cannot
@@ -97,7 +98,6 @@ def read_dataflash(path: Path, *, vehicle_id: int | None = None, topic: str | No
     """The poses of an ArduPilot DataFlash log (module docstring)."""
     from pymavlink import DFReader
 
-    wanted = None if topic is None else _df_source(path, topic)
     held = _DataFlash()
     with parser_chatter("pymavlink") as notes:
         try:
@@ -113,6 +113,7 @@ def read_dataflash(path: Path, *, vehicle_id: int | None = None, topic: str | No
                 held.add(m)
         finally:
             reader.filehandle.close()
+    wanted = None if topic is None else _df_source(path, topic, held)
     log = _dataflash_position(path, held, wanted, reader, notes)
     msgs = held.msgs
     if msgs["ATT"]:
@@ -130,12 +131,12 @@ def read_dataflash(path: Path, *, vehicle_id: int | None = None, topic: str | No
     return log
 
 
-def _df_source(path: Path, topic: str) -> str | int:
+def _df_source(path: Path, topic: str, held: _DataFlash) -> str | int:
     """``"POS"``/``"AHR2"``, or the GPS receiver number, that ``topic`` names."""
     m = _DF_SOURCE.fullmatch(topic.strip())
     if m is None or (m[2] is not None and m[1] != "GPS"):
         raise ValueError(f"{path}: topic {topic!r}: expected a DataFlash position message, "
-                         f"{_DF_SOURCES}")
+                         f"{_DF_SOURCES}; the log has {describe(held.holds())}")
     if m[1] == "GPS2":
         return 1
     if m[1] == "GPS":
@@ -192,7 +193,8 @@ def _dataflash_position(
 
 # --------------------------------------------------------------------------- tlog
 
-_TLOG_TYPES = ["GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE_QUATERNION", "ATTITUDE"]
+_TLOG_POSITIONS = ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED")
+_TLOG_TYPES = [*_TLOG_POSITIONS, "ATTITUDE_QUATERNION", "ATTITUDE"]
 
 
 def read_tlog(path: Path, *, vehicle_id: int | None = None, topic: str | None = None) -> PoseLog:
@@ -233,7 +235,15 @@ def read_tlog(path: Path, *, vehicle_id: int | None = None, topic: str | None = 
         raise ValueError(f"{path}: no poses of system id {vehicle_id}; ids with poses: "
                          f"{with_pose}")
     d = by_sys[sysid]
-    if d["GLOBAL_POSITION_INT"]:
+    if topic is not None:
+        name = topic.strip()
+        if name not in _TLOG_POSITIONS or not d[name]:
+            held = {k: len(d[k]) for k in _TLOG_POSITIONS if d[k]}
+            raise ValueError(f"{path}: topic {topic!r}: not a position message of system "
+                             f"{sysid} in this tlog; it has {describe(held)}")
+    else:
+        name = "GLOBAL_POSITION_INT" if d["GLOBAL_POSITION_INT"] else "LOCAL_POSITION_NED"
+    if name == "GLOBAL_POSITION_INT":
         g = _rows(d["GLOBAL_POSITION_INT"], ("time_boot_ms", "lat", "lon", "alt", "vx", "vy",
                                               "vz"))
         log = PoseLog(format="MAVLink tlog", source="GLOBAL_POSITION_INT", t=g[:, 0] * 1e-3,

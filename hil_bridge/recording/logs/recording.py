@@ -1,7 +1,8 @@
 """echoloop's own recordings (``echoloop bag record``, ``launch --record``): one glider's states.
 
 Poses from ``/glider/<id>/state`` (``GliderState``: x, y, z m ENU, heading, bank, airspeed);
-``vehicle_id`` chooses the glider when the recording has several. Time: the states'
+``vehicle_id`` (or ``topic``, the state topic) chooses the glider when the recording has
+several. Time: the states'
 ``stamp_ns`` (sim time). States with ``alive`` false are dropped; a state repeated with a new
 stamp (recordings of servers older than the continuous flight model held states between
 physics steps) is kept, so the replay holds too. When the states carry an attitude quaternion
@@ -41,6 +42,15 @@ def read_recording(
     if not ids:
         raise NoPoseError(f"{path}: echoloop recording without /glider/<id>/state messages; it "
                           f"holds {describe(found)}")
+    if topic is not None:
+        named = _STATE.match(topic.strip())
+        if named is None or int(named.group(1)) not in ids or (
+                vehicle_id is not None and int(named.group(1)) != vehicle_id):
+            states = {t: n for t, n in found.items() if _STATE.match(t)}
+            raise ValueError(f"{path}: topic {topic!r}: not a state topic of this recording"
+                             f"{'' if vehicle_id is None else f' for id {vehicle_id}'}; it has "
+                             f"{describe(states)}")
+        vehicle_id = int(named.group(1))
     if vehicle_id is None:
         if len(ids) > 1:
             raise ValueError(f"{path}: holds vehicles {sorted(ids)}; choose one with an id")

@@ -8,7 +8,8 @@ ENU/FLU), and for multi-vehicle traces (``echoloop swarm``, :class:`sim_core.soa
 ``id`` and ``alive`` (rows with ``alive == 0`` are dropped). A swarm trace NPZ has ``t`` (T,)
 and every other column (T, N), the vehicle id being the column index. In CSV, ``#`` lines are
 comments and ``true``/``false`` read as 1/0; extra columns are ignored. A non-finite value in
-a column that is read, or a CSV whose last line has no line end (cut short), is refused.
+a column that is read, or a CSV whose last line has no line end (cut short), is refused; so is
+a ``topic`` (a table has one position).
 """
 
 from __future__ import annotations
@@ -31,13 +32,22 @@ GEODETIC_COLUMNS = ("lat", "lon", "alt")
 _QUAT = ("qw", "qx", "qy", "qz")
 
 
+def _no_topic(path: Path, topic: str | None, fmt: str) -> None:
+    """A table has one position (its columns): a ``topic`` is refused, not ignored."""
+    if topic is not None:
+        raise ValueError(f"{path}: topic {topic!r}: a {fmt} table has no topics (its position "
+                         "is the columns x, y, z or lat, lon, alt); leave --topic out")
+
+
 def read_csv(path: Path, *, vehicle_id: int | None = None, topic: str | None = None) -> PoseLog:
     """A CSV table (module docstring) as a :class:`PoseLog`."""
+    _no_topic(path, topic, "CSV")
     return _pose_log(path, _read_csv_columns(path), vehicle_id, "CSV")
 
 
 def read_npz(path: Path, *, vehicle_id: int | None = None, topic: str | None = None) -> PoseLog:
     """An NPZ table (module docstring) as a :class:`PoseLog`."""
+    _no_topic(path, topic, "NPZ")
     cols = load_npz(path)  # damaged archives, forged shapes, pickles: one line naming the file
     if ("x" in cols and cols["x"].ndim == 2) or ("lat" in cols and cols["lat"].ndim == 2):
         cols = _wide_columns(path, cols, vehicle_id)

@@ -18,7 +18,11 @@ where the log has them.
    of it (a coordinated left turn has positive bank, ``docs/spec``); without attitude heading
    is the direction of travel and bank the coordinated-turn bank ``atan(V ψ̇ / g)``;
 5. speed: the log's, else the norm of its velocity, else the slope of the ENU track;
-6. position jumps (an implied speed above ``max_speed_mps``) are reported.
+6. position jumps: a step between two samples implying a speed above ``max_speed_mps`` (an
+   origin reset, a GPS glitch: no vehicle flies it) is reported with its time and size, and the
+   track is split there into *segments*, never interpolated through. One segment is flown:
+   ``segment`` (0-based), by default the longest in time (the first of equally long ones);
+   the report lists them all with their time spans.
 """
 
 from __future__ import annotations
@@ -39,10 +43,13 @@ from hil_bridge.errors import HilError
 from sim_core.pose import enu_from_ned, euler_from_quat, quat_normalize, quat_slerp
 from sim_core.trajectory import Trajectory
 
-__all__ = ["LogReport", "NoPoseError", "PoseLog", "describe", "parser_chatter", "to_trajectory"]
+__all__ = ["MAX_SPEED_MPS", "LogReport", "NoPoseError", "PoseLog", "describe", "parser_chatter",
+           "to_trajectory"]
 
 FloatArray = NDArray[np.float64]
 G = 9.81
+#: default position-jump threshold (m/s): faster than any vehicle the project replays flies
+MAX_SPEED_MPS = 150.0
 #: at most this many gaps / jumps are listed one by one in a report (all are counted)
 _LISTED = 5
 
@@ -93,7 +100,12 @@ class LogReport:
     nonfinite: int = 0
     backward: list[tuple[float, float]] = field(default_factory=list)
     gaps: list[tuple[float, float]] = field(default_factory=list)
-    jumps: list[tuple[float, float]] = field(default_factory=list)
+    #: (time s of the sample after the step, step m, implied speed m/s)
+    jumps: list[tuple[float, float, float]] = field(default_factory=list)
+    #: (first time s, last time s, samples) of each jump-free piece; ``segment`` is flown
+    segments: list[tuple[float, float, int]] = field(default_factory=list)
+    segment: int = 0
+    max_speed_mps: float = MAX_SPEED_MPS
     vehicle_id: int | None = None
     notes: list[str] = field(default_factory=list)
     heading_from_track: bool = False
@@ -119,8 +131,14 @@ class LogReport:
             listed = ", ".join(f"{a:.3f}-{b:.3f} s" for a, b in self.gaps[:_LISTED])
             out.append(f"  time gaps: {len(self.gaps)}, interpolated linearly across ({listed})")
         if self.jumps:
-            listed = ", ".join(f"{a:.3f} s ({v:.0f} m/s)" for a, v in self.jumps[:_LISTED])
-            out.append(f"  position jumps: {len(self.jumps)} ({listed})")
+            listed = ", ".join(f"{a:.3f} s: {m:.1f} m ({v:.0f} m/s)"
+                               for a, m, v in self.jumps[:_LISTED])
+            out.append(f"  position jumps (faster than {self.max_speed_mps:g} m/s): "
+                       f"{len(self.jumps)}, never flown ({listed})")
+            spans = ", ".join(f"{k}: {a:.3f}-{b:.3f} s ({n} poses)"
+                              for k, (a, b, n) in enumerate(self.segments))
+            out.append(f"  segments: {spans}; segment {self.segment} flown (--segment "
+                       "chooses)")
         out.extend(f"  {n}" for n in self.notes)
         return out
 
@@ -132,6 +150,8 @@ class LogReport:
             "origin": None if self.origin is None else list(self.origin),
             "nonfinite": self.nonfinite, "time_jumps_back": [list(b) for b in self.backward],
             "gaps": [list(g) for g in self.gaps], "position_jumps": [list(j) for j in self.jumps],
+            "segments": [list(g) for g in self.segments], "segment": self.segment,
+            "max_speed_mps": self.max_speed_mps,
             "vehicle_id": self.vehicle_id, "notes": list(self.notes),
             "heading_from_track": self.heading_from_track,
         }
@@ -161,9 +181,12 @@ def to_trajectory(
     path: str,
     origin: tuple[float, float, float] | None = None,
     max_gap_s: float = 1.0,
-    max_speed_mps: float = 150.0,
+    max_speed_mps: float = MAX_SPEED_MPS,
+    segment: int | None = None,
 ) -> tuple[Trajectory, LogReport]:
     """The :class:`Trajectory` of ``log`` and its :class:`LogReport` (module docstring)."""
+    if not max_speed_mps > 0:
+        raise ValueError(f"max_speed_mps: expected a speed > 0 m/s, got {max_speed_mps}")
     if origin is not None and log.frame != "geodetic":
         raise ValueError(f"{path}: --origin needs geodetic positions; {log.source} holds local "
                          f"{log.frame.upper()} metres")
@@ -173,8 +196,8 @@ def to_trajectory(
     finite = np.isfinite(t) & np.all(np.isfinite(pos), axis=1)
     for arr in optional.values():
         if arr is not None:
-            a = np.asarray(arr, dtype=np.float64)
-            finite &= np.all(np.isfinite(a.reshape(len(t), -1)), axis=1)
+            ok = np.isfinite(np.asarray(arr, dtype=np.float64))
+            finite &= ok.all(axis=tuple(range(1, ok.ndim)))
     nonfinite = int(np.count_nonzero(~finite))
     t, pos = t[finite], pos[finite]
     opt = {k: None if v is None else np.asarray(v, dtype=np.float64)[finite]
@@ -201,11 +224,19 @@ def to_trajectory(
             velocity = enu_from_ned(velocity)
     else:
         xyz = pos
+    step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    step_speed = step / np.diff(t)
+    at = np.flatnonzero(step_speed > max_speed_mps)
+    jumps = [(float(t[i + 1]), float(step[i]), float(step_speed[i])) for i in at]
+    bounds = list(zip([0, *(at + 1).tolist()], [*(at + 1).tolist(), t.size], strict=True))
+    segments = [(float(t[lo]), float(t[hi - 1]), hi - lo) for lo, hi in bounds]
+    chosen = _segment(path, log.source, segments, segment)
+    lo, hi = bounds[chosen]
+    t, xyz = t[lo:hi], xyz[lo:hi]
+    velocity = None if velocity is None else velocity[lo:hi]
+    opt = {k: None if v is None else v[lo:hi] for k, v in opt.items()}
     dt = np.diff(t)
     gaps = [(float(t[i]), float(t[i + 1])) for i in np.flatnonzero(dt > max_gap_s)]
-    step_speed = np.linalg.norm(np.diff(xyz, axis=0), axis=1) / dt
-    jumps = [(float(t[i + 1]), float(step_speed[i]))
-             for i in np.flatnonzero(step_speed > max_speed_mps)]
     if opt["speed"] is not None:
         speed = opt["speed"]
     elif velocity is not None:
@@ -228,10 +259,30 @@ def to_trajectory(
         path=path, format=log.format, source=log.source, att_source=log.att_source if
         quat is not None else "", samples=int(t.size), duration_s=float(t[-1] - t[0]),
         rate_hz=float(1.0 / np.median(dt)), origin=used_origin, nonfinite=nonfinite,
-        backward=backward, gaps=gaps, jumps=jumps, vehicle_id=log.vehicle_id, notes=notes,
+        backward=backward, gaps=gaps, jumps=jumps, segments=segments, segment=chosen,
+        max_speed_mps=float(max_speed_mps), vehicle_id=log.vehicle_id, notes=notes,
         heading_from_track=quat is None and opt["heading"] is None,
     )
     return traj, report
+
+
+def _segment(path: str, source: str, segments: list[tuple[float, float, int]],
+             wanted: int | None) -> int:
+    """The segment to fly: ``wanted``, else the longest in time; it needs 2 poses."""
+    spans = ", ".join(f"{k}: {a:.3f}-{b:.3f} s ({n} poses)" for k, (a, b, n) in
+                      enumerate(segments))
+    if wanted is None:
+        chosen = max(range(len(segments)), key=lambda k: (segments[k][1] - segments[k][0],
+                                                          -k))
+    elif 0 <= wanted < len(segments):
+        chosen = wanted
+    else:
+        raise ValueError(f"{path}: segment {wanted}: {source} has {len(segments)} segment(s) "
+                         f"between its position jumps ({spans})")
+    if segments[chosen][2] < 2:
+        raise NoPoseError(f"{path}: {source}: segment {chosen} has a single pose; a "
+                          f"trajectory needs at least 2 (segments: {spans})")
+    return chosen
 
 
 def _attitude_at(log: PoseLog, t: FloatArray, notes: list[str]) -> FloatArray | None:
