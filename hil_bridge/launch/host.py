@@ -29,7 +29,8 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
    (``scheduling``);
 3. then it answers requests until told to stop: ``("stats", name)`` -> ``("stats", dict)``,
    ``("failure", name)`` and ``("final_failure", name)`` (the end of the run) -> ``("failure",
-   str | None)``, ``("stop", name)`` -> ``("stopped", (stats, failure))``; it exits once every
+   str | None)``, ``("finished", name)`` -> ``("finished", bool | None)``, ``("stop", name)``
+   -> ``("stopped", (stats, failure))``; it exits once every
    node stopped, or stops them all and exits if the channel closes (the runner is gone).
 
 A host outlives no runner: the kernel sends it SIGTERM when the runner dies, however it dies
@@ -65,7 +66,7 @@ from typing import Any
 from hil_bridge.bus.domain import resolve, use
 from hil_bridge.bus.intra import compose
 from hil_bridge.bus.transport import sync_open
-from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of
+from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of, finished_of
 from hil_bridge.launch.spec import resolve_entry
 from hil_bridge.lifetime import die_with_parent, freeze_heap
 from hil_bridge.priority import realtime, realtime_io, realtime_threads
@@ -242,6 +243,8 @@ def _answer(conn: Connection, running: dict[str, Any], kind: str, name: str,
                 reply = ("stats", _with(obj.stats(), scheduling))
             elif kind in ("failure", "final_failure"):
                 reply = ("failure", failure_of(obj, final=kind == "final_failure"))
+            elif kind == "finished":
+                reply = ("finished", finished_of(obj))
             elif kind == "stop":
                 del running[name]
                 obj.stop()

@@ -249,6 +249,15 @@ class ContainerProcess:
             return self.died() or str(exc)
         return answer
 
+    def finished_of(self, name: str) -> bool | None:
+        if name in self._stopped or self.died() is not None:
+            return None
+        try:
+            answer: bool | None = self._ask("finished", name, timeout=5.0)
+        except (TimeoutError, NodeStartError):  # unanswered or gone: failure() says why
+            return None
+        return answer
+
     def stop_node(self, name: str) -> None:
         if name in self._stopped:
             return
@@ -299,3 +308,6 @@ class RemoteNode:
 
     def failure(self, *, final: bool = False) -> str | None:
         return self.container.failure_of(self.name, final=final)
+
+    def finished(self) -> bool | None:
+        return self.container.finished_of(self.name)

@@ -7,6 +7,10 @@ Each entry implements the *launchable* contract:
 
 - ``Cls(name, *, bus, **params)``; ``start()`` (non-blocking); ``stop()`` (idempotent, joins
   its threads); ``stats() -> dict``;
+- optionally ``finished() -> bool | None``: its work is done (a server that reached its
+  ``stop_after_s`` and answered every ping; None: it has no end of its own). A run started
+  with ``until_finished`` ends (``stopped_by`` ``"finished"``) once every launchable that has
+  an end says it is finished;
 - optionally ``failure(*, final: bool = False) -> str | None``: why it failed, naming the place
   (``"tick loop: RuntimeError: ..."``), or None. The runner asks it while the run goes (every
   :data:`FAILURE_POLL_S`) and ends the run at the first answer; at the end of the run, before
@@ -106,6 +110,7 @@ __all__ = [
     "check_entry_module",
     "collect_links",
     "failure_of",
+    "finished_of",
     "judge",
     "load",
     "parse_param_overrides",
@@ -156,6 +161,15 @@ def failure_of(obj: Any, *, final: bool = False) -> str | None:
     return report()
 
 
+def finished_of(obj: Any) -> bool | None:
+    """A launchable's optional ``finished()``: None when it has none (or no end of its own)."""
+    report = getattr(obj, "finished", None)
+    if not callable(report):
+        return None
+    answer = report()
+    return None if answer is None else bool(answer)
+
+
 class _Watch:
     """The run's launchables by name and what failed among them (``failed``: ``(source,
     reason)`` for :func:`judge`, at most one ``failure()`` account per launchable)."""
@@ -181,6 +195,20 @@ class _Watch:
             self._accounted.add(name)
             self.fail(name, reason)
         return reason or None
+
+    def all_finished(self) -> bool:
+        """Whether every launchable with an end of its own says it is finished (and one
+        has)."""
+        answers = []
+        for name, obj in self.items:
+            try:
+                answers.append(finished_of(obj))
+            except Exception as exc:  # a broken finished() is that launchable's failure
+                log.exception("%s: finished() raised", name)
+                self.fail(name, f"finished() raised {_describe(exc)}")
+                return False
+        ends = [a for a in answers if a is not None]
+        return bool(ends) and all(ends)
 
     def poll(self) -> tuple[str, str] | None:
         """The first launchable that says it failed, as ``(name, reason)``, or None."""
@@ -269,8 +297,9 @@ def _start(made: Sequence[tuple[str, Any]], watch: _Watch, sync: str | None) -> 
 
 
 def _wait(flag: _StopFlag, watch: _Watch, run_for: float | None,
-          stop_event: threading.Event | None) -> None:
-    """Until ``run_for`` seconds passed, a signal, ``stop_event``, or a launchable failed."""
+          stop_event: threading.Event | None, until_finished: bool = False) -> None:
+    """Until ``run_for`` seconds passed, a signal, ``stop_event``, a launchable failed, or
+    (``until_finished``) every launchable with an end finished."""
     deadline = None if run_for is None else time.monotonic() + run_for
     while not flag.event.is_set():
         if stop_event is not None and stop_event.is_set():
@@ -280,6 +309,9 @@ def _wait(flag: _StopFlag, watch: _Watch, run_for: float | None,
         if failed is not None:
             log.error("%s failed (%s): ending the run", *failed)
             flag.set("failure")
+            break
+        if until_finished and watch.all_finished():
+            flag.set("finished")
             break
         remaining = None if deadline is None else deadline - time.monotonic()
         if remaining is not None and remaining <= 0:
@@ -370,6 +402,7 @@ def run(
     realtime: bool = True,
     speed: float | Literal["file"] | None = "file",
     compose: bool = True,
+    until_finished: bool = False,
 ) -> RunSummary:
     """Start every node of a launch file in order, watch them, stop them in reverse order.
 
@@ -386,7 +419,9 @@ def run(
     The run ends ``duration`` seconds after every node started (argument, else the file's;
     ``None`` = until a signal), on SIGINT/SIGTERM (handlers installed only when called from the
     main thread and ``handle_signals``), when ``stop_event`` is set, or as soon as a launchable
-    says it failed (``stopped_by`` ``"failure"``; the module docstring). ``record`` writes every
+    says it failed (``stopped_by`` ``"failure"``; the module docstring); with
+    ``until_finished``, also once every launchable with an end is finished (``stopped_by``
+    ``"finished"``: ``echoloop replay`` ends when its trajectory does). ``record`` writes every
     topic to MCAP with :class:`hil_bridge.recording.recorder.Recorder`. ``live`` starts the
     Foxglove view (:mod:`hil_bridge.tools.live`). ``bus`` replaces the file's bus URL.
     ``domain`` (default ``ECHOLOOP_DOMAIN``, else 0) gives every default the file leaves out:
@@ -487,7 +522,7 @@ def run(
         else:
             if on_started is not None:
                 on_started(spec)
-            _wait(flag, watch, run_for, stop_event)
+            _wait(flag, watch, run_for, stop_event, until_finished)
     finally:
         # a recoverable fault still pending now was never recovered: asked before anything
         # stops, so a node stopping first cannot make another's link drop look like a failure
