@@ -12,8 +12,10 @@ File formats (:mod:`hil_bridge.recording.logs`, ``docs/server.md``): CSV/NPZ col
 geodetic, PX4 ULog, ArduPilot DataFlash, MAVLink tlog, ROS 2 bags and echoloop recordings.
 Multi-vehicle logs (swarm traces, recordings, tlogs of several systems) need ``vehicle_id``.
 
-The vehicle's time axis starts at the file's first ``t``: sim time 0 is mapped to it. The run
-pace is the server clock's real-time factor ``rate``; echoes, the forest tiles along the path
+The vehicle's time axis starts at the file's first ``t`` (of the segment flown, when position
+jumps split the log): sim time 0 is mapped to it. The run pace is the server clock's real-time
+factor ``rate``, or as fast as the CPU allows with ``clock_mode="fast"``
+(:func:`build_replay_launch`); echoes, the forest tiles along the path
 (built ahead of the vehicle) and ``/forest/points`` are computed in a worker process, so they
 never hold the interpreter whose tick loop keeps that pace (the server reports the pace it
 kept, ``rate_achieved``).
@@ -60,6 +62,14 @@ class Pinger:
     at ``rate_hz`` from its own phase, drawn uniformly over a period (``seed``); ``max_pings``
     then counts per sonar. ``failure()`` says why it failed (its ping thread or an echo
     callback raised), or None.
+
+    ``lockstep: true`` (with ``clock: sim``; a fast replay's pinger): a sonar head of a
+    lockstep server (its ``sonar_heads``). Pings are due on the sim grid ``k / rate_hz`` from
+    sim time 0, each stamped with its due time and the next one's (``next_ns``), so the server
+    holds at each due tick until the ping is there; before the next ping it waits for the
+    echoes of the last (at most ``echo_wait_s`` wall seconds, then counted in
+    ``echo_waits_timed_out``), so a replay runs as fast as the echoes are computed and every
+    ping is answered. ``finished()`` is then whether no echo is outstanding.
     """
 
     def __init__(
@@ -77,9 +87,15 @@ class Pinger:
         max_pings: int | None = None,
         sonar_ids: list[int] | tuple[int, ...] | None = None,
         clock: str = "wall",
+        lockstep: bool = False,
+        echo_wait_s: float = 5.0,
     ) -> None:
         if clock not in ("wall", "sim"):
             raise ValueError(f"clock: expected 'wall' or 'sim', got {clock!r}")
+        if lockstep and clock != "sim":
+            raise ValueError("lockstep: a lockstep sonar head pings on sim time (clock: sim)")
+        if not echo_wait_s > 0:
+            raise ValueError(f"echo_wait_s: expected > 0 s, got {echo_wait_s}")
         if not rate_hz > 0:
             raise ValueError(f"rate_hz: expected > 0, got {rate_hz}")
         if not 0 < beamwidth < np.pi:
@@ -99,19 +115,24 @@ class Pinger:
         self.sonar_id = ids[0]
         self.period_s = 1.0 / float(rate_hz)
         self.sim_clock = clock == "sim"
+        self.lockstep = bool(lockstep)
+        self.echo_wait_s = float(echo_wait_s)
         self.az, self.el, self.beamwidth = float(az), float(el), float(beamwidth)
         self.beamwidth_range = None if beamwidth_range is None else (lo, hi)
         self.max_pings = max_pings
         self._rng = make_rng(seed)
         self._seed = seed
         self._lock = threading.Lock()
+        self._echoed = threading.Condition(self._lock)
+        self._outstanding: set[tuple[int, int]] = set()
+        self._ticked = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._node: Any = None
         self._pubs: dict[int, Any] = {}
         self._sent: dict[tuple[int, int], int] = {}
         self._c = {"pings_sent": 0, "echoes_received": 0, "echoes_unmatched": 0,
-                   "echo_samples": 0}
+                   "echo_samples": 0, "echo_waits_timed_out": 0}
         self._latency_ms: deque[float] = deque(maxlen=10000)
         self._last_echo: Any = None
         #: what went wrong: its ping thread, its node's callbacks
@@ -126,6 +147,12 @@ class Pinger:
         self._node = Node(self.name, bus=self.bus, clock=SimClock("lockstep"),
                           faults=self.faults)
         self._node.follow_bus_clock()
+        if self.lockstep:  # its first ping waits for the server's first tick
+            from hil_bridge.bus.messages import Clock
+            from hil_bridge.bus.qos import LATCHED
+
+            self._node.create_subscription(Clock, "/clock", lambda _m: self._ticked.set(),
+                                           qos=LATCHED)
         self._pubs = {
             i: self._node.create_publisher(SonarPing, f"/sonar/{i}/ping", qos=SENSOR)
             for i in self.sonar_ids
@@ -159,6 +186,13 @@ class Pinger:
         """Why the pinger failed (:mod:`hil_bridge.bus.faults`), or None."""
         return self.faults.failure(final=final)
 
+    def finished(self) -> bool | None:
+        """A lockstep head: whether every ping sent has its echo; else None (no end)."""
+        if not self.lockstep:
+            return None
+        with self._lock:
+            return not self._outstanding
+
     @property
     def last_echo(self) -> Any:
         """The most recent :class:`~hil_bridge.bus.messages.SonarEcho` received (or None)."""
@@ -171,17 +205,22 @@ class Pinger:
         n = len(self.sonar_ids)
         phases = [0.0] if n == 1 else (
             derive_rng(self._seed, "phase").uniform(0.0, self.period_s, n).tolist())
-        start = self._node.now_ns() / 1e9 if self.sim_clock else time.monotonic()
+        start = 0.0 if self.lockstep else (
+            self._node.now_ns() / 1e9 if self.sim_clock else time.monotonic())
         due = [start + ph for ph in phases]
         seqs = [0] * n
+        sent = [0] * n
+        while self.lockstep and not self._ticked.wait(0.1):
+            if self._stop.is_set():
+                return
         while not self._stop.is_set():
             k = min(range(n), key=due.__getitem__)
-            if self.max_pings is not None and seqs[k] >= self.max_pings:
+            if self.max_pings is not None and sent[k] >= self.max_pings:
                 due[k] = math.inf
                 if all(math.isinf(d) for d in due):
                     break
                 continue
-            if self._wait_until(due[k]):
+            if (self.lockstep and self._wait_for_echoes()) or self._wait_until(due[k]):
                 break
             sonar, seq = self.sonar_ids[k], seqs[k]
             bw = self.beamwidth
@@ -192,12 +231,31 @@ class Pinger:
                 if len(self._sent) > 4096:
                     self._sent.pop(next(iter(self._sent)))
                 self._c["pings_sent"] += 1
+                if self.lockstep:
+                    self._outstanding.add((sonar, seq))
+            stamp, next_ns = self._node.now_ns(), -1
+            if self.lockstep:
+                stamp, next_ns = round(due[k] * 1e9), round((due[k] + self.period_s) * 1e9)
             self._pubs[sonar].publish(SonarPing(
-                stamp_ns=self._node.now_ns(), ping_seq=seq, az=self.az, el=self.el,
-                beamwidth=bw, encoding=2, sonar_id=sonar,
+                stamp_ns=stamp, ping_seq=seq, az=self.az, el=self.el,
+                beamwidth=bw, encoding=2, sonar_id=sonar, next_ns=next_ns,
             ))
             seqs[k] = (seq + 1) % 65536
-            due[k] += self.period_s
+            sent[k] += 1
+            due[k] = start + phases[k] + sent[k] * self.period_s  # on the grid, no drift
+
+    def _wait_for_echoes(self) -> bool:
+        """Until every ping sent has its echo, or ``echo_wait_s``; True if stopped."""
+        deadline = time.monotonic() + self.echo_wait_s
+        with self._echoed:
+            while self._outstanding and not self._stop.is_set():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    self._c["echo_waits_timed_out"] += 1
+                    self._outstanding.clear()
+                    break
+                self._echoed.wait(min(left, 0.1))
+        return self._stop.is_set()
 
     def _wait_until(self, due_s: float) -> bool:
         """Wait until ``due_s`` (wall, or sim seconds with ``clock: sim``); True if stopped."""
@@ -217,6 +275,9 @@ class Pinger:
                 self._c["echoes_unmatched"] += 1
             else:
                 self._latency_ms.append((now - t_ping) / 1e6)
+            if self._outstanding:
+                self._outstanding.discard((int(msg.sonar_id), int(msg.ping_seq)))
+                self._echoed.notify_all()
             self._c["echoes_received"] += 1
             self._c["echo_samples"] += int(msg.samples.shape[-1])
             self._last_echo = msg
@@ -236,6 +297,9 @@ def build_replay_launch(
     clock_mode: str = "realtime",
     topic: str | None = None,
     origin: tuple[float, float, float] | None = None,
+    max_speed_mps: float = 150.0,
+    segment: int | None = None,
+    until_s: float | None = None,
 ) -> tuple[dict[str, Any], float]:
     """Launch mapping (for :func:`hil_bridge.launch.runner.run`) replaying ``trajectory``, and its
     length.
@@ -245,13 +309,25 @@ def build_replay_launch(
     ``vehicle_id`` (default 0, or the file's id) and sonar 0 is mounted on it with ``sonar``
     settings (``fidelity``, ``echo`` overrides). ``sonar_rate_hz`` None: no built-in pinger;
     ``pinger``: extra :class:`Pinger` params (default beamwidths U(30°, 65°) as seed 000).
-    The server stops ticking at the trajectory's end (the vehicle rests at its last pose).
-    ``topic`` and ``origin`` go to the log reader (:func:`hil_bridge.recording.logs.read_log`).
-    Returns ``(launch mapping, trajectory duration in wall seconds at rate)``.
+    The server stops ticking at the trajectory's end (the vehicle rests at its last pose) and is
+    then ``finished`` once every ping has its echo: run the launch with ``until_finished`` to
+    end there. ``topic``, ``origin``, ``max_speed_mps`` and ``segment`` go to the log reader
+    (:func:`hil_bridge.recording.logs.read_log`). ``until_s``: replay only the first
+    ``until_s`` sim seconds of the trajectory (default all of it).
+
+    ``clock_mode`` ``fast``: every node runs on the sim clock, as fast as the CPU allows. The
+    server's clock is ``fast`` without a pinger; with one it is ``lockstep`` with the pinger
+    as its sonar head (``sonar_heads``, the pinger's ``lockstep``): pings are due every
+    ``1 / sonar_rate_hz`` sim seconds from sim time 0, the server holds at each due tick until
+    the ping came, and the pinger waits for each echo before its next ping, so every ping is
+    answered at its pose however fast the replay goes. ``realtime``: the server paces sim time
+    at ``rate`` and the pinger pings on the wall clock.
+    Returns ``(launch mapping, the replayed duration in wall seconds at rate)``.
     """
     from hil_bridge.recording.logs import load_trajectory
 
-    traj = load_trajectory(trajectory, vehicle_id=vehicle_id, topic=topic, origin=origin)
+    traj = load_trajectory(trajectory, vehicle_id=vehicle_id, topic=topic, origin=origin,
+                           max_speed_mps=max_speed_mps, segment=segment)
     source: Mapping[str, Any]
     if scene is None:
         source = DEFAULT_REPLAY_SCENE
@@ -277,19 +353,31 @@ def build_replay_launch(
         path["topic"] = topic
     if origin is not None:
         path["origin"] = [float(v) for v in origin]
+    path["max_speed_mps"] = float(max_speed_mps)
+    if segment is not None:
+        path["segment"] = int(segment)
     base["vehicles"] = [{"id": vid, "path": path, "time_offset_s": -float(traj.t[0])}]
     if "forest" in base:
         base["sonars"] = [{"id": 0, "mount": vid, **dict(sonar or {})}]
     base["state_rate_hz"] = state_rate_hz
-    base["clock"] = {"mode": clock_mode, "rate": rate}
+    pinged = sonar_rate_hz is not None and "forest" in base
+    heads = clock_mode == "fast" and pinged
+    base["clock"] = {"mode": "lockstep" if heads else clock_mode, "rate": rate}
     # echoes, the tiles along the path and /forest/points are computed in a worker process,
     # never holding the interpreter the tick loop paces the replay with
+    if until_s is not None and not until_s > 0:
+        raise ValueError(f"until_s: expected sim seconds > 0, got {until_s}")
+    length = traj.duration if until_s is None else min(traj.duration, float(until_s))
+    server: dict[str, Any] = {"scene": base, "stop_after_s": length, "echo_worker": "process"}
+    if heads:
+        server["sonar_heads"] = [0]
     nodes: list[dict[str, Any]] = [
-        {"name": "server", "entry": "hil_bridge.server:SimServer",
-         "params": {"scene": base, "stop_after_s": traj.duration, "echo_worker": "process"}},
+        {"name": "server", "entry": "hil_bridge.server:SimServer", "params": server},
     ]
-    if sonar_rate_hz is not None and "forest" in base:
+    if pinged and sonar_rate_hz is not None:
         ping_params: dict[str, Any] = {"beamwidth_range": [math.radians(30), math.radians(65)]}
+        if heads:
+            ping_params.update({"clock": "sim", "lockstep": True})
         ping_params.update(dict(pinger or {}))
         if "beamwidth" in ping_params:
             ping_params.pop("beamwidth_range")
@@ -300,4 +388,4 @@ def build_replay_launch(
     launch: dict[str, Any] = {"nodes": nodes}
     if bus is not None:
         launch["bus"] = bus
-    return launch, traj.duration / rate
+    return launch, length / rate

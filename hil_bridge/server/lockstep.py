@@ -197,9 +197,15 @@ class LockstepGate:
 
     # ------------------------------------------------------------------ the wait
 
-    def _missing(self, t_ns: int, physics_due: bool, skip: set[_Key]) -> list[_Key]:
+    def pending(self) -> int:
+        """Pings answered but whose echo is not yet published (or given up)."""
+        with self._cond:
+            return sum(self._echoes_pending.values())
+
+    def _missing(self, t_ns: int, physics_due: bool, skip: set[_Key],
+                 sonars_only: bool = False) -> list[_Key]:
         out: list[_Key] = []
-        for gid in sorted(self.autopilots):
+        for gid in [] if sonars_only else sorted(self.autopilots):
             key = ("glider", gid)
             owed = self._owed.get(gid)
             if key in self._freewheel or key in skip or owed is None or not owed.alive:
@@ -224,17 +230,19 @@ class LockstepGate:
         return since + (self.timeout_s if key in self._heard else self.start_timeout_s)
 
     def wait(self, t_ns: int, *, physics_due: bool, resend: Callable[[], None] | None = None,
-             ) -> None:
+             sonars_only: bool = False) -> None:
         """Before the tick after ``t_ns`` (the last published one): wait for what it owes.
 
         ``physics_due``: the next tick steps the swarm, so swarm gliders must have answered.
+        ``sonars_only``: wait for the sonar heads' pings only (after the last tick of a run
+        with an end: a ping due at it is still answered, no autopilot is owed a next step).
         """
         started = time.monotonic()
         next_resend = started + self.resend_s
         stalled: set[_Key] = set()
         with self._cond:
             while not self._interrupted:
-                missing = self._missing(t_ns, physics_due, stalled)
+                missing = self._missing(t_ns, physics_due, stalled, sonars_only)
                 if not missing:
                     break
                 now = time.monotonic()

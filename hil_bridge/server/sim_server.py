@@ -226,6 +226,7 @@ class SimServer:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._done = threading.Event()
+        self._reached_end = threading.Event()
         self._threads: list[threading.Thread] = []
         self._started = False
         self._stopped = False
@@ -390,6 +391,12 @@ class SimServer:
         or one of its workers died), or None (:mod:`hil_bridge.bus.faults`)."""
         return self.faults.failure(final=final)
 
+    def finished(self) -> bool | None:
+        """``stop_after_s`` reached and every ping echoed (None: no ``stop_after_s``)."""
+        if self.params.stop_after_s is None:
+            return None
+        return self._reached_end.is_set() and self._gate.pending() == 0
+
     def wait_done(self, timeout: float | None = None) -> bool:
         """Block until the tick loop ended (``stop_after_s`` reached or stopped)."""
         return self._done.wait(timeout)
@@ -553,6 +560,10 @@ class SimServer:
         while not self._stop.is_set():
             t_ns = tick * self.tick_ns
             if stop_ns is not None and t_ns > stop_ns:
+                if mode == "lockstep" and last is not None:  # a head's ping due at the end
+                    self._gate.wait(last[0].t_ns, physics_due=False, sonars_only=True,
+                                    resend=functools.partial(self._publish_tick, *last))
+                self._reached_end.set()
                 break
             if tick > 0:
                 if mode == "lockstep" and last is not None:
