@@ -56,7 +56,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="the segment between position jumps to fly (0-based; default the "
                         "longest in time)")
     p.add_argument("--sonar", type=float, default=10.0, metavar="HZ",
-                   help="built-in pinger rate in Hz (0: none, pings come from other nodes)")
+                   help="built-in pinger rate in Hz, of the wall clock (with --fast: of sim "
+                        "time) (0: none, pings come from other nodes)")
     p.add_argument("--beamwidth", type=float, default=None, metavar="RAD",
                    help="fixed beamwidth of the built-in pings (default: U(30°, 65°) per ping)")
     p.add_argument("--fidelity", default="fast", help="echo fidelity (sim_core.sonar.FIDELITIES)")
