@@ -47,6 +47,10 @@ DEFAULT_REPLAY_SCENE: dict[str, Any] = {
 }
 
 
+#: ``next_ns`` of a lockstep head's last ping (``max_pings``): no later ping is due
+NEVER_NS = 2**62
+
+
 class Pinger:
     """Launchable node that pings ``/sonar/<sonar_id>/ping`` at ``rate_hz``, of the wall clock
     or, with ``clock: sim``, of the bus's sim time (``/clock``: the same pings a sim second at
@@ -234,8 +238,10 @@ class Pinger:
                 if self.lockstep:
                     self._outstanding.add((sonar, seq))
             stamp, next_ns = self._node.now_ns(), -1
-            if self.lockstep:
-                stamp, next_ns = round(due[k] * 1e9), round((due[k] + self.period_s) * 1e9)
+            if self.lockstep:  # the last of max_pings holds the server at no later tick
+                last = self.max_pings is not None and sent[k] + 1 >= self.max_pings
+                stamp = round(due[k] * 1e9)
+                next_ns = NEVER_NS if last else round((due[k] + self.period_s) * 1e9)
             self._pubs[sonar].publish(SonarPing(
                 stamp_ns=stamp, ping_seq=seq, az=self.az, el=self.el,
                 beamwidth=bw, encoding=2, sonar_id=sonar, next_ns=next_ns,

@@ -98,10 +98,26 @@ def test_replay_through_the_forest_echoes_from_a_worker_process_and_serves_every
     log = ROOT / "launch" / "data" / "sonar_flight.csv"
     launch, length = build_replay_launch(log, rate=2.0, bus="mem://replay_rate")
     assert launch["nodes"][0]["params"]["echo_worker"] == "process"
-    summary = run(launch, duration=length + 4.0, handle_signals=False)
+    summary = run(launch, duration=length + 4.0, handle_signals=False, until_finished=True)
+    assert summary.stopped_by == "finished"
     server = summary.nodes["server"]
     assert server["sim_time_s"] == pytest.approx(10.84)  # every tick of the log was served
     assert server["echo_workers"] == 1 and server["tick_wall_s"] > 0
     assert server["echoes_published"] >= 20 and server["echo_errors"] == 0
     assert server["last_echo_error"] == "" and server["tick_error"] == ""
     assert summary.nodes["pinger"]["echoes_received"] >= 20
+
+
+def test_a_fast_replays_pinger_with_max_pings_holds_the_server_no_longer(tmp_path: Path) -> None:
+    """The last of ``max_pings`` lockstep pings says no later one is due: the server flies on
+    to the trajectory's end without waiting (no stall) and the run ends there."""
+    log = tmp_path / "line.csv"
+    log.write_text("t,x,y,z\n" + "".join(f"{t / 10},{t},0,5\n" for t in range(21)),
+                   encoding="utf-8")
+    launch, length = build_replay_launch(log, bus="mem://replay_max_pings", clock_mode="fast",
+                                         state_rate_hz=20.0, pinger={"max_pings": 3})
+    summary = run(launch, duration=60.0, handle_signals=False, until_finished=True)
+    assert summary.stopped_by == "finished" and summary.failures == []
+    server, pinger = summary.nodes["server"], summary.nodes["pinger"]
+    assert pinger["pings_sent"] == pinger["echoes_received"] == 3
+    assert server["stalls"] == 0 and server["sim_time_s"] == pytest.approx(length)
