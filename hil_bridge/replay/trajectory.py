@@ -322,7 +322,9 @@ def build_replay_launch(
     ``until_s`` sim seconds of the trajectory (default all of it).
 
     ``clock_mode`` ``fast``: every node runs on the sim clock, as fast as the CPU allows. The
-    server's clock is ``fast`` without a pinger; with one it is ``lockstep`` with the pinger
+    server's clock is ``fast`` without a pinger (its echoes, should another node ping, then
+    computed in a thread of its own: ``echo_worker: thread``, no worker process to start);
+    with one it is ``lockstep`` with the pinger
     as its sonar head (``sonar_heads``, the pinger's ``lockstep``): pings are due every
     ``1 / sonar_rate_hz`` sim seconds from sim time 0, the server holds at each due tick until
     the ping came, and the pinger waits for each echo before its next ping, so every ping is
@@ -369,12 +371,14 @@ def build_replay_launch(
     pinged = sonar_rate_hz is not None and "forest" in base
     heads = clock_mode == "fast" and pinged
     base["clock"] = {"mode": "lockstep" if heads else clock_mode, "rate": rate}
-    # echoes, the tiles along the path and /forest/points are computed in a worker process,
-    # never holding the interpreter the tick loop paces the replay with
     if until_s is not None and not until_s > 0:
         raise ValueError(f"until_s: expected sim seconds > 0, got {until_s}")
     length = traj.duration if until_s is None else min(traj.duration, float(until_s))
-    server: dict[str, Any] = {"scene": base, "stop_after_s": length, "echo_worker": "process"}
+    # echoes, the tiles along the path and /forest/points are computed in a worker process,
+    # never holding the interpreter the tick loop paces the replay with; a fast replay without
+    # its pinger has no pace to keep and nothing to echo: no worker to start (and wait for)
+    worker = "thread" if clock_mode == "fast" and not heads else "process"
+    server: dict[str, Any] = {"scene": base, "stop_after_s": length, "echo_worker": worker}
     if heads:
         server["sonar_heads"] = [0]
     nodes: list[dict[str, Any]] = [
