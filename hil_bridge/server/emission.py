@@ -68,7 +68,8 @@ class EmissionPoses:
     ``horizon_ns``: how far (sim ns) after the newest tick a stamp may be and still be this
     server's time (waited for, or extrapolated); ``wait_s``: how long (wall s after its
     arrival) a ping stamped after the newest tick waits for its tick before it is
-    extrapolated (0: never held). ``on_pose(payload, pose, received)`` gets every ping's pose.
+    extrapolated (0: never held). ``on_pose(payload, pose, received)`` gets every ping's pose;
+    ``on_error(payload, why)`` (optional) each held ping whose pose could not be answered.
     ``refresh()`` (optional) brings the history up to date, every ``refresh_s`` wall seconds
     while pings are held (module docstring); it is never called under this object's lock, since
     it records ticks into the history, which calls ``on_tick``.
@@ -79,7 +80,8 @@ class EmissionPoses:
 
     def __init__(self, history: PoseHistory, *, horizon_ns: int, wait_s: float,
                  on_pose: Callable[[Any, VehiclePose, float], None],
-                 refresh: Callable[[], None] | None = None, refresh_s: float = 0.001) -> None:
+                 refresh: Callable[[], None] | None = None, refresh_s: float = 0.001,
+                 on_error: Callable[[Any, str], None] | None = None) -> None:
         if horizon_ns < 0 or not wait_s >= 0 or not refresh_s > 0:
             raise ValueError(f"horizon_ns, wait_s, refresh_s: expected >= 0, >= 0, > 0, got "
                              f"{horizon_ns}, {wait_s}, {refresh_s}")
@@ -89,6 +91,7 @@ class EmissionPoses:
         self.horizon_ns = int(horizon_ns)
         self.wait_s = float(wait_s)
         self._on_pose = on_pose
+        self._on_error = on_error
         self._cond = threading.Condition()
         self._held: list[_Held] = []
         self._newest = history.recorded_ns
@@ -207,7 +210,9 @@ class EmissionPoses:
             for h in due:
                 try:
                     self._answer(h, held=True)
-                except Exception:  # one ping's failure must not strand the others
+                except Exception as exc:  # one ping's failure must not strand the others
                     log.exception("no pose at emission %d ns for vehicle %d", h.t_ns, h.vid)
                     with self._cond:
                         self._c["ping_pose_errors"] += 1
+                    if self._on_error is not None:  # the ping is over: nothing waits for it
+                        self._on_error(h.payload, f"no pose at emission: {exc!r}")

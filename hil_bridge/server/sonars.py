@@ -130,7 +130,8 @@ class ServerSonars:
             wait_s = clock.lockstep_timeout_s
         self.emission = EmissionPoses(history, horizon_ns=round(params.pose_history_s * 1e9),
                                       wait_s=wait_s, on_pose=self._answer,
-                                      refresh=pose_refresh, refresh_s=pose_refresh_s)
+                                      refresh=pose_refresh, refresh_s=pose_refresh_s,
+                                      on_error=self._pose_failed)
         self._ping_echo_ms: deque[float] = deque(maxlen=10000)
         self._last_error = ""
         self._pubs: dict[str, Any] = {}
@@ -319,6 +320,14 @@ class ServerSonars:
         with self._lock:
             self._c["echoes_published"] += 1
             self._ping_echo_ms.append((t2 - req.received) * 1e3)
+
+    def _pose_failed(self, payload: Any, error: str) -> None:
+        """A held ping whose pose could not be found: no echo comes, so nothing (a lockstep
+        gate, a run that ends once every ping is answered) waits for one."""
+        sonar_id, msg, _ = payload
+        self._gate.echo_done(sonar_id)
+        with self._lock:
+            self._last_error = f"ping {msg.ping_seq} of sonar {sonar_id}: {error}"
 
     def _echo_failed(self, req: EchoRequest, error: str) -> None:
         self._gate.echo_done(req.sonar_id)

@@ -157,6 +157,34 @@ def test_a_held_ping_whose_tick_does_not_come_is_extrapolated_and_every_ping_is_
     assert st["pings_waiting_tick"] == 0
 
 
+def test_a_held_ping_whose_pose_fails_is_counted_and_handed_back_the_others_answered() -> None:
+    """One held ping's failure strands neither the others nor itself: ``on_error`` hears of it
+    (the server then stops waiting for its echo), the next pings get their poses."""
+    _, fleet = _fleet(20)
+    newest = fleet.history.recorded_ns
+    sink, failed = _Sink(), queue.Queue[tuple[Any, str]]()
+
+    def on_pose(payload: Any, pose: VehiclePose, received: float) -> None:
+        if payload == "bad":
+            raise RuntimeError("no such sonar")
+        sink(payload, pose, received)
+
+    poses = EmissionPoses(fleet.history, horizon_ns=2 * TICK_NS, wait_s=600.0, on_pose=on_pose,
+                          on_error=lambda payload, why: failed.put((payload, why)))
+    poses.start(Faults("server"))
+    try:
+        for payload in ("bad", "good"):
+            poses.request(2, newest + TICK_NS // 2, payload, time.monotonic())
+        fleet.advance({})
+        fleet.states()
+        assert failed.get(timeout=30) == ("bad", "no pose at emission: RuntimeError('no such "
+                                                 "sonar')")
+        assert sink.got.get(timeout=30)[0] == "good"
+    finally:
+        poses.close()
+    assert poses.stats()["ping_pose_errors"] == 1
+
+
 def test_without_waiting_a_ping_after_the_newest_tick_is_extrapolated_at_once() -> None:
     scene, fleet = _fleet(20)
     sink = _Sink()
