@@ -1,5 +1,30 @@
-"""The simulation server's sonar side: pings in, echoes out (:mod:`hil_bridge.server.sim_server`,
-"Echoes").
+"""The simulation server's sonar side: pings in, echoes out (:mod:`hil_bridge.server.sim_server`).
+
+**Echoes** (this module, :mod:`hil_bridge.server.emission`,
+:mod:`hil_bridge.server.echo_service`). A ping is answered at its sonar's world pose at the
+ping's *emission*: the ping's ``stamp_ns`` when the sender gives one (> 0), else its arrival
+(the latest tick), the vehicle's pose interpolated between ticks from a ``pose_history_s``
+history, composed with the sonar's mount. A stamp after the latest tick waits (off the tick
+loop, at most ``pose_wait_ticks`` tick periods) for the tick that covers it
+(``ping_stamp_waited``), or is extrapolated from the latest tick when that tick is late
+(``ping_stamp_extrapolated``); stamps more than ``pose_history_s`` after the latest tick, or
+before the history, use the newest or oldest pose (``ping_stamp_future``, ``ping_stamp_old``).
+Echoes are computed off the tick loop by :class:`hil_bridge.server.echo_service.EchoService`: on a
+thread, or ``echo_worker: pool``, ``echo_workers`` processes (default one per core) sharing the
+forest's tiles in shared memory at a lower CPU priority than the tick loop (``process``: a pool of
+one), or, with ``echo_worker: nodes`` (``auto``'s choice for several sonars on several cores), by
+echo nodes: processes that take the pings from the bus and publish the echoes themselves, at poses
+the server shares in memory (:mod:`hil_bridge.server.echo_nodes`); the server's process then never
+sees a ping. The launching script must be import-safe for any of the processes. In ``realtime`` mode
+a ping's echo is due before its sonar's next ping (``echo_deadlines``): one that cannot be ready by
+then is degraded to the ``realtime`` fidelity within the time left (``echoes_degraded``) or dropped
+(``pings_dropped_deadline``) instead of queuing; ``echo_budget_ms`` makes an echo due that long
+after its ping arrived when that comes first (a consumer's latency bound). Without deadlines pings
+wait in a bounded queue per sonar (``echo_queue``; when full its oldest is dropped,
+``pings_dropped``). The tiles each sonar will reach along its vehicle's motion (the next
+:data:`~hil_bridge.server.sonars.LOOKAHEAD_HORIZON_S` s of wall time) are built ahead of its pings;
+the first tick waits until the workers are up and the tiles of that first horizon are built (at most
+:data:`~hil_bridge.server.sonars.ECHO_READY_TIMEOUT_S`).
 
 :class:`ServerSonars` subscribes to its sonars' ``/sonar/<id>/ping``, answers each at its
 sonar's world pose and velocity at the ping's emission (the carrying vehicle's, from a pose
