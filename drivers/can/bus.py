@@ -26,7 +26,10 @@ them a link never receives the frames it sent (the loopback bus drops them in th
 4. With ``log_path`` every frame sent and received (error frames too) is written by python-can's
    ``can.Logger`` (``.log`` = candump ``-L`` format, readable by ``can.LogReader``), through a
    temporary file renamed at :meth:`CanLink.close`; an existing log is refused unless
-   ``overwrite``.
+   ``overwrite``. A link whose bus is refused for good (its constructor raises: an interface
+   not usable here, a channel of the wrong kind) stops its logger and removes that file
+   before it raises: a ``.db`` log's writer thread (python-can's, not a daemon) would keep
+   the interpreter from ever exiting.
 5. ``close()`` is idempotent and flushes the log.
 6. :meth:`CanLink.report` says whether the bus was ever open and its state when closed (the run
    summary's ``links``, :func:`hil_bridge.launch.runner.collect_links`).
@@ -202,7 +205,11 @@ class CanLink:
             except BaseException:
                 out.discard()
                 raise
-        self._try_open(first=True)
+        try:
+            self._try_open(first=True)
+        except BaseException:  # a bus refused for good: the log it would have fed goes too
+            self._drop_log()
+            raise
 
     # -- state --------------------------------------------------------------------------------
     @property
@@ -463,6 +470,16 @@ class CanLink:
                 self._logger = None
             if self._log_output is not None:
                 self._log_output.commit()
+
+    def _drop_log(self) -> None:
+        """Stop the logger (its writer thread, for a ``.db`` log) and remove its temporary
+        file: nothing of a link that never was outlives its constructor."""
+        with self._log_lock:
+            if self._logger is not None:
+                self._logger.stop()
+                self._logger = None
+            if self._log_output is not None:
+                self._log_output.discard()
 
     def __enter__(self) -> CanLink:
         return self

@@ -90,9 +90,9 @@ def main(argv: list[str]) -> int:
             rate_hz=args.rate, waypoints=waypoints, path_airspeed_mps=args.path_airspeed,
             lookahead_m=args.lookahead, can_log=args.can_log, overwrite=args.overwrite,
         )
-    mock.start()
     done = threading.Event()
     try:
+        mock.start()
         print(f"mock autopilot on {args.interface}:{mock.bus_config.channel}, nodes "
               f"{list(mock.nodes)}, "
               f"controller {args.controller}, {mock.rate_hz:g} Hz", flush=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -243,3 +244,27 @@ def test_mock_cli_path_waypoints(tmp_path: Any, capsys: pytest.CaptureFixture[st
     with pytest.raises(ValueError, match="two numeric columns"):
         cli_main(["--channel", unique("cli-"), "--controller", "path", "--waypoints", str(bad),
                   "--duration", "0.1"])
+
+
+@pytest.mark.parametrize("log", ["mock.db", "mock.log"])
+def test_a_mock_whose_bus_is_refused_leaves_no_thread_and_no_log(
+    tmp_path: Any, monkeypatch: pytest.MonkeyPatch, log: str,
+) -> None:
+    """A bus refused for good (an interface not usable here) fails the mock's start and the
+    CLI with one line, and nothing of the link outlives it: python-can's writer thread of a
+    ``.db`` log is no daemon, and left running it kept ``echoloop mock autopilot`` from ever
+    exiting after its error."""
+    def refused(self: object) -> can.BusABC:
+        raise can.CanInterfaceNotImplementedError("no such driver here")
+
+    monkeypatch.setattr("drivers.can.bus.CanLink._make_bus", refused)
+    before = set(threading.enumerate())
+    mock = MockAutopilot("mock", channel=unique("refused-"), can_log=tmp_path / log)
+    with pytest.raises(ValueError, match="is not usable here: no such driver here"):
+        mock.start()
+    mock.stop()
+    with pytest.raises(ValueError, match="is not usable here"):
+        cli_main(["--channel", unique("cli-"), "--can-log", str(tmp_path / f"cli-{log}"),
+                  "--duration", "0.1", "--every", "0"])
+    assert [t.name for t in threading.enumerate() if t not in before] == []
+    assert list(tmp_path.iterdir()) == []  # no log, not even its temporary file
