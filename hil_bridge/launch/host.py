@@ -35,18 +35,20 @@ and sockets), with the runner's end of a socket pair as its control channel (fil
 
 A host outlives no runner: the kernel sends it SIGTERM when the runner dies, however it dies
 (``PR_SET_PDEATHSIG``; a runner killed with -9 included). SIGTERM, like a closed channel, makes
-the host stop its nodes (so they remove their pty links and shared-memory tile stores) and exit;
-one that has not exited :data:`STOP_GRACE_S` seconds later is ended by SIGALRM. The SIGTERM
-handler arms that alarm first and then sets a :class:`StopFlag`, which takes no lock: SIGTERMs
-in quick succession (the parent's death and the runner's own) once deadlocked a handler on its
-own ``threading.Event``. Neither rests on the main thread alone: a watchdog thread notices a
-new parent (the runner gone) within :data:`WATCHDOG_S` and arms the same stop and alarm, should
-the main thread never get to run the SIGTERM handler; a reply the runner can no longer receive
-ends the host's service loop, and the nodes are stopped and the host ends (``os._exit``)
-whatever raised. Ctrl-C reaches every process of the terminal's group: the host ignores SIGINT,
-and the runner decides the order in which nodes stop. Log records go to standard error as
-``LEVEL logger: message``; the runner prefixes each line with the node's name (or the
-container's).
+the host stop its nodes (so they remove their pty links and shared-memory tile stores) and
+exit; one that has not exited :data:`STOP_GRACE_S` seconds later is ended by SIGALRM. A node
+still starting when told gives up what it waits for (its echo workers, say) and is stopped at
+once (:func:`hil_bridge.lifetime.wait_unless_stopping`). The SIGTERM handler arms that alarm
+first and then sets a :class:`~hil_bridge.lifetime.StopFlag` (and the process's, the same
+kind), which takes no lock: SIGTERMs in quick succession (the parent's death and the runner's
+own) once deadlocked a handler on its own ``threading.Event``. Neither rests on the main thread
+alone: a watchdog thread notices a new parent (the runner gone) within :data:`WATCHDOG_S` and
+arms the same stop and alarm, should the main thread never get to run the SIGTERM handler; a
+reply the runner can no longer receive ends the host's service loop, and the nodes are stopped
+and the host ends (``os._exit``) whatever raised. Ctrl-C reaches every process of the
+terminal's group: the host ignores SIGINT, and the runner decides the order in which nodes
+stop. Log records go to standard error as ``LEVEL logger: message``; the runner prefixes each
+line with the node's name (or the container's).
 """
 
 from __future__ import annotations
@@ -68,10 +70,10 @@ from hil_bridge.bus.intra import compose
 from hil_bridge.bus.transport import sync_open
 from hil_bridge.launch.runner import SYNC_TIMEOUT_S, failure_of, finished_of
 from hil_bridge.launch.spec import resolve_entry
-from hil_bridge.lifetime import die_with_parent, freeze_heap
+from hil_bridge.lifetime import StopFlag, die_with_parent, freeze_heap, request_stop
 from hil_bridge.priority import realtime, realtime_io, realtime_threads
 
-__all__ = ["main"]
+__all__ = ["StopFlag", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -81,29 +83,12 @@ STOP_GRACE_S = 20
 WATCHDOG_S = 0.5
 
 
-class StopFlag:
-    """Set once, read by the service loop: a plain attribute, no lock, so the SIGTERM handler
-    can set it even when the signal interrupts code that holds a lock, itself included
-    (``threading.Event.set`` takes a lock: a second SIGTERM arriving inside the handler's
-    ``set`` deadlocked the main thread, and with it the watchdog waiting for that lock)."""
-
-    __slots__ = ("value",)
-
-    def __init__(self) -> None:
-        self.value = False
-
-    def set(self) -> None:
-        self.value = True
-
-    def is_set(self) -> bool:
-        return self.value
-
-
 def _stop_soon(stop_all: StopFlag) -> None:
     """Arm SIGALRM (its default action ends the process, whatever the main thread does), then
     ask the service loop to stop the nodes. Safe in a signal handler and in any thread."""
     signal.alarm(STOP_GRACE_S)
     stop_all.set()
+    request_stop()  # a node's start waiting for something slow gives up (hil_bridge.lifetime)
 
 
 def _watchdog(parent_pid: int, stop_all: StopFlag) -> None:

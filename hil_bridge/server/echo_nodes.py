@@ -257,6 +257,11 @@ class EchoNodes:
                 self._ready.wait(left)
             return all(p.ready for p in self._procs)
 
+    def settled(self) -> bool:
+        """Every node is ready or gone: :meth:`wait_ready` has nothing more to wait for."""
+        with self._ready:
+            return all(p.ready or p.gone for p in self._procs)
+
     def stats(self) -> dict[str, Any]:
         """The nodes' newest counters: numbers summed, :data:`RAW` lists joined,
         ``echo_workers`` the number of nodes, ``last_echo_error`` the last non-empty."""

@@ -54,6 +54,7 @@ from typing import Any, Literal, cast
 import numpy as np
 
 from hil_bridge.bus.messages import PointCloud, SonarEcho, SonarPing
+from hil_bridge.lifetime import stopping, wait_unless_stopping
 from hil_bridge.server.echo_compute import EchoRequest, EchoResult, Region, SonarPose
 from hil_bridge.server.echo_pool import WORKER_NICE, usable_cores
 from hil_bridge.server.echo_service import EchoService
@@ -240,18 +241,32 @@ class ServerSonars:
         """Start the echo service and wait (at most :data:`ECHO_READY_TIMEOUT_S`) until its
         workers (or echo nodes) are up and the first tiles built: the server ticks after
         this."""
-        if self.nodes is not None:
-            if not self.nodes.wait_ready(ECHO_READY_TIMEOUT_S):
-                log.warning("%s: echo nodes not ready after %.0f s; ticking anyway", self.name,
-                            ECHO_READY_TIMEOUT_S)
+        nodes = self.nodes
+        if nodes is not None:
+            self._ready("echo nodes", lambda s: nodes.wait_ready(s) or nodes.settled(),
+                        lambda: nodes.wait_ready(0.0))
             return
-        if self.service is None:
+        service = self.service
+        if service is None:
             return
-        self.emission.start(self.service.faults)
-        self.service.start()
-        if not self.service.wait_ready(ECHO_READY_TIMEOUT_S):
-            log.warning("%s: echo workers not ready after %.0f s; ticking anyway", self.name,
-                        ECHO_READY_TIMEOUT_S)
+        self.emission.start(service.faults)
+        service.start()
+        self._ready("echo workers", service.wait_ready, lambda: service.wait_ready(0.0))
+
+    def _ready(self, what: str, settled: Callable[[float], bool],
+               ready: Callable[[], bool]) -> None:
+        """Wait (``settled(seconds)``: True once there is nothing more to wait for) until
+        ``what`` is ``ready()``; go on, saying so, after ECHO_READY_TIMEOUT_S or once the
+        process was asked to stop (:func:`hil_bridge.lifetime.wait_unless_stopping`: its host
+        stops this server next, which removes its tile store or pose ring)."""
+        wait_unless_stopping(settled, ECHO_READY_TIMEOUT_S)
+        if ready():
+            return
+        if stopping():
+            log.info("%s: asked to stop before the %s were ready", self.name, what)
+        else:
+            log.warning("%s: %s not ready (waited up to %.0f s); ticking anyway", self.name,
+                        what, ECHO_READY_TIMEOUT_S)
 
     def ticks_ended(self) -> None:
         """The server stopped ticking: no ping waits for a tick any more."""

@@ -32,7 +32,9 @@ Contract of :class:`Transport` (every backend honours it; ``tests/hil_bridge/bus
    kernel buffers behind it go too); messages published from then on arrive. May be called
    from any thread.
 9. ``sync(timeout)`` returns ``True`` once every subscription the bus knew when it was called
-   reaches this endpoint's publications (``False`` after ``timeout`` s): a node that syncs
+   reaches this endpoint's publications (``False`` after ``timeout`` s, or as soon as the
+   process was asked to stop, :func:`hil_bridge.lifetime.stopping`: a node host whose launcher
+   died does not wait out the timeout for a proxy that went with it): a node that syncs
    before it publishes loses nothing to subscribers that were there first, whatever their
    topics. :func:`sync_open` syncs every endpoint this process has open (the launch does, between
    constructing nodes and starting them).

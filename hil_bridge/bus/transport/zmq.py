@@ -56,6 +56,7 @@ from urllib.parse import parse_qs, urlsplit
 import zmq
 
 from hil_bridge.bus.transport.base import Frames, Transport
+from hil_bridge.lifetime import stopping
 
 #: how long messages queued on a closed publish socket are still delivered (milliseconds)
 PUB_LINGER_MS = 1000
@@ -239,7 +240,7 @@ class ZmqTransport(Transport):
             self._lane_op(zmq.SUBSCRIBE, mark, lane)
         try:
             deadline = time.monotonic() + timeout
-            while not self._closed:
+            while not (self._closed or stopping()):
                 with self._remote_cond:
                     if want <= self._own_seen:
                         return True

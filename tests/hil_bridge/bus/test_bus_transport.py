@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from hil_bridge import lifetime
 from hil_bridge.bus.codec import decode, encode, encode_header
 from hil_bridge.bus.messages import Clock, SonarEcho
 from hil_bridge.bus.proxy import Proxy, proxy_for
@@ -323,3 +324,14 @@ def test_publish_from_many_threads_loses_and_reorders_nothing(bus_url: str) -> N
             h = decode(frames).header
             per_src.setdefault(h.src, []).append(h.seq)
         assert per_src == {f"t{k}": list(range(per_thread)) for k in range(n_threads)}
+
+
+def test_sync_gives_up_once_the_process_is_asked_to_stop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Contract 9: a node host whose launcher died (the launch's proxy with it) is asked to stop
+    (hil_bridge.lifetime.request_stop); its endpoints' syncs then end at once, not after their
+    timeout (the host's is 30 s, beyond its 20 s of grace)."""
+    with open_bus("zmq") as url, open_transport(url) as pub:
+        assert pub.sync(timeout=10.0)
+        monkeypatch.setattr(lifetime, "_STOPPING", lifetime.StopFlag())
+        lifetime.request_stop()
+        assert not pub.sync(timeout=10.0)  # the proxy is there: only the stop says no

@@ -1,6 +1,7 @@
 """The node host's own guards (hil_bridge.launch.host): a runner that is gone never leaves a host
 serving, whether the host learns it from a reply it cannot send, from its watchdog or from
-SIGTERMs that come in quick succession."""
+SIGTERMs that come in quick succession; either way the process is asked to stop, so a node
+still starting gives up what it waits for (hil_bridge.lifetime)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,21 @@ import multiprocessing
 import os
 import signal
 import time
+from collections.abc import Iterator
 from typing import Any
 
+import pytest
+
+from hil_bridge import lifetime
 from hil_bridge.launch import host
+
+
+@pytest.fixture(autouse=True)
+def _own_stop_flag(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """The process's stop flag of these tests' own: the suite's process is never asked to stop
+    (its bus syncs and echo waits would give up)."""
+    monkeypatch.setattr(lifetime, "_STOPPING", lifetime.StopFlag())
+    yield
 
 
 class _Node:
@@ -37,8 +50,9 @@ def test_the_watchdog_stops_the_nodes_and_arms_the_alarm_once_the_parent_changed
     stop_all = host.StopFlag()
     previous = signal.signal(signal.SIGALRM, signal.SIG_IGN)
     try:
+        assert not lifetime.stopping()
         host._watchdog(os.getppid() + 1_000_000, stop_all)  # not our parent: it is "gone"
-        assert stop_all.is_set()
+        assert stop_all.is_set() and lifetime.stopping()
         assert signal.alarm(0) > 0  # armed (and disarmed here)
     finally:
         signal.signal(signal.SIGALRM, previous)
@@ -63,7 +77,7 @@ def test_a_sigterm_inside_the_sigterm_handler_does_not_hang_the_host() -> None:
         deadline = time.monotonic() + 5.0
         while len(calls) < 2 and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert len(calls) == 2 and flag.is_set()
+        assert len(calls) == 2 and flag.is_set() and lifetime.stopping()
         assert signal.alarm(0) > 0
     finally:
         signal.signal(signal.SIGTERM, previous)
