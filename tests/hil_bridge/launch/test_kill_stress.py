@@ -4,9 +4,10 @@ shown to see each kind of leftover. ``python -m bench killstress`` runs thirty."
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pty
-import signal
+import secrets
 import socket
 import subprocess
 import sys
@@ -20,8 +21,8 @@ from hil_bridge.bus.domain import (
     DOMAIN_STRIDE,
     Domain,
     claim_first_free,
-    shared_root,
 )
+from hil_bridge.server.shared_tiles import SharedTiles
 from tests.hil_bridge.launch import killstress
 from tests.hil_bridge.launch.killstress import MARKER, stress
 
@@ -36,41 +37,39 @@ def domain() -> Iterator[Domain]:
 
 def test_the_checks_see_a_process_a_pty_shared_memory_and_a_port_left(domain: Domain) -> None:
     assert domain.number is not None
-    token = "planted"
+    token = secrets.token_hex(6)
     shm_before = killstress.shared_entries(domain)
-    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
-                               env={**os.environ, MARKER: token})
-    master, slave = pty.openpty()
-    link = domain.path("sonar0")
-    link.symlink_to(os.ttyname(slave))
-    store = shared_root() / domain.token / "tiles-1-planted"
-    store.mkdir(parents=True)
-    port = socket.socket()
-    port.bind(("127.0.0.1", BUS_PORT_BASE + DOMAIN_STRIDE * domain.number))
-    port.listen()
-    try:
+    bus_port = BUS_PORT_BASE + DOMAIN_STRIDE * domain.number
+    with contextlib.ExitStack() as undo:
+        sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
+                                   env={**os.environ, MARKER: token})
+        undo.callback(sleeper.wait)
+        undo.callback(sleeper.kill)
+        master, slave = pty.openpty()
+        undo.callback(os.close, master)
+        undo.callback(os.close, slave)
+        link = domain.path("sonar0")
+        link.symlink_to(os.ttyname(slave))
+        undo.callback(link.unlink, missing_ok=True)
+        store = domain.shared_dir("tiles")  # as a server makes its tile store
+        undo.callback(SharedTiles(store, []).remove_all)
+        port = undo.enter_context(socket.socket())
+        port.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as ZeroMQ binds
+        port.bind(("127.0.0.1", bus_port))
+        port.listen()
         deadline = time.monotonic() + 10.0
         while not killstress.marked(token) and time.monotonic() < deadline:
             time.sleep(0.02)  # the child's environment is readable once it exec'd
         left = killstress.leftovers(token, domain, {os.ttyname(slave)}, shm_before)
         assert left == {"processes": [str(sleeper.pid)],
                         "ptys": [f"link sonar0 -> {os.ttyname(slave)}"],
-                        "shared memory": ["tiles-1-planted"],
-                        "ports": [f"tcp:{BUS_PORT_BASE + DOMAIN_STRIDE * domain.number}"]}
-        sleeper.send_signal(signal.SIGKILL)
+                        "shared memory": [store.name], "ports": [f"tcp:{bus_port}"]}
+        sleeper.kill()
         sleeper.wait()
         link.unlink()
         # no process of the run left: the pty the run's link pointed at must be free too
         held = killstress.leftovers(token, domain, {os.ttyname(slave)}, shm_before)["ptys"]
         assert held == [os.ttyname(slave)]  # this test holds it
-    finally:
-        sleeper.kill()
-        sleeper.wait()
-        port.close()
-        os.close(master)
-        os.close(slave)
-        link.unlink(missing_ok=True)
-        store.rmdir()
     assert not any(killstress.leftovers(token, domain, set(), shm_before).values())
 
 
