@@ -30,8 +30,9 @@ def pytest_report_header() -> str:
 
 
 #: tests that hold no float result numpy's SIMD path could change (lifecycle, framing, the bus,
-#: bad files' one-line errors, the recorder's failures and recovery, the repository's own checks): marked ``no_simd_float``, so the AVX-512-off pass of ``.ci/run``
-#: leaves them out, as it leaves out the ``processes`` tests
+#: bad files' one-line errors, the recorder's failures and recovery, the repository's own
+#: checks): marked ``no_simd_float``, so the AVX-512-off pass of ``.ci/run`` leaves them out, as
+#: it leaves out the ``processes`` tests
 NO_SIMD_FLOAT = ("hil_bridge/launch/", "hil_bridge/bus/", "hil_bridge/tools/", "drivers/serial/",
                  "hil_bridge/cli/test_cli_bad_inputs.py", "hil_bridge/cli/test_cli_dispatch.py",
                  "hil_bridge/recording/test_bag_recorder.py",
