@@ -362,7 +362,6 @@ def processes_for(bus: str, domain: Domain) -> bool:
     return not bus.startswith("mem://") and domain.number is not None
 
 
-
 def _warn_no_realtime(spec: LaunchSpec) -> None:
     """One line for the run when the OS refuses ``SCHED_FIFO`` (each node host then notes it
     in its own log only, and its stats' ``scheduling`` says why)."""
@@ -376,6 +375,7 @@ def _rtprio_limit() -> int:
     import resource
 
     return int(resource.getrlimit(resource.RLIMIT_RTPRIO)[0])
+
 
 def run(
     path: str | Path | Mapping[str, Any] | LaunchSpec,
