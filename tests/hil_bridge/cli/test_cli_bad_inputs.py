@@ -236,9 +236,14 @@ KINDS: dict[str, Kind] = {
     "ulog": Kind(".ulg", _flight_log(".ulg")),
     "dataflash": Kind(".bin", _flight_log(".bin")),
     "tlog": Kind(".tlog", _flight_log(".tlog")),
-    # written by the real tools: an ArduPilot QuadPlane's telemetry log (README there)
+    # written by the real tools (README there): an ArduPilot QuadPlane's telemetry log, PX4's
+    # CubeOrange ULog (its local position never valid: read from its GPS), a Plane DataFlash log
     "tlog-ardupilot": Kind(".tlog", lambda d: (
         DATA / "flightlogs" / "ardupilot_quadplane_sitl.tlog").read_bytes()),
+    "ulog-px4": Kind(".ulg", lambda d: (
+        DATA / "flightlogs" / "px4_cubeorange_vtol.ulg").read_bytes()),
+    "dataflash-ardupilot": Kind(".bin", lambda d: (
+        DATA / "flightlogs" / "ardupilot_plane_pixracer_short.bin").read_bytes()),
     "dataflash-two-gps": Kind(".bin", _dataflash_two_gps),
     "ros2-mapping-yaml": Kind(".yaml", lambda d: _yaml(_ros2_mapping()), None,
                               lambda d: _yaml([{**_ros2_mapping()[0],
@@ -319,7 +324,8 @@ READERS: tuple[Reader, ...] = (
     *(Reader(f"replay-{kind}", kind, lambda f, d: [
         "replay", str(f), "--fast", "--bus", "mem://corpus_log", "--duration", "0.3",
         "--sonar", "0"], frozenset({"truncated", "flipped-bit"}), reports_on_stdout=True)
-      for kind in ("ulog", "dataflash", "tlog", "tlog-ardupilot")),
+      for kind in ("ulog", "dataflash", "tlog", "tlog-ardupilot", "ulog-px4",
+                   "dataflash-ardupilot")),
     # the second GPS receiver of a log with two, chosen by --topic
     Reader("replay-dataflash-gps1", "dataflash-two-gps", lambda f, d: [
         "replay", str(f), "--topic", "GPS[1]", "--fast", "--bus", "mem://corpus_log",
